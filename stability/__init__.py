@@ -1,0 +1,12 @@
+"""Floquet stability analysis of linear T-periodic systems."""
+from stability.floquet import DEFAULT_METHOD, METHODS, FloquetResult, floquet
+from stability.periodic import SecondOrderPeriodicSystem, first_order_matrix
+
+__all__ = [
+    "floquet",
+    "FloquetResult",
+    "METHODS",
+    "DEFAULT_METHOD",
+    "SecondOrderPeriodicSystem",
+    "first_order_matrix",
+]

@@ -1,0 +1,489 @@
+"""Floquet multipliers of a T-periodic linear system ``x' = P(t) x``.
+
+Public entry point: :func:`floquet`.  Methods live in the registry
+:data:`METHODS`:
+
+``"magnus6"`` (default)
+    6th-order Magnus exponential propagator on ``N`` equal sub-intervals,
+    vectorised, with step doubling until the Richardson error estimate of the
+    multiplier moduli is below ``rtol``.  Exact for constant ``P`` and
+    unconditionally stable for stiff, strongly damped systems (each
+    sub-interval propagator is a matrix exponential).
+``"magnus4"``
+    The same with the 4th-order, two-point scheme.
+``"paper"``
+    The paper's procedure (Eqs. 7-8): ``n`` integrations from the unit
+    vectors with ``scipy.integrate.solve_ivp`` (Radau with the exact
+    Jacobian).  Slow; kept as the independent reference.
+
+Small multipliers: the multipliers are the eigenvalues of the formed
+monodromy matrix, so their absolute accuracy is about
+``eps * prod ||E_k||`` (:attr:`FloquetResult.noise_floor`).  In strongly
+damped systems the true small multipliers (``1e-1400`` is typical for the
+controlled manipulator) lie far below that floor; the result flags them in
+:attr:`FloquetResult.reliable` instead of presenting noise as digits.
+Liouville's formula is checked on ``log det Phi`` accumulated from the
+factors (exact in log form even when ``det Phi`` underflows) and, when every
+multiplier is above the noise floor, on the multipliers themselves.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from stability.magnus import MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
+from stability.periodic import PeriodicMatrixFunction
+from stability.reference import ReferenceOptions, paper_monodromy
+
+__all__ = [
+    "FloquetResult",
+    "floquet",
+    "METHODS",
+    "DEFAULT_METHOD",
+    "VERDICT_STABLE",
+    "VERDICT_UNSTABLE",
+    "VERDICT_CRITICAL",
+]
+
+logger = logging.getLogger(__name__)
+
+VERDICT_STABLE = "asymptotically stable"
+VERDICT_UNSTABLE = "unstable"
+VERDICT_CRITICAL = "critical"
+
+DEFAULT_METHOD = "magnus6"
+#: First number of sub-intervals tried by the adaptive factor methods.
+INITIAL_STEPS = 32
+#: Upper limit on sub-intervals before the adaptive methods give up refining.
+MAX_STEPS = 2**15
+#: Moduli below this fraction of the spectral radius are not used for the
+#: error estimate (their absolute error is what matters for stability).
+ESTIMATE_FLOOR = 1e-6
+#: Points of the periodic trapezoidal rule for the Liouville trace integral
+#: (spectrally accurate for smooth periodic integrands; independent of the
+#: Gauss points the Magnus methods use).
+TRACE_POINTS = 512
+
+
+@dataclass(frozen=True)
+class FloquetResult:
+    """Floquet analysis of ``x' = P(t) x`` over one period.
+
+    Attributes
+    ----------
+    multipliers : ndarray, complex, shape (n,)
+        Floquet multipliers (eigenvalues of the monodromy matrix), sorted by
+        modulus, descending.  Moduli below ~1e-308 underflow to 0 here; see
+        ``log_moduli``.
+    log_moduli : ndarray, shape (n,)
+        ``ln |rho_i|`` in the same order (``-inf`` for an exactly zero one).
+    monodromy : ndarray, shape (n, n)
+        ``Phi(T)``, the formed product.
+    spectral_radius : float
+        ``max |rho_i|``.
+    verdict : str
+        ``"asymptotically stable"``, ``"unstable"`` or ``"critical"``.
+    stability_tolerance : float
+        The band ``|rho_max - 1| <= tol`` called critical (the requested
+        tolerance, widened to the estimated error when that is larger).
+    liouville_residual : float
+        ``|det Phi(T) / exp(int_0^T tr P dt) - 1|``, evaluated as
+        ``|expm1(ln|det Phi| - int tr P)|`` with ``ln|det Phi|`` accumulated
+        from the sub-interval factors, so that it stays meaningful when
+        ``det Phi`` underflows (1e-1400 in the controlled manipulator).
+    multiplier_liouville_residual : float
+        The same identity checked on the returned multipliers,
+        ``|expm1(sum ln|rho_i| - int tr P)|``; NaN when some multiplier is
+        below the noise floor (then it cannot be checked from them).
+    trace_integral : float
+        ``int_0^T tr P dt`` (closed form when the model supplies it,
+        otherwise the periodic trapezoidal rule on ``TRACE_POINTS`` points).
+    error_estimate : float
+        Richardson estimate of the largest relative error of the moduli
+        ``>= ESTIMATE_FLOOR * spectral_radius`` (step doubling); NaN when not
+        computed.
+    noise_floor : float
+        ``n eps ||Phi||``: absolute level below which moduli read from the
+        formed monodromy matrix are rounding noise (a lower bound: non-normal
+        monodromy matrices amplify it by the eigenvalue condition number).
+    reliable_digits : ndarray, shape (n,)
+        Per multiplier, the number of significant digits on which the last
+        two refinements agree (``-log10`` of the relative change of the
+        modulus, capped at 16), further capped by the noise floor; 0 means
+        the value is noise.
+    method : str
+    n_steps : int
+        Sub-intervals of the final propagation (factor methods) or accepted
+        steps of ``solve_ivp`` summed over the columns (``"paper"``).
+    n_evaluations : int
+        Evaluations of ``P(t)`` (all refinements included).
+    period : float
+    elapsed : float
+        Wall time in seconds.
+    """
+
+    multipliers: np.ndarray
+    log_moduli: np.ndarray
+    monodromy: np.ndarray
+    spectral_radius: float
+    verdict: str
+    stability_tolerance: float
+    liouville_residual: float
+    multiplier_liouville_residual: float
+    trace_integral: float
+    error_estimate: float
+    noise_floor: float
+    reliable_digits: np.ndarray
+    method: str
+    n_steps: int
+    n_evaluations: int
+    period: float
+    elapsed: float = 0.0
+
+    @property
+    def moduli(self) -> np.ndarray:
+        """``|rho_i|``, descending."""
+        with np.errstate(under="ignore"):
+            return np.exp(self.log_moduli)
+
+    @property
+    def exponents(self) -> np.ndarray:
+        """Characteristic (Floquet) exponents ``ln(rho_i) / T`` (principal branch)."""
+        return (self.log_moduli + 1j * np.angle(self.multipliers)) / self.period
+
+    @property
+    def stable(self) -> bool:
+        """``True`` when the verdict is asymptotically stable."""
+        return self.verdict == VERDICT_STABLE
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (multipliers as ``[re, im]`` pairs)."""
+        return {
+            "period": self.period,
+            "method": self.method,
+            "multipliers": [[float(z.real), float(z.imag)] for z in self.multipliers],
+            "moduli": [float(m) for m in self.moduli],
+            "log_moduli": [float(v) for v in self.log_moduli],
+            "spectral_radius": float(self.spectral_radius),
+            "verdict": self.verdict,
+            "stability_tolerance": float(self.stability_tolerance),
+            "liouville_residual": float(self.liouville_residual),
+            "multiplier_liouville_residual": None
+            if math.isnan(self.multiplier_liouville_residual)
+            else float(self.multiplier_liouville_residual),
+            "trace_integral": float(self.trace_integral),
+            "error_estimate": None if math.isnan(self.error_estimate) else float(self.error_estimate),
+            "noise_floor": float(self.noise_floor),
+            "reliable_digits": [float(d) for d in self.reliable_digits],
+            "n_steps": int(self.n_steps),
+            "n_evaluations": int(self.n_evaluations),
+            "elapsed": float(self.elapsed),
+        }
+
+
+# --------------------------------------------------------------------------- helpers
+@dataclass(frozen=True)
+class _Spectrum:
+    values: np.ndarray  # complex, sorted by modulus, descending
+    log_moduli: np.ndarray
+
+
+def _spectrum(Phi: np.ndarray) -> _Spectrum:
+    vals = np.linalg.eigvals(Phi).astype(complex)
+    with np.errstate(divide="ignore"):
+        logs = np.log(np.abs(vals))
+    # descending modulus; within a conjugate pair the positive imaginary part first
+    order = np.lexsort((-vals.imag, -logs))
+    return _Spectrum(vals[order], logs[order])
+
+
+def _modulus_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
+    """Relative change of each modulus between two refinements (sorted alike)."""
+    with np.errstate(invalid="ignore"):
+        d = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def _estimate(changes: np.ndarray, fine: _Spectrum, factor: float) -> float:
+    """Richardson estimate over moduli above ``ESTIMATE_FLOOR`` of the largest."""
+    keep = fine.log_moduli >= fine.log_moduli[0] + math.log(ESTIMATE_FLOOR)
+    return float(np.max(changes[keep])) / factor
+
+
+def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> float:
+    closed_form = getattr(P, "trace_integral", None)
+    if callable(closed_form):
+        return float(closed_form())
+    t = np.arange(TRACE_POINTS) * (period / TRACE_POINTS)
+    tr = np.trace(wrapped.evaluate(t), axis1=1, axis2=2)
+    return float(np.sum(tr) * period / TRACE_POINTS)
+
+
+def _verdict(rho: float, tol: float) -> str:
+    if rho > 1.0 + tol:
+        return VERDICT_UNSTABLE
+    if rho < 1.0 - tol:
+        return VERDICT_STABLE
+    return VERDICT_CRITICAL
+
+
+def _log_abs_det(matrices: np.ndarray) -> float:
+    sign, logdet = np.linalg.slogdet(matrices)
+    if np.any(sign == 0):
+        return -math.inf
+    return float(np.sum(logdet))
+
+
+# --------------------------------------------------------------------------- methods
+@dataclass(frozen=True)
+class _Propagation:
+    monodromy: np.ndarray
+    spectrum: _Spectrum
+    log_abs_det: float
+    n_steps: int
+    n_evaluations: int
+    error_estimate: float
+    changes: Optional[np.ndarray]  # relative change per modulus at the last refinement
+
+
+def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
+    def run(
+        wrapped: PeriodicMatrixFunction,
+        period: float,
+        *,
+        n_steps: Optional[int],
+        rtol: float,
+        error_estimate: bool,
+        max_steps: int,
+    ) -> _Propagation:
+        q = len(scheme.nodes)
+        richardson = 2.0**scheme.order - 1.0
+
+        def solve(N: int) -> tuple[np.ndarray, np.ndarray, _Spectrum]:
+            E = magnus_factors(scheme, wrapped.evaluate, period, N)
+            if not np.all(np.isfinite(E)):
+                raise FloatingPointError(f"non-finite sub-interval propagator with {N} steps")
+            Phi = ordered_product(E)
+            return E, Phi, _spectrum(Phi)
+
+        changes = None
+        est = math.nan
+        if n_steps is not None:
+            N = n_steps
+            E, Phi, spec = solve(N)
+            evaluations = q * N
+            if error_estimate and N >= 2:
+                coarse = solve(N // 2)[2]
+                evaluations += q * (N // 2)
+                changes = _modulus_changes(spec, coarse)
+                est = _estimate(changes, spec, richardson)
+        else:
+            N = INITIAL_STEPS
+            E, Phi, spec = solve(N)
+            evaluations = q * N
+            while True:
+                E2, Phi2, spec2 = solve(2 * N)
+                evaluations += q * 2 * N
+                changes = _modulus_changes(spec2, spec)
+                est = _estimate(changes, spec2, richardson)
+                E, Phi, spec, N = E2, Phi2, spec2, 2 * N
+                if est <= rtol:
+                    break
+                if 2 * N > max_steps:
+                    warnings.warn(
+                        f"{scheme.name}: error estimate {est:.2e} > rtol {rtol:.1e} at the step "
+                        f"limit of {N} sub-intervals; the result is less accurate than requested",
+                        RuntimeWarning,
+                        stacklevel=4,
+                    )
+                    break
+        return _Propagation(Phi, spec, _log_abs_det(E), N, evaluations, est, changes)
+
+    run.__name__ = f"_run_{scheme.name}"
+    return run
+
+
+def _paper_method(
+    wrapped: PeriodicMatrixFunction,
+    period: float,
+    *,
+    n_steps: Optional[int],
+    rtol: float,
+    error_estimate: bool,
+    max_steps: int,
+) -> _Propagation:
+    opts = ReferenceOptions()
+    Phi, nfev = paper_monodromy(wrapped, period, opts)
+    spec = _spectrum(Phi)
+    est = math.nan
+    changes = None
+    evaluations = nfev
+    if error_estimate:
+        # the difference to a 100x looser tolerance bounds the error of this one
+        loose = ReferenceOptions(opts.integrator, rtol=opts.rtol * 100, atol=opts.atol * 100)
+        Phi2, nfev2 = paper_monodromy(wrapped, period, loose)
+        evaluations += nfev2
+        changes = _modulus_changes(spec, _spectrum(Phi2))
+        est = _estimate(changes, spec, 1.0)
+    return _Propagation(Phi, spec, _log_abs_det(Phi), nfev, evaluations, est, changes)
+
+
+#: Registry of Floquet methods (name -> implementation).
+METHODS: dict[str, Callable[..., _Propagation]] = {
+    "magnus6": _magnus_method(MAGNUS6),
+    "magnus4": _magnus_method(MAGNUS4),
+    "paper": _paper_method,
+}
+
+
+# --------------------------------------------------------------------------- driver
+def _liouville(log_det: float, trace: float) -> float:
+    """``|det / exp(trace) - 1|`` from logarithms (inf when it overflows)."""
+    d = log_det - trace
+    if not math.isfinite(d) or d > 700.0:
+        return math.inf
+    return abs(math.expm1(d))
+
+
+def floquet(
+    P: Any,
+    period: Optional[float] = None,
+    *,
+    method: str = DEFAULT_METHOD,
+    n_steps: Optional[int] = None,
+    rtol: float = 1e-10,
+    stability_tol: float = 1e-8,
+    error_estimate: bool = True,
+    max_steps: int = MAX_STEPS,
+) -> FloquetResult:
+    """Floquet multipliers and stability verdict of ``x' = P(t) x``.
+
+    Parameters
+    ----------
+    P : callable or periodic-system object
+        ``t -> (n, n)`` array, T-periodic.  An object with ``.period`` (e.g.
+        :class:`~stability.periodic.SecondOrderPeriodicSystem` or
+        :class:`~mbs_models.reduced.ReducedModel`) carries its own period;
+        one with ``evaluate(times) -> (m, n, n)`` is evaluated vectorised;
+        one with ``trace_integral()`` supplies ``int tr P`` in closed form.
+    period : float, optional
+        ``T > 0``; required when ``P`` has no ``.period``.
+    method : str
+        A key of :data:`METHODS` (``"magnus6"``, ``"magnus4"``, ``"paper"``).
+    n_steps : int, optional
+        Fixed number of sub-intervals for the Magnus methods.  Default:
+        adaptive step doubling from ``INITIAL_STEPS`` until the Richardson
+        estimate is ``<= rtol``.
+    rtol : float
+        Target relative accuracy of the moduli (adaptive mode).
+    stability_tol : float
+        Half-width of the band around ``|rho| = 1`` called critical.
+    error_estimate : bool
+        With a fixed ``n_steps``, also solve with ``n_steps // 2`` to report
+        a Richardson estimate (the adaptive mode always has one).
+    max_steps : int
+        Upper limit on sub-intervals in the adaptive mode.
+
+    Returns
+    -------
+    FloquetResult
+
+    Raises
+    ------
+    ValueError
+        On a non-positive or non-finite period, a ``P`` that returns a
+        non-square, wrongly shaped, NaN or inf matrix, an unknown method or
+        invalid options.
+
+    Notes
+    -----
+    Maths: the monodromy matrix ``Phi(T)`` solves ``Phi' = P Phi``,
+    ``Phi(0) = I``; its eigenvalues are the Floquet multipliers, and the
+    origin is asymptotically stable iff all ``|rho_i| < 1`` (paper, Sec. 2).
+    Liouville's formula ``det Phi(T) = exp(int_0^T tr P dt)`` is checked on
+    the returned multipliers (a necessary condition; the step-doubling
+    estimate certifies the accuracy).
+
+    References
+    ----------
+    .. [1] Floquet, G., Ann. Sci. ENS 12 (1883) 47-88.
+    .. [2] Blanes, S., Casas, F., Oteo, J. A., Ros, J., Physics Reports 470
+           (2009) 151-238.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> A = np.array([[0.0, 1.0], [-4.0, -0.2]])
+    >>> res = floquet(lambda t: A, period=1.0)
+    >>> bool(np.allclose(res.monodromy, __import__("scipy").linalg.expm(A)))
+    True
+    """
+    t0 = time.perf_counter()
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
+    if n_steps is not None and (int(n_steps) != n_steps or n_steps < 1):
+        raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
+    if not (math.isfinite(rtol) and rtol > 0):
+        raise ValueError(f"rtol must be finite and > 0, got {rtol!r}")
+    if not (math.isfinite(stability_tol) and stability_tol >= 0):
+        raise ValueError(f"stability_tol must be finite and >= 0, got {stability_tol!r}")
+    wrapped = PeriodicMatrixFunction(P, period)
+    T = wrapped.period
+    prop = METHODS[method](
+        wrapped,
+        T,
+        n_steps=None if n_steps is None else int(n_steps),
+        rtol=rtol,
+        error_estimate=error_estimate,
+        max_steps=max_steps,
+    )
+    spec = prop.spectrum
+    rho = float(math.exp(spec.log_moduli[0]))
+    trace = _trace_integral(P, wrapped, T)
+    liouville = _liouville(prop.log_abs_det, trace)
+    n = spec.values.size
+    noise = float(n * np.finfo(float).eps * np.linalg.norm(prop.monodromy, 2))
+    with np.errstate(divide="ignore"):
+        noise_digits = np.clip(np.log10(np.exp(spec.log_moduli) / noise), 0.0, 16.0)
+        if prop.changes is not None:
+            refine_digits = np.clip(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0, 16.0)
+        else:
+            refine_digits = np.full(n, 16.0)
+    digits = np.minimum(noise_digits, refine_digits)
+    reliable_all = bool(np.all(np.exp(spec.log_moduli) > 100.0 * noise))
+    multiplier_liouville = (
+        _liouville(float(np.sum(spec.log_moduli)), trace) if reliable_all else math.nan
+    )
+    tol = stability_tol
+    if math.isfinite(prop.error_estimate):
+        tol = max(tol, prop.error_estimate * rho)
+    result = FloquetResult(
+        multipliers=spec.values,
+        log_moduli=spec.log_moduli,
+        monodromy=prop.monodromy,
+        spectral_radius=rho,
+        verdict=_verdict(rho, tol),
+        stability_tolerance=tol,
+        liouville_residual=liouville,
+        multiplier_liouville_residual=multiplier_liouville,
+        trace_integral=trace,
+        error_estimate=prop.error_estimate,
+        noise_floor=noise,
+        reliable_digits=digits,
+        method=method,
+        n_steps=prop.n_steps,
+        n_evaluations=prop.n_evaluations,
+        period=T,
+        elapsed=time.perf_counter() - t0,
+    )
+    logger.debug(
+        "floquet(%s): rho=%.6g steps=%d est=%.2e liouville=%.2e",
+        method, rho, prop.n_steps, prop.error_estimate, liouville,
+    )
+    return result

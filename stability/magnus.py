@@ -1,0 +1,111 @@
+"""Magnus exponential propagators for ``x' = P(t) x`` over one period.
+
+The period is split into ``N`` equal sub-intervals; on each one a truncated
+Magnus expansion ``Omega_k`` is built from ``P`` at Gauss-Legendre points and
+the sub-interval propagator is ``E_k = expm(Omega_k)``.  All ``N`` propagators
+are formed at once (vectorised over sub-intervals) and the monodromy matrix is
+``Phi(T) = E_N ... E_2 E_1``, multiplied by pairwise reduction (``log2 N``
+batched products) rather than a sequential loop.
+
+References
+----------
+.. [1] Iserles, A., Norsett, S. P., "On the solution of linear differential
+       equations in Lie groups", Phil. Trans. R. Soc. A 357 (1999) 983-1019.
+.. [2] Blanes, S., Casas, F., Oteo, J. A., Ros, J., "The Magnus expansion and
+       some of its applications", Physics Reports 470 (2009) 151-238,
+       Sec. 5 (the 4th-order and 6th-order schemes used here).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import expm
+
+__all__ = ["MagnusScheme", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product"]
+
+
+@dataclass(frozen=True)
+class MagnusScheme:
+    """A Magnus scheme: its Gauss nodes (fractions of the step) and order."""
+
+    name: str
+    nodes: tuple[float, ...]
+    order: int
+
+
+#: 4th order, 2 Gauss points (Blanes et al. 2009, Eq. 253).
+MAGNUS4 = MagnusScheme("magnus4", (0.5 - math.sqrt(3) / 6, 0.5 + math.sqrt(3) / 6), 4)
+#: 6th order, 3 Gauss points (Blanes et al. 2009, Eq. 257).
+MAGNUS6 = MagnusScheme(
+    "magnus6", (0.5 - math.sqrt(15) / 10, 0.5, 0.5 + math.sqrt(15) / 10), 6
+)
+
+
+def _comm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    return A @ B - B @ A
+
+
+def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarray:
+    """Magnus exponents ``Omega_k`` from ``P`` at the Gauss points.
+
+    Parameters
+    ----------
+    scheme : MagnusScheme
+    Pg : ndarray, shape (N, q, n, n)
+        ``P`` at the ``q`` Gauss nodes of each of the ``N`` sub-intervals.
+    h : float
+        Step length.
+
+    Returns
+    -------
+    ndarray, shape (N, n, n)
+    """
+    if scheme.order == 4:
+        A1, A2 = Pg[:, 0], Pg[:, 1]
+        return 0.5 * h * (A1 + A2) + (math.sqrt(3) / 12.0) * h * h * _comm(A2, A1)
+    if scheme.order == 6:
+        A1, A2, A3 = Pg[:, 0], Pg[:, 1], Pg[:, 2]
+        a1 = h * A2
+        a2 = (math.sqrt(15) / 3.0) * h * (A3 - A1)
+        a3 = (10.0 / 3.0) * h * (A3 - 2.0 * A2 + A1)
+        c1 = _comm(a1, a2)
+        c2 = -(1.0 / 60.0) * _comm(a1, 2.0 * a3 + c1)
+        return a1 + a3 / 12.0 + (1.0 / 240.0) * _comm(-20.0 * a1 - a3 + c1, a2 + c2)
+    raise ValueError(f"unsupported Magnus order {scheme.order}")
+
+
+def magnus_factors(scheme: MagnusScheme, evaluate, period: float, n_steps: int) -> np.ndarray:
+    """Sub-interval propagators ``E_k`` (shape ``(N, n, n)``), in time order.
+
+    Parameters
+    ----------
+    scheme : MagnusScheme
+    evaluate : callable
+        ``times (m,) -> P (m, n, n)``.
+    period : float
+    n_steps : int
+        Number ``N`` of equal sub-intervals.
+    """
+    h = period / n_steps
+    nodes = np.asarray(scheme.nodes)
+    times = (np.arange(n_steps)[:, None] + nodes[None, :]) * h
+    P = evaluate(times.ravel())
+    n = P.shape[-1]
+    Pg = P.reshape(n_steps, len(nodes), n, n)
+    return expm(magnus_exponents(scheme, Pg, h))
+
+
+def ordered_product(factors: np.ndarray) -> np.ndarray:
+    """``E_N ... E_2 E_1`` for factors given in time order, by pairwise reduction."""
+    E = factors
+    while E.shape[0] > 1:
+        if E.shape[0] % 2:
+            # fold the last (latest) factor onto its predecessor first
+            last = E[-1] @ E[-2]
+            E = np.concatenate([E[:-2], last[None]], axis=0)
+            if E.shape[0] == 1:
+                break
+        E = E[1::2] @ E[0::2]
+    return E[0]

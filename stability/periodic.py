@@ -1,0 +1,219 @@
+"""Periodic matrices and periodic second-order systems.
+
+A *periodic matrix* here is any object ``P`` with
+
+* ``P(t) -> ndarray (n, n)`` for a scalar time ``t``, and
+* optionally ``P.period`` (the period ``T > 0``), and
+* optionally ``P.evaluate(times) -> ndarray (m, n, n)``, a vectorised
+  evaluation used by the fast Floquet methods.
+
+:class:`SecondOrderPeriodicSystem` is the periodic mass/damping/stiffness
+system ``M(t) y'' + C(t) y' + K(t) y = 0`` of the paper's Eq. (25); the one
+place where the first-order matrix ``P(t) = [[0, I], [-M^-1 K, -M^-1 C]]``
+(paper Eq. 5) is built is :func:`first_order_matrix`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+__all__ = [
+    "PeriodicMatrixFunction",
+    "SecondOrderPeriodicSystem",
+    "first_order_matrix",
+    "evaluate_periodic_matrix",
+    "check_period",
+]
+
+MatrixFunction = Callable[[float], np.ndarray]
+
+#: Reciprocal condition number below which a mass matrix is called singular.
+SINGULAR_MASS_RCOND = 1e-13
+
+
+def check_period(period: Any, name: str = "period") -> float:
+    """Return ``period`` as a float, or raise ``ValueError`` if it is not finite and > 0."""
+    try:
+        value = float(period)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {period!r}") from None
+    if not math.isfinite(value) or value <= 0.0:
+        raise ValueError(f"{name} must be finite and > 0, got {period!r}")
+    return value
+
+
+def first_order_matrix(
+    M: np.ndarray, C: np.ndarray, K: np.ndarray, *, mass_inverse: Optional[np.ndarray] = None
+) -> np.ndarray:
+    """First-order system matrix of ``M y'' + C y' + K y = 0``.
+
+    Parameters
+    ----------
+    M, C, K : ndarray, shape (..., f, f)
+        Mass, damping and stiffness matrices, possibly stacked over leading
+        axes (e.g. over sample times).
+
+    Returns
+    -------
+    P : ndarray, shape (..., 2f, 2f)
+        ``P = [[0, I], [-M^-1 K, -M^-1 C]]`` for the state ``x = [y, y']``
+        (paper Eqs. 4-5).
+
+    Raises
+    ------
+    ValueError
+        If a mass matrix is singular (reciprocal condition number below
+        :data:`SINGULAR_MASS_RCOND`) or an entry is not finite.
+
+    Notes
+    -----
+    Sign convention: ``K`` and ``C`` are the matrices on the *left-hand side*
+    of the equation of motion.  For a force vector ``f(q, q', t)`` on the
+    right-hand side (Exudyn's convention ``M q'' = f``) this means
+    ``K = -df/dq`` and ``C = -df/dq'``.  This is the only function in the
+    package that forms ``P`` from ``(M, C, K)``.
+    """
+    M = np.asarray(M, dtype=float)
+    C = np.asarray(C, dtype=float)
+    K = np.asarray(K, dtype=float)
+    if M.shape[-1] != M.shape[-2] or M.shape != C.shape or M.shape != K.shape:
+        raise ValueError(
+            f"M, C, K must be square and of equal shape, got {M.shape}, {C.shape}, {K.shape}"
+        )
+    for name, mat in (("M", M), ("C", C), ("K", K)):
+        if not np.all(np.isfinite(mat)):
+            raise ValueError(f"{name}(t) contains NaN or inf")
+    f = M.shape[-1]
+    if mass_inverse is not None:
+        MinvK = mass_inverse @ K
+        MinvC = mass_inverse @ C
+    else:
+        cond = np.linalg.cond(M)
+        if np.any(~np.isfinite(cond)) or np.any(1.0 / cond < SINGULAR_MASS_RCOND):
+            raise ValueError(
+                f"mass matrix M(t) is singular (condition number {np.max(cond):.3g})"
+            )
+        MinvK = np.linalg.solve(M, K)
+        MinvC = np.linalg.solve(M, C)
+    P = np.zeros(M.shape[:-2] + (2 * f, 2 * f))
+    P[..., :f, f:] = np.eye(f)
+    P[..., f:, :f] = -MinvK
+    P[..., f:, f:] = -MinvC
+    return P
+
+
+@dataclass(frozen=True)
+class SecondOrderPeriodicSystem:
+    """T-periodic system ``M(t) y'' + C(t) y' + K(t) y = 0``.
+
+    Parameters
+    ----------
+    period : float
+        The period ``T > 0``.
+    mass, damping, stiffness : callable
+        ``t -> (f, f)`` arrays.  If they accept an array of times of shape
+        ``(m,)`` and return ``(m, f, f)`` set ``vectorized=True``.
+    vectorized : bool
+        Whether the three callables accept arrays of times.
+    name : str
+        A label carried into results.
+
+    Notes
+    -----
+    The object is itself a periodic matrix: ``sys(t)`` returns ``P(t)`` from
+    :func:`first_order_matrix`, ``sys.evaluate(times)`` a stack of them.
+    """
+
+    period: float
+    mass: MatrixFunction
+    damping: MatrixFunction
+    stiffness: MatrixFunction
+    vectorized: bool = False
+    name: str = "second-order system"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "period", check_period(self.period))
+
+    def matrices(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(M, C, K)`` stacked over ``times`` (shape ``(m, f, f)`` each)."""
+        times = np.atleast_1d(np.asarray(times, dtype=float))
+        if self.vectorized:
+            return (
+                np.asarray(self.mass(times), dtype=float),
+                np.asarray(self.damping(times), dtype=float),
+                np.asarray(self.stiffness(times), dtype=float),
+            )
+        M = np.array([self.mass(t) for t in times], dtype=float)
+        C = np.array([self.damping(t) for t in times], dtype=float)
+        K = np.array([self.stiffness(t) for t in times], dtype=float)
+        return M, C, K
+
+    def evaluate(self, times: np.ndarray) -> np.ndarray:
+        """First-order matrices ``P(t)`` stacked over ``times``, shape ``(m, 2f, 2f)``."""
+        return first_order_matrix(*self.matrices(times))
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.evaluate(np.array([float(t)]))[0]
+
+
+class PeriodicMatrixFunction:
+    """Wrap a user callable ``t -> P(t)`` with validation and vectorised evaluation.
+
+    Parameters
+    ----------
+    func : callable or periodic matrix object
+        ``t -> (n, n)`` array; if it has ``evaluate(times)`` that is used for
+        stacks of times.
+    period : float, optional
+        Period ``T``; taken from ``func.period`` when omitted.
+
+    Raises
+    ------
+    ValueError
+        If no period is given or known, the period is not positive, or
+        ``func`` returns a non-square, non-finite or inconsistently shaped
+        matrix.
+    """
+
+    def __init__(self, func: Any, period: Optional[float] = None) -> None:
+        if not callable(func):
+            raise ValueError(f"P must be callable (t -> (n, n) array), got {type(func).__name__}")
+        if period is None:
+            period = getattr(func, "period", None)
+            if period is None:
+                raise ValueError("period is required: P carries no .period attribute")
+        self.func = func
+        self.period = check_period(period)
+        self._vectorised = callable(getattr(func, "evaluate", None))
+        P0 = self._check(np.asarray(func(0.0), dtype=float)[None], "P(0)")
+        self.n = P0.shape[-1]
+
+    def _check(self, P: np.ndarray, what: str) -> np.ndarray:
+        if P.ndim != 3 or P.shape[-1] != P.shape[-2] or P.shape[-1] == 0:
+            raise ValueError(f"{what} must be a square (n, n) matrix, got shape {P.shape[1:]}")
+        if hasattr(self, "n") and P.shape[-1] != self.n:
+            raise ValueError(f"{what} has shape {P.shape[1:]}, expected ({self.n}, {self.n})")
+        if not np.all(np.isfinite(P)):
+            raise ValueError(f"{what} contains NaN or inf")
+        return P
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.evaluate(np.array([t]))[0]
+
+    def evaluate(self, times: np.ndarray) -> np.ndarray:
+        """Stack of ``P(t)`` for ``times`` (shape ``(m, n, n)``), validated."""
+        times = np.asarray(times, dtype=float)
+        if self._vectorised:
+            P = np.asarray(self.func.evaluate(times), dtype=float)
+        else:
+            P = np.array([np.asarray(self.func(t), dtype=float) for t in times])
+        return self._check(P, "P(t)")
+
+
+def evaluate_periodic_matrix(P: Any, times: np.ndarray, period: Optional[float] = None) -> np.ndarray:
+    """Evaluate a periodic matrix at ``times`` (shape ``(m, n, n)``), validated."""
+    wrapped = P if isinstance(P, PeriodicMatrixFunction) else PeriodicMatrixFunction(P, period)
+    return wrapped.evaluate(times)
