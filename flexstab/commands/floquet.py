@@ -1,0 +1,94 @@
+"""``flexstab floquet``: Floquet multipliers of the manipulator about its fundamental motion."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+import numpy as np
+
+from flexstab.config import load_config
+from flexstab.options import add_model_options, non_negative_float
+
+__all__ = ["register", "run", "floquet_report"]
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "floquet",
+        help="Floquet multipliers about the fundamental motion",
+        description="Floquet multipliers and stability verdict of the linearised manipulator.",
+    )
+    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced", help="default: reduced (paper Eqs. 20-25)")
+    add_model_options(p)
+    p.add_argument("--kp", type=non_negative_float, default=0.0, help="proportional gain on the hub (N m/rad)")
+    p.add_argument("--kd", type=non_negative_float, default=0.0, help="derivative gain on the hub (N m s/rad)")
+    p.add_argument("--method", default=None, help="Floquet method (magnus6, magnus4, paper); default magnus6")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=run)
+
+
+def floquet_report(args: argparse.Namespace) -> dict:
+    """Compute the Floquet analysis requested by ``args`` and return the JSON-ready dict."""
+    from stability import DEFAULT_METHOD, METHODS, floquet
+
+    cfg = load_config(args.config)
+    omega = args.omega if args.omega is not None else cfg.omega
+    method = args.method or DEFAULT_METHOD
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
+    out: dict = {"model": args.model}
+    if args.model == "reduced":
+        from mbs_models.reduced import ReducedModel
+
+        model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
+        res = floquet(model, method=method)
+        out["constants"] = args.constants
+    else:
+        from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
+
+        elements = args.elements if args.elements is not None else cfg.elements
+        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method)
+        res = ex.floquet
+        out.update(ex.summary())
+    out.update(
+        {
+            "omega": omega,
+            "period": 2 * math.pi / omega,
+            "kp": args.kp,
+            "kd": args.kd,
+        }
+    )
+    out.update(res.to_dict())
+    return out
+
+
+def _table(d: dict) -> str:
+    lines = [
+        f"model: {d['model']}    omega = {d['omega']:.6g} rad/s ({d['omega'] / math.pi:.6g} pi)    T = {d['period']:.6g} s",
+        f"kp = {d['kp']:.6g}    kd = {d['kd']:.6g}    method = {d['method']} ({d['n_steps']} steps)",
+        "",
+        f"{'#':>3}  {'Re rho':>14}  {'Im rho':>14}  {'|rho|':>14}  digits",
+    ]
+    for i, ((re, im), mod, dig) in enumerate(zip(d["multipliers"], d["moduli"], d["reliable_digits"]), 1):
+        lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}")
+    est = d["error_estimate"]
+    lines += [
+        "",
+        f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
+        f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (step doubling, relative)",
+        f"Liouville        |det Phi / exp(int tr P) - 1| = {d['liouville_residual']:.1e}",
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    d = floquet_report(args)
+    if args.json:
+        json.dump(d, sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print(_table(d))
+    return 0

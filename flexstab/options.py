@@ -1,0 +1,76 @@
+"""Parsing helpers shared by the command-line sub-commands."""
+from __future__ import annotations
+
+import argparse
+import math
+import re
+
+__all__ = ["parse_omega", "omega_type", "add_model_options", "non_negative_float", "positive_float"]
+
+_PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
+
+
+def parse_omega(text: str) -> float:
+    """Parse an angular frequency: rad/s (``"6.283"``) or a multiple of pi (``"2pi"``, ``"0.5pi"``, ``"pi"``).
+
+    Raises
+    ------
+    ValueError
+        If the text is not a number or a multiple of pi, or the value is not finite and > 0.
+    """
+    s = str(text).strip()
+    m = _PI_FORM.match(s)
+    try:
+        if m:
+            factor = float(m.group(1)) if m.group(1) not in ("", ".") else 1.0
+            value = factor * math.pi
+        else:
+            value = float(s)
+    except ValueError:
+        raise ValueError(f"omega must be rad/s or a multiple of pi like '2pi', got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise ValueError(f"omega must be finite and > 0, got {text!r}")
+    return value
+
+
+def omega_type(text: str) -> float:
+    """``argparse`` type for :func:`parse_omega`."""
+    try:
+        return parse_omega(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _float_type(lower: float, strict: bool, what: str):
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not math.isfinite(value) or (value <= lower if strict else value < lower):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+
+    return convert
+
+
+non_negative_float = _float_type(0.0, False, "finite and >= 0")
+positive_float = _float_type(0.0, True, "finite and > 0")
+
+
+def add_model_options(parser: argparse.ArgumentParser) -> None:
+    """Options shared by the commands that build a manipulator model."""
+    parser.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator (see README)")
+    parser.add_argument(
+        "--constants",
+        choices=["paper", "derived"],
+        default="paper",
+        help="mode constants of the reduced model (default: paper, as printed)",
+    )
+    parser.add_argument(
+        "--omega",
+        type=omega_type,
+        default=2 * math.pi,
+        metavar="W",
+        help="frequency of the fundamental motion, rad/s or like '2pi' (default 2pi)",
+    )
