@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import expm
+from stability.expm import expm_stack
 
 __all__ = ["MagnusScheme", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product"]
 
@@ -94,7 +94,7 @@ def magnus_factors(scheme: MagnusScheme, evaluate, period: float, n_steps: int) 
     P = evaluate(times.ravel())
     n = P.shape[-1]
     Pg = P.reshape(n_steps, len(nodes), n, n)
-    return expm(magnus_exponents(scheme, Pg, h))
+    return expm_stack(magnus_exponents(scheme, Pg, h))
 
 
 def ordered_product(factors: np.ndarray) -> np.ndarray:
