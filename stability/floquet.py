@@ -261,6 +261,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         rtol: float,
         error_estimate: bool,
         max_steps: int,
+        reference: Optional[ReferenceOptions] = None,
     ) -> _Propagation:
         q = len(scheme.nodes)
         richardson = 2.0**scheme.order - 1.0
@@ -317,8 +318,9 @@ def _paper_method(
     rtol: float,
     error_estimate: bool,
     max_steps: int,
+    reference: Optional[ReferenceOptions] = None,
 ) -> _Propagation:
-    opts = ReferenceOptions()
+    opts = reference or ReferenceOptions()
     Phi, nfev = paper_monodromy(wrapped, period, opts)
     spec = _spectrum(Phi)
     est = math.nan
@@ -361,6 +363,7 @@ def floquet(
     stability_tol: float = 1e-8,
     error_estimate: bool = True,
     max_steps: int = MAX_STEPS,
+    reference: Optional[ReferenceOptions] = None,
 ) -> FloquetResult:
     """Floquet multipliers and stability verdict of ``x' = P(t) x``.
 
@@ -389,6 +392,9 @@ def floquet(
         a Richardson estimate (the adaptive mode always has one).
     max_steps : int
         Upper limit on sub-intervals in the adaptive mode.
+    reference : ReferenceOptions, optional
+        Integrator and tolerances of the ``"paper"`` method (default Radau,
+        ``rtol=1e-11``); ignored by the other methods.
 
     Returns
     -------
@@ -442,6 +448,7 @@ def floquet(
         rtol=rtol,
         error_estimate=error_estimate,
         max_steps=max_steps,
+        reference=reference,
     )
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
