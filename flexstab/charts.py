@@ -1,0 +1,194 @@
+"""Stability charts: max|rho| over a (kp, kd) grid, and against Omega.
+
+The grid points are independent Floquet evaluations; they run through a
+``concurrent.futures`` executor (:func:`flexstab.executor.make_executor`:
+local processes by default, a Dask cluster with a scheduler address) and
+are stored point by point (:func:`flexstab.executor.run_sweep`), so an
+interrupted chart resumes where it stopped.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from flexstab.executor import run_sweep
+from mbs_models.parameters import ManipulatorParameters
+
+__all__ = [
+    "ReducedRadius",
+    "GainChart",
+    "OmegaChart",
+    "gain_chart",
+    "omega_chart",
+    "plot_gain_chart",
+    "plot_omega_chart",
+    "check_grid",
+]
+
+
+@dataclass(frozen=True)
+class ReducedRadius:
+    """Picklable task: ``{"omega", "kp", "kd"} -> max|rho|`` of the reduced model."""
+
+    params: ManipulatorParameters = field(default_factory=ManipulatorParameters)
+    constants: str = "paper"
+    n_steps: Optional[int] = 256
+
+    def __call__(self, point: dict) -> float:
+        from mbs_models.reduced import ReducedModel
+        from stability import floquet
+
+        model = ReducedModel(point["omega"], point["kp"], point["kd"], self.params, self.constants)
+        opts: dict[str, Any] = {"n_steps": self.n_steps, "error_estimate": False} if self.n_steps else {}
+        return float(floquet(model, **opts).spectral_radius)
+
+
+def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
+    """``linspace(lo, hi, n)`` after validating the range (clear errors naming ``name``)."""
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name} range must be finite, got [{lo}, {hi}]")
+    if hi <= lo:
+        raise ValueError(f"{name} range is empty or inverted: [{lo}, {hi}]")
+    if isinstance(n, bool) or int(n) != n or n < 2:
+        raise ValueError(f"{name} needs at least 2 grid points, got {n!r}")
+    return np.linspace(lo, hi, int(n))
+
+
+@dataclass(frozen=True)
+class GainChart:
+    """max|rho| on a (kp, kd) grid at one Omega (``radius[i, j]`` at ``kd[i], kp[j]``)."""
+
+    omega: float
+    kp: np.ndarray
+    kd: np.ndarray
+    radius: np.ndarray
+    target: Optional[float]
+    n_loaded: int
+    n_computed: int
+
+    def to_dict(self) -> dict:
+        return {
+            "omega": self.omega,
+            "kp": self.kp.tolist(),
+            "kd": self.kd.tolist(),
+            "spectral_radius": self.radius.tolist(),
+            "target": self.target,
+            "n_loaded": self.n_loaded,
+            "n_computed": self.n_computed,
+        }
+
+
+@dataclass(frozen=True)
+class OmegaChart:
+    """max|rho| against Omega, uncontrolled and with fixed gains."""
+
+    omega: np.ndarray
+    radius_uncontrolled: np.ndarray
+    radius_controlled: np.ndarray
+    kp: float
+    kd: float
+
+    def to_dict(self) -> dict:
+        return {
+            "omega": self.omega.tolist(),
+            "spectral_radius_uncontrolled": self.radius_uncontrolled.tolist(),
+            "spectral_radius_controlled": self.radius_controlled.tolist(),
+            "kp": self.kp,
+            "kd": self.kd,
+        }
+
+
+def gain_chart(
+    task: Any,
+    omega: float,
+    kp: Sequence[float],
+    kd: Sequence[float],
+    executor,
+    store: Path,
+    *,
+    target: Optional[float] = None,
+    progress: bool = False,
+) -> GainChart:
+    """Evaluate ``task({"omega", "kp", "kd"})`` on the grid ``kd x kp`` (resumable via ``store``)."""
+    kp = np.asarray(kp, dtype=float)
+    kd = np.asarray(kd, dtype=float)
+    points = [{"omega": float(omega), "kp": float(a), "kd": float(b)} for b in kd for a in kp]
+    sweep = run_sweep(task, points, executor, store, progress=progress, desc="gain chart")
+    radius = np.asarray(sweep.results, dtype=float).reshape(kd.size, kp.size)
+    return GainChart(float(omega), kp, kd, radius, target, sweep.n_loaded, sweep.n_computed)
+
+
+def omega_chart(
+    task: Any,
+    omegas: Sequence[float],
+    kp: float,
+    kd: float,
+    executor,
+    store: Path,
+    *,
+    progress: bool = False,
+) -> OmegaChart:
+    """max|rho| against Omega with zero gains and with ``(kp, kd)`` (resumable via ``store``)."""
+    omegas = np.asarray(omegas, dtype=float)
+    points = [{"omega": float(w), "kp": g[0], "kd": g[1]} for g in ((0.0, 0.0), (float(kp), float(kd))) for w in omegas]
+    sweep = run_sweep(task, points, executor, store, progress=progress, desc="omega chart")
+    r = np.asarray(sweep.results, dtype=float).reshape(2, omegas.size)
+    return OmegaChart(omegas, r[0], r[1], float(kp), float(kd))
+
+
+def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequence[Sequence[float]]] = None) -> Path:
+    """Filled contours of log10 max|rho| with the rho = 1 and rho = rho_d lines and the Taguchi path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    KP, KD = np.meshgrid(chart.kp, chart.kd)
+    L = np.log10(chart.radius)
+    cf_ = ax.contourf(KP, KD, L, levels=30, cmap="viridis")
+    fig.colorbar(cf_, ax=ax, label="log10 max|rho|")
+    cs = ax.contour(KP, KD, chart.radius, levels=[1.0], colors="red", linewidths=2)
+    ax.clabel(cs, fmt={1.0: "|rho| = 1"})
+    if chart.target is not None:
+        ct = ax.contour(KP, KD, chart.radius, levels=[chart.target], colors="white", linewidths=1.5, linestyles="--")
+        ax.clabel(ct, fmt={chart.target: f"rho_d = {chart.target:g}"})
+    if taguchi_path:
+        p = np.asarray(taguchi_path, dtype=float)
+        ax.plot(p[:, 0], p[:, 1], "o-", color="orange", ms=4, lw=1.2, label="Taguchi incumbents")
+        ax.plot(p[-1, 0], p[-1, 1], "*", color="orange", ms=14, mec="k", label="tuned gains")
+        ax.legend(loc="upper right")
+    ax.set_xlabel("kp (N m/rad)")
+    ax.set_ylabel("kd (N m s/rad)")
+    ax.set_title(f"max|rho| of the linearised manipulator, Omega = {chart.omega / math.pi:.3g} pi rad/s")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_omega_chart(chart: OmegaChart, path: Path) -> Path:
+    """max|rho| against Omega (log scale), uncontrolled and controlled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    x = chart.omega / math.pi
+    ax.semilogy(x, chart.radius_uncontrolled, "-", label="uncontrolled (kp = kd = 0)")
+    ax.semilogy(x, chart.radius_controlled, "-", label=f"kp = {chart.kp:g}, kd = {chart.kd:g}")
+    ax.axhline(1.0, color="red", lw=1, ls="--", label="|rho| = 1")
+    ax.set_xlabel("Omega / pi (rad/s)")
+    ax.set_ylabel("max|rho|")
+    ax.set_title("max|rho| against the frequency Omega of the fundamental motion")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

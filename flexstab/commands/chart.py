@@ -1,0 +1,102 @@
+"""``flexstab chart``: stability charts over the gain plane and over Omega."""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from flexstab.config import load_config
+from flexstab.options import add_model_options, omega_type, positive_float
+
+__all__ = ["register", "run", "make_charts"]
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "chart",
+        help="max|rho| over a (kp, kd) grid and against Omega",
+        description="Stability charts (reduced model). Interrupted sweeps resume from what they wrote.",
+    )
+    add_model_options(p)
+    p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
+    p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
+    p.add_argument("--grid", type=int, default=41, help="points per gain axis (default 41)")
+    p.add_argument("--target", type=positive_float, default=None, help="rho_d contour and Taguchi path")
+    p.add_argument("--omega-range", type=omega_type, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="Omega range of the second chart (default pi 10pi)")
+    p.add_argument("--omega-points", type=int, default=181)
+    p.add_argument("--kp", type=float, default=None, help="fixed gains of the Omega chart (default: tuned)")
+    p.add_argument("--kd", type=float, default=None)
+    p.add_argument("--no-taguchi", action="store_true", help="do not draw the Taguchi path")
+    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
+    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=run)
+
+
+def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
+    """Compute and plot both charts; return the JSON-ready summary."""
+    from flexstab.charts import (
+        ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart,
+    )
+    from flexstab.executor import make_executor
+    from mbs_models.reduced import ReducedModel
+    from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+    cfg = load_config(args.config)
+    kp_rng = tuple(args.kp_range) if args.kp_range else cfg.kp_range
+    kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
+    if min(kp_rng) < 0 or min(kd_rng) < 0:
+        raise ValueError("gain ranges must be >= 0")
+    kp = check_grid(*kp_rng, args.grid, "kp")
+    kd = check_grid(*kd_rng, args.grid, "kd")
+    w_lo, w_hi = args.omega_range if args.omega_range else (math.pi, 10 * math.pi)
+    omegas = check_grid(w_lo, w_hi, args.omega_points, "omega")
+    target = args.target if args.target is not None else cfg.target
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    tag = f"w{args.omega:.6g}_{args.constants}"
+    task = ReducedRadius(cfg.manipulator, args.constants)
+
+    path = None
+    tuned = None
+    if not args.no_taguchi:
+        tuned = taguchi_tune(
+            GainObjective(ReducedModel(args.omega, params=cfg.manipulator, constants=args.constants)),
+            TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
+        )
+        path = [it.incumbent_gains for it in tuned.iterations]
+    n_tasks = kp.size * kd.size
+    with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers,
+                       scheduler=args.scheduler, n_tasks=n_tasks) as ex:
+        gc = gain_chart(task, args.omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
+                        progress=progress)
+        gkp = args.kp if args.kp is not None else (tuned.kp if tuned else 0.0)
+        gkd = args.kd if args.kd is not None else (tuned.kd if tuned else 0.0)
+        oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{args.constants}_{gkp:.6g}_{gkd:.6g}.jsonl",
+                         progress=progress)
+    png1 = plot_gain_chart(gc, out / f"chart_gains_{tag}.png", path)
+    png2 = plot_omega_chart(oc, out / f"chart_omega_{args.constants}.png")
+    summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
+               "taguchi_path": [list(p) for p in path] if path else None,
+               "figures": [str(png1), str(png2)]}
+    (out / f"chart_{tag}.json").write_text(json.dumps(summary))
+    return summary
+
+
+def run(args: argparse.Namespace) -> int:
+    s = make_charts(args, progress=not args.json and sys.stderr.isatty())
+    if args.json:
+        json.dump(s, sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        g = s["gain_chart"]
+        print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, {g['n_computed']} computed)")
+        print("figures: " + ", ".join(s["figures"]))
+    return 0

@@ -1,0 +1,69 @@
+"""Stability charts: serial vs Dask equality, resumable sweeps, bad input (issue 5, item 4)."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from flexstab.charts import ReducedRadius, check_grid, gain_chart
+from flexstab.cli import main as cli_main
+from flexstab.executor import SerialExecutor, make_executor
+from mbs_models.reduced import ReducedModel
+from stability import floquet
+
+
+def test_gain_chart_points_equal_direct_floquet(tmp_path):
+    kp, kd = np.array([0.0, 20.0, 40.0]), np.array([0.0, 10.0])
+    chart = gain_chart(ReducedRadius(), 4 * math.pi, kp, kd, SerialExecutor(), tmp_path / "s.jsonl")
+    for i, b in enumerate(kd):
+        for j, a in enumerate(kp):
+            ref = floquet(ReducedModel(4 * math.pi, a, b)).spectral_radius  # adaptive, independent steps
+            assert chart.radius[i, j] == pytest.approx(ref, rel=1e-7)
+
+
+def test_chart_on_dask_cluster_equals_serial(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    kp, kd = np.linspace(0, 40, 4), np.linspace(0, 20, 3)
+    serial = gain_chart(ReducedRadius(), 2 * math.pi, kp, kd, SerialExecutor(), tmp_path / "a.jsonl")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=None) as cluster:
+        with make_executor("dask", scheduler=cluster.scheduler_address) as ex:
+            remote = gain_chart(ReducedRadius(), 2 * math.pi, kp, kd, ex, tmp_path / "b.jsonl")
+    np.testing.assert_array_equal(remote.radius, serial.radius)
+
+
+def test_interrupted_chart_resumes_without_losing_points(tmp_path):
+    store = tmp_path / "c.jsonl"
+    kp, kd = np.linspace(0, 40, 5), np.linspace(0, 20, 4)
+    full = gain_chart(ReducedRadius(), 2 * math.pi, kp, kd, SerialExecutor(), tmp_path / "ref.jsonl")
+    # simulate a killed sweep: keep the first 7 finished lines and half of the 8th
+    lines = (tmp_path / "ref.jsonl").read_text().splitlines(keepends=True)
+    store.write_text("".join(lines[:7]) + lines[7][: len(lines[7]) // 2])
+    resumed = gain_chart(ReducedRadius(), 2 * math.pi, kp, kd, SerialExecutor(), store)
+    assert resumed.n_loaded == 7 and resumed.n_computed == 20 - 7
+    np.testing.assert_array_equal(resumed.radius, full.radius)
+
+
+@pytest.mark.parametrize("lo, hi, n", [(5.0, 1.0, 5), (1.0, 1.0, 5), (0.0, 1.0, 1), (0.0, float("nan"), 5)])
+def test_bad_grid(lo, hi, n):
+    with pytest.raises(ValueError, match="kp"):
+        check_grid(lo, hi, n, "kp")
+
+
+def test_cli_chart_writes_figures(tmp_path, capsys):
+    rc = cli_main(["chart", "--grid", "5", "--omega-points", "5", "--out", str(tmp_path), "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    for f in d["figures"]:
+        assert (tmp_path / f.split("/")[-1]).stat().st_size > 10_000
+    assert d["taguchi_path"]
+
+
+def test_cli_chart_unwritable_out(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    rc = cli_main(["chart", "--grid", "3", "--out", str(blocker / "sub"), "--no-taguchi"])
+    assert rc == 2
+    assert "cannot create output folder" in capsys.readouterr().err
