@@ -1,0 +1,39 @@
+"""``flexstab study``: the whole study on the built-in (or a configured) manipulator."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from flexstab.config import load_config
+
+__all__ = ["register", "run"]
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "study",
+        help="run the whole study and write report.md / report.html",
+        description="Tables 2 and 3, charts, transients, the Exudyn model and nonlinear validation, "
+        "written as one report with every number traceable to a JSON file beside it.",
+    )
+    p.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator")
+    p.add_argument("--out", default="results", help="output folder (default results/)")
+    p.add_argument("--quick", action="store_true", help="one case, coarse grids (< 60 s)")
+    p.add_argument("--stages", default=None, help="comma-separated subset of the stages")
+    p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler for the sweeps")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from flexstab.study import StudyOptions, run_study
+
+    cfg = load_config(args.config)
+    stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
+    res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
+                                      progress=sys.stderr.isatty(), scheduler=args.scheduler))
+    failed = [k for k, v in res.stages.items() if "error" in v]
+    print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
+    for k in failed:
+        print(f"stage {k} failed: {res.stages[k]['error']}", file=sys.stderr)
+    return 1 if failed else 0
