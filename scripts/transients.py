@@ -191,8 +191,10 @@ def _caption(case: Case, res: dict, with_forcing: bool) -> str:
     s = res["summary"]
     eq = "Eq. 33" if case.controlled else "Eq. 25"
     if with_forcing:
-        what = (f"Coloured: response including h_L (Eq. 20/31 with Eq. 24); grey: homogeneous response ({eq}). "
-                "Envelope drawn for the homogeneous response.")
+        tail = ("the forced one tends to the T-periodic forced solution, not to 0"
+                if res["summary"]["spectral_radius"] < 1 else "the forced one grows at the same rate")
+        what = (f"Coloured: response including h_L (Eq. {31 if case.controlled else 20} with Eq. 24); "
+                f"grey: homogeneous ({eq}). Envelope of the homogeneous response; {tail}.")
     else:
         what = f"Homogeneous response ({eq}: h_L omitted) of the linearised reduced model (paper constants)."
     rho = s["spectral_radius"]
@@ -243,15 +245,19 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
         ax.set_ylabel(label.split(" ")[-1])
         axl.set_ylabel("magnitude " + label.split(" ")[-1])
         axl.set_xlabel("time t (s)")
-        top = max(np.max(np.abs(y)), C * max(1.0, rho ** n_plot))
+        top = max(np.max(np.abs(y)), C * max(1.0, rho ** n_plot), 0.0 if yf is None else np.max(np.abs(yf)))
         bottom = min(C * min(1.0, rho ** n_plot), top) * 1e-3
         axl.set_ylim(bottom, top * 3)
         for a in (ax, axl):
             for k in range(1, n_plot):
                 a.axvline(k * T, color="0.85", lw=0.6, zorder=0)
             a.grid(True, which="major", alpha=0.3)
-        ax.legend(loc="upper left" if rho > 1 else "upper right", fontsize=8)
-        axl.legend(loc="lower right" if rho > 1 else "upper right", fontsize=8)
+        if yf is None:
+            ax.legend(loc="upper left" if rho > 1 else "upper right", fontsize=8)
+            axl.legend(loc="lower right" if rho > 1 else "upper right", fontsize=8)
+        else:
+            ax.legend(loc="best", fontsize=8, framealpha=0.9)
+            axl.legend(loc="best", fontsize=8, framealpha=0.9)
     control = (f"PD control kp = {case.kp:.4f} N·m/rad, kd = {case.kd:.4f} N·m·s/rad (Table 3)"
                if case.controlled else "no control (Table 2)")
     kind = "with h_L" if with_forcing else "homogeneous"

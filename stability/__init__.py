@@ -1,6 +1,7 @@
 """Floquet stability analysis of linear T-periodic systems."""
 from stability.floquet import DEFAULT_METHOD, METHODS, FloquetResult, floquet
 from stability.periodic import SecondOrderPeriodicSystem, first_order_matrix
+from stability.response import LinearResponse, linear_response
 
 __all__ = [
     "floquet",
@@ -9,4 +10,6 @@ __all__ = [
     "DEFAULT_METHOD",
     "SecondOrderPeriodicSystem",
     "first_order_matrix",
+    "linear_response",
+    "LinearResponse",
 ]
