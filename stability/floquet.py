@@ -93,10 +93,16 @@ class FloquetResult:
         The band ``|rho_max - 1| <= tol`` called critical (the requested
         tolerance, widened to the estimated error when that is larger).
     liouville_residual : float
-        ``|det Phi(T) / exp(int_0^T tr P dt) - 1|``, evaluated as
-        ``|expm1(ln|det Phi| - int tr P)|`` with ``ln|det Phi|`` accumulated
-        from the sub-interval factors, so that it stays meaningful when
+        ``|det Phi(T) / exp(int_0^T tr P dt) - 1|`` in log form,
+        ``|expm1(ln|det Phi| - int tr P)|``, so that it stays meaningful when
         ``det Phi`` underflows (1e-1400 in the controlled manipulator).
+        ``ln|det Phi|`` is ``sum ln|rho_i|`` of the returned multipliers when
+        all of them are above the noise floor (``liouville_source =
+        "multipliers"``); otherwise the multipliers cannot carry it, and it is
+        accumulated from the propagators (``"propagators"``: ``sum tr
+        Omega_k`` for Magnus, which checks the quadrature of ``tr P`` only).
+    liouville_source : str
+        ``"multipliers"`` or ``"propagators"`` (see above).
     multiplier_liouville_residual : float
         The same identity checked on the returned multipliers,
         ``|expm1(sum ln|rho_i| - int tr P)|``; NaN when some multiplier is
@@ -135,6 +141,7 @@ class FloquetResult:
     verdict: str
     stability_tolerance: float
     liouville_residual: float
+    liouville_source: str
     multiplier_liouville_residual: float
     trace_integral: float
     error_estimate: float
@@ -174,6 +181,7 @@ class FloquetResult:
             "verdict": self.verdict,
             "stability_tolerance": float(self.stability_tolerance),
             "liouville_residual": float(self.liouville_residual),
+            "liouville_source": self.liouville_source,
             "multiplier_liouville_residual": None
             if math.isnan(self.multiplier_liouville_residual)
             else float(self.multiplier_liouville_residual),
@@ -203,10 +211,16 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
     return _Spectrum(vals[order], logs[order])
 
 
-def _modulus_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
-    """Relative change of each modulus between two refinements (sorted alike)."""
+def _multiplier_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
+    """Relative change of each multiplier between two refinements (sorted alike).
+
+    The larger of the relative change of the modulus and the change of the
+    phase (radians), so that the phases of complex pairs are watched too.
+    """
     with np.errstate(invalid="ignore"):
-        d = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+        dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+        dphase = np.abs(np.angle(a.values * np.conj(b.values)))
+        d = np.maximum(dmod, dphase)
     return np.where(np.isfinite(d), d, np.inf)
 
 
@@ -266,34 +280,34 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         q = len(scheme.nodes)
         richardson = 2.0**scheme.order - 1.0
 
-        def solve(N: int) -> tuple[np.ndarray, np.ndarray, _Spectrum]:
-            E = magnus_factors(scheme, wrapped.evaluate, period, N)
+        def solve(N: int) -> tuple[float, np.ndarray, _Spectrum]:
+            E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
             if not np.all(np.isfinite(E)):
                 raise FloatingPointError(f"non-finite sub-interval propagator with {N} steps")
             Phi = ordered_product(E)
-            return E, Phi, _spectrum(Phi)
+            return log_det, Phi, _spectrum(Phi)
 
         changes = None
         est = math.nan
         if n_steps is not None:
             N = n_steps
-            E, Phi, spec = solve(N)
+            log_det, Phi, spec = solve(N)
             evaluations = q * N
             if error_estimate and N >= 2:
                 coarse = solve(N // 2)[2]
                 evaluations += q * (N // 2)
-                changes = _modulus_changes(spec, coarse)
+                changes = _multiplier_changes(spec, coarse)
                 est = _estimate(changes, spec, richardson)
         else:
             N = INITIAL_STEPS
-            E, Phi, spec = solve(N)
+            log_det, Phi, spec = solve(N)
             evaluations = q * N
             while True:
-                E2, Phi2, spec2 = solve(2 * N)
+                log_det2, Phi2, spec2 = solve(2 * N)
                 evaluations += q * 2 * N
-                changes = _modulus_changes(spec2, spec)
+                changes = _multiplier_changes(spec2, spec)
                 est = _estimate(changes, spec2, richardson)
-                E, Phi, spec, N = E2, Phi2, spec2, 2 * N
+                log_det, Phi, spec, N = log_det2, Phi2, spec2, 2 * N
                 if est <= rtol:
                     break
                 if 2 * N > max_steps:
@@ -304,7 +318,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                         stacklevel=4,
                     )
                     break
-        return _Propagation(Phi, spec, _log_abs_det(E), N, evaluations, est, changes)
+        return _Propagation(Phi, spec, log_det, N, evaluations, est, changes)
 
     run.__name__ = f"_run_{scheme.name}"
     return run
@@ -331,9 +345,9 @@ def _paper_method(
         loose = ReferenceOptions(opts.integrator, rtol=opts.rtol * 100, atol=opts.atol * 100)
         Phi2, nfev2 = paper_monodromy(wrapped, period, loose)
         evaluations += nfev2
-        changes = _modulus_changes(spec, _spectrum(Phi2))
+        changes = _multiplier_changes(spec, _spectrum(Phi2))
         est = _estimate(changes, spec, 1.0)
-    return _Propagation(Phi, spec, _log_abs_det(Phi), nfev, evaluations, est, changes)
+    return _Propagation(Phi, spec, _log_abs_det(Phi[None]), nfev, evaluations, est, changes)
 
 
 #: Registry of Floquet methods (name -> implementation).
@@ -453,7 +467,6 @@ def floquet(
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
     trace = _trace_integral(P, wrapped, T)
-    liouville = _liouville(prop.log_abs_det, trace)
     n = spec.values.size
     noise = float(n * np.finfo(float).eps * np.linalg.norm(prop.monodromy, 2))
     with np.errstate(divide="ignore"):
@@ -467,6 +480,10 @@ def floquet(
     multiplier_liouville = (
         _liouville(float(np.sum(spec.log_moduli)), trace) if reliable_all else math.nan
     )
+    if reliable_all:
+        liouville, liouville_source = multiplier_liouville, "multipliers"
+    else:
+        liouville, liouville_source = _liouville(prop.log_abs_det, trace), "propagators"
     tol = stability_tol
     if math.isfinite(prop.error_estimate):
         tol = max(tol, prop.error_estimate * rho)
@@ -478,6 +495,7 @@ def floquet(
         verdict=_verdict(rho, tol),
         stability_tolerance=tol,
         liouville_residual=liouville,
+        liouville_source=liouville_source,
         multiplier_liouville_residual=multiplier_liouville,
         trace_integral=trace,
         error_estimate=prop.error_estimate,

@@ -76,8 +76,15 @@ def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarr
     raise ValueError(f"unsupported Magnus order {scheme.order}")
 
 
-def magnus_factors(scheme: MagnusScheme, evaluate, period: float, n_steps: int) -> np.ndarray:
+def magnus_factors(
+    scheme: MagnusScheme, evaluate, period: float, n_steps: int, *, return_log_det: bool = False
+):
     """Sub-interval propagators ``E_k`` (shape ``(N, n, n)``), in time order.
+
+    With ``return_log_det=True`` also return ``sum_k ln det E_k``, evaluated
+    exactly as ``sum_k tr Omega_k`` (``det expm(X) = exp(tr X)``) rather than
+    from the factors, whose determinants are rounding noise when a factor
+    contracts a direction by more than ``1/eps``.
 
     Parameters
     ----------
@@ -94,7 +101,11 @@ def magnus_factors(scheme: MagnusScheme, evaluate, period: float, n_steps: int) 
     P = evaluate(times.ravel())
     n = P.shape[-1]
     Pg = P.reshape(n_steps, len(nodes), n, n)
-    return expm_stack(magnus_exponents(scheme, Pg, h))
+    Om = magnus_exponents(scheme, Pg, h)
+    E = expm_stack(Om)
+    if return_log_det:
+        return E, float(np.sum(np.trace(Om, axis1=1, axis2=2)))
+    return E
 
 
 def ordered_product(factors: np.ndarray) -> np.ndarray:
