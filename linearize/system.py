@@ -1,0 +1,141 @@
+"""The linearised periodic system ``M(t) y'' + C(t) y' + K(t) y = 0`` from samples."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from linearize.fourier import trig_interpolate
+from stability.periodic import first_order_matrix
+
+__all__ = ["LinearizedPeriodicSystem"]
+
+
+@dataclass(frozen=True)
+class LinearizedPeriodicSystem:
+    """Periodic matrices ``M, C, K`` sampled over one period, interpolated in time.
+
+    A periodic matrix for :func:`stability.floquet`: it has ``.period``,
+    ``__call__(t) -> P(t)`` and ``evaluate(times) -> (m, 2n, 2n)``, with
+    ``P = [[0, I], [-M^-1 K, -M^-1 C]]`` built by
+    :func:`stability.periodic.first_order_matrix` (the package's one place).
+
+    Attributes
+    ----------
+    period : float
+        ``T``.
+    times : ndarray, shape (N,)
+        Sample times ``k T / N``.
+    M, C, K : ndarray, shape (N, n, n)
+        Mass, damping and stiffness matrices at ``times`` (left-hand side,
+        ``K = dr/dp``, ``C = dr/dp'``; PD gains included).
+    kp, kd : float
+        PD gains added to ``K[0, 0]`` and ``C[0, 0]`` (paper Eq. 32) when the
+        hub coordinate is free; 0 for the prescribed hub.
+    coordinates : tuple of str
+        Names of the independent coordinates ``y``.
+    hub_free : bool
+        Whether coordinate 0 is the hub angle (free hub) or the hub is
+        prescribed (beam coordinates only).
+    reference : str
+        ``"periodic"`` (linearised about the true periodic orbit) or
+        ``"rigid"`` (about the undeformed rigid motion).
+    orbit_residual : float
+        Relative residual of the reference motion (see
+        :class:`~mbs_models.orbit.PeriodicOrbit`).
+    elements : int
+        ANCF elements of the model.
+    fd_step : float
+        Relative central-difference step used.
+    wall_time : float
+        Seconds spent linearising.
+
+    Notes
+    -----
+    Interpolation: each matrix entry is the trigonometric interpolant of its
+    ``N`` samples (spectrally accurate for the smooth periodic matrices of
+    this model; convergence in ``N`` is shown in ``tests/test_linearize.py``).
+    """
+
+    period: float
+    times: np.ndarray
+    M: np.ndarray
+    C: np.ndarray
+    K: np.ndarray
+    kp: float = 0.0
+    kd: float = 0.0
+    coordinates: tuple = ()
+    hub_free: bool = True
+    reference: str = "periodic"
+    orbit_residual: float = math.nan
+    elements: int = 0
+    fd_step: float = math.nan
+    wall_time: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("M", "C", "K"):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.ndim != 3 or a.shape[1] != a.shape[2] or a.shape[0] != np.size(self.times):
+                raise ValueError(f"{name} must have shape (samples, n, n), got {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise ValueError(f"{name} contains NaN or inf")
+            object.__setattr__(self, name, a)
+        if not (self.M.shape == self.C.shape == self.K.shape):
+            raise ValueError(f"M, C, K must have equal shape, got {self.M.shape}, {self.C.shape}, {self.K.shape}")
+        if not (math.isfinite(self.period) and self.period > 0):
+            raise ValueError(f"period must be finite and > 0, got {self.period!r}")
+
+    @property
+    def size(self) -> int:
+        """Number ``n`` of second-order coordinates (state size ``2 n``)."""
+        return int(self.M.shape[1])
+
+    @property
+    def samples(self) -> int:
+        """Number of samples per period."""
+        return int(self.M.shape[0])
+
+    def matrices(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Interpolated ``(M, C, K)`` at ``times``, each of shape ``(m, n, n)``."""
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        return (
+            trig_interpolate(self.M, self.period, t),
+            trig_interpolate(self.C, self.period, t),
+            trig_interpolate(self.K, self.period, t),
+        )
+
+    def evaluate(self, times: np.ndarray) -> np.ndarray:
+        """First-order matrices ``P(t)`` at ``times``, shape ``(m, 2n, 2n)``."""
+        M, C, K = self.matrices(times)
+        return first_order_matrix(M, C, K)
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.evaluate(np.array([float(t)]))[0]
+
+    def with_gains(self, kp: float, kd: float) -> "LinearizedPeriodicSystem":
+        """The same system with the PD gains replaced (constant terms on the hub, Eq. 32)."""
+        if not self.hub_free:
+            raise ValueError("PD gains need the free hub coordinate (linearise with drive='free')")
+        for name, v in (("kp", kp), ("kd", kd)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+        K = self.K.copy()
+        C = self.C.copy()
+        K[:, 0, 0] += kp - self.kp
+        C[:, 0, 0] += kd - self.kd
+        return replace(self, K=K, C=C, kp=float(kp), kd=float(kd))
+
+    def summary(self) -> dict:
+        """JSON-ready summary (no matrices)."""
+        return {
+            "period": self.period,
+            "samples": self.samples,
+            "size": self.size,
+            "kp": self.kp,
+            "kd": self.kd,
+            "hub_free": self.hub_free,
+            "reference": self.reference,
+            "orbit_residual": self.orbit_residual,
+            "elements": self.elements,
+        }
