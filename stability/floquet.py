@@ -11,6 +11,11 @@ Public entry point: :func:`floquet`.  Methods live in the registry
     sub-interval propagator is a matrix exponential).
 ``"magnus4"``
     The same with the 4th-order, two-point scheme.
+``"magnus2"``
+    The exponential midpoint rule ``prod exp(h P(t_k + h/2))`` (2nd order).
+    The robust choice when ``h ||P||`` is large and ``P`` varies (the Exudyn
+    linearisation, ``||P|| ~ 4e5 1/s``): it has no commutator terms, which
+    in the higher-order schemes grow like ``(h ||P||)^2`` and more.
 ``"paper"``
     The paper's procedure (Eqs. 7-8): ``n`` integrations from the unit
     vectors with ``scipy.integrate.solve_ivp`` (Radau with the exact
@@ -37,7 +42,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from stability.magnus import MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
+from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
 
@@ -224,6 +229,14 @@ def _multiplier_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
     return np.where(np.isfinite(d), d, np.inf)
 
 
+def _select_changes(a: _Spectrum, b: _Spectrum, accuracy: str) -> np.ndarray:
+    if accuracy == "moduli":
+        with np.errstate(invalid="ignore"):
+            d = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+        return np.where(np.isfinite(d), d, np.inf)
+    return _multiplier_changes(a, b)
+
+
 def _estimate(changes: np.ndarray, fine: _Spectrum, factor: float) -> float:
     """Richardson estimate over moduli above ``ESTIMATE_FLOOR`` of the largest."""
     keep = fine.log_moduli >= fine.log_moduli[0] + math.log(ESTIMATE_FLOOR)
@@ -276,14 +289,21 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         error_estimate: bool,
         max_steps: int,
         reference: Optional[ReferenceOptions] = None,
+        accuracy: str = "multipliers",
     ) -> _Propagation:
         q = len(scheme.nodes)
         richardson = 2.0**scheme.order - 1.0
 
         def solve(N: int) -> tuple[float, np.ndarray, _Spectrum]:
-            E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
+            with np.errstate(over="ignore", invalid="ignore"):
+                E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
             if not np.all(np.isfinite(E)):
-                raise FloatingPointError(f"non-finite sub-interval propagator with {N} steps")
+                h_norm = float(np.max(np.abs(np.linalg.eigvals(wrapped.evaluate(np.array([0.0]))[0])))) * period / N
+                raise ValueError(
+                    f"{scheme.name}: the Magnus exponent overflowed with {N} sub-intervals "
+                    f"(h*|lambda(P)| = {h_norm:.3g}); the commutator terms of high-order Magnus "
+                    f"schemes grow like (h ||P||)^2 -- use method='magnus2' or more steps"
+                )
             Phi = ordered_product(E)
             return log_det, Phi, _spectrum(Phi)
 
@@ -296,7 +316,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
             if error_estimate and N >= 2:
                 coarse = solve(N // 2)[2]
                 evaluations += q * (N // 2)
-                changes = _multiplier_changes(spec, coarse)
+                changes = _select_changes(spec, coarse, accuracy)
                 est = _estimate(changes, spec, richardson)
         else:
             N = INITIAL_STEPS
@@ -305,7 +325,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
             while True:
                 log_det2, Phi2, spec2 = solve(2 * N)
                 evaluations += q * 2 * N
-                changes = _multiplier_changes(spec2, spec)
+                changes = _select_changes(spec2, spec, accuracy)
                 est = _estimate(changes, spec2, richardson)
                 log_det, Phi, spec, N = log_det2, Phi2, spec2, 2 * N
                 if est <= rtol:
@@ -333,6 +353,7 @@ def _paper_method(
     error_estimate: bool,
     max_steps: int,
     reference: Optional[ReferenceOptions] = None,
+    accuracy: str = "multipliers",
 ) -> _Propagation:
     opts = reference or ReferenceOptions()
     Phi, nfev = paper_monodromy(wrapped, period, opts)
@@ -345,7 +366,7 @@ def _paper_method(
         loose = ReferenceOptions(opts.integrator, rtol=opts.rtol * 100, atol=opts.atol * 100)
         Phi2, nfev2 = paper_monodromy(wrapped, period, loose)
         evaluations += nfev2
-        changes = _multiplier_changes(spec, _spectrum(Phi2))
+        changes = _select_changes(spec, _spectrum(Phi2), accuracy)
         est = _estimate(changes, spec, 1.0)
     return _Propagation(Phi, spec, _log_abs_det(Phi[None]), nfev, evaluations, est, changes)
 
@@ -354,11 +375,45 @@ def _paper_method(
 METHODS: dict[str, Callable[..., _Propagation]] = {
     "magnus6": _magnus_method(MAGNUS6),
     "magnus4": _magnus_method(MAGNUS4),
+    "magnus2": _magnus_method(MAGNUS2),
     "paper": _paper_method,
 }
 
 
 # --------------------------------------------------------------------------- driver
+#: Sample times (fractions of the period) at which |P| is averaged for balancing.
+BALANCE_SAMPLES = 8
+
+
+class _Balanced:
+    """``D^-1 P(t) D`` with ``D = diag(scale)``: same multipliers, better scaling."""
+
+    def __init__(self, wrapped: PeriodicMatrixFunction, scale: np.ndarray) -> None:
+        self.wrapped = wrapped
+        self.period = wrapped.period
+        self.n = wrapped.n
+        self._ratio = scale[None, :] / scale[:, None]
+
+    def evaluate(self, times: np.ndarray) -> np.ndarray:
+        return self.wrapped.evaluate(times) * self._ratio
+
+    def __call__(self, t: float) -> np.ndarray:
+        return self.evaluate(np.array([t]))[0]
+
+
+def _balancing_scale(wrapped: PeriodicMatrixFunction, period: float) -> Optional[np.ndarray]:
+    """Diagonal scaling from LAPACK's balancing of ``mean |P(t)|``; ``None`` if not worth it."""
+    from scipy.linalg import matrix_balance
+
+    if wrapped.n < 2:
+        return None
+    A = np.mean(np.abs(wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))), axis=0)
+    _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
+    if np.all(scale == 1.0):
+        return None
+    return np.asarray(scale, dtype=float)
+
+
 def _liouville(log_det: float, trace: float) -> float:
     """``|det / exp(trace) - 1|`` from logarithms (inf when it overflows)."""
     d = log_det - trace
@@ -378,6 +433,8 @@ def floquet(
     error_estimate: bool = True,
     max_steps: int = MAX_STEPS,
     reference: Optional[ReferenceOptions] = None,
+    balance: bool = True,
+    accuracy: str = "multipliers",
 ) -> FloquetResult:
     """Floquet multipliers and stability verdict of ``x' = P(t) x``.
 
@@ -409,6 +466,18 @@ def floquet(
     reference : ReferenceOptions, optional
         Integrator and tolerances of the ``"paper"`` method (default Radau,
         ``rtol=1e-11``); ignored by the other methods.
+    accuracy : {"multipliers", "moduli"}
+        What the refinement estimate watches: moduli and phases of the
+        multipliers (default), or the moduli only -- for models with
+        undamped high-frequency modes (the Exudyn link's axial modes) whose
+        phases are irrelevant to stability and never converge cheaply.
+    balance : bool
+        Work with ``D^-1 P(t) D`` for a constant diagonal ``D`` (powers of 2,
+        LAPACK's balancing of the mean ``|P|``): the multipliers are
+        unchanged, but badly scaled models (the Exudyn linearisation mixes
+        metres and radians; its 1-norm is 1e4 times its spectral radius) get
+        matrix exponentials that are cheaper and far more accurate.  The
+        returned monodromy matrix is transformed back.
 
     Returns
     -------
@@ -451,18 +520,23 @@ def floquet(
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
     if not (math.isfinite(rtol) and rtol > 0):
         raise ValueError(f"rtol must be finite and > 0, got {rtol!r}")
+    if accuracy not in ("multipliers", "moduli"):
+        raise ValueError(f"accuracy must be 'multipliers' or 'moduli', got {accuracy!r}")
     if not (math.isfinite(stability_tol) and stability_tol >= 0):
         raise ValueError(f"stability_tol must be finite and >= 0, got {stability_tol!r}")
     wrapped = PeriodicMatrixFunction(P, period)
     T = wrapped.period
+    scale = _balancing_scale(wrapped, T) if balance else None
+    target = wrapped if scale is None else _Balanced(wrapped, scale)
     prop = METHODS[method](
-        wrapped,
+        target,
         T,
         n_steps=None if n_steps is None else int(n_steps),
         rtol=rtol,
         error_estimate=error_estimate,
         max_steps=max_steps,
         reference=reference,
+        accuracy=accuracy,
     )
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
@@ -490,7 +564,7 @@ def floquet(
     result = FloquetResult(
         multipliers=spec.values,
         log_moduli=spec.log_moduli,
-        monodromy=prop.monodromy,
+        monodromy=prop.monodromy if scale is None else prop.monodromy * scale[:, None] / scale[None, :],
         spectral_radius=rho,
         verdict=_verdict(rho, tol),
         stability_tolerance=tol,

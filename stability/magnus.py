@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from stability.expm import expm_stack
 
-__all__ = ["MagnusScheme", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product"]
+__all__ = ["MagnusScheme", "MAGNUS2", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,8 @@ class MagnusScheme:
     order: int
 
 
+#: 2nd order, 1 Gauss point: the exponential midpoint rule ``exp(h P(t + h/2))``.
+MAGNUS2 = MagnusScheme("magnus2", (0.5,), 2)
 #: 4th order, 2 Gauss points (Blanes et al. 2009, Eq. 253).
 MAGNUS4 = MagnusScheme("magnus4", (0.5 - math.sqrt(3) / 6, 0.5 + math.sqrt(3) / 6), 4)
 #: 6th order, 3 Gauss points (Blanes et al. 2009, Eq. 257).
@@ -62,6 +64,8 @@ def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarr
     -------
     ndarray, shape (N, n, n)
     """
+    if scheme.order == 2:
+        return h * Pg[:, 0]
     if scheme.order == 4:
         A1, A2 = Pg[:, 0], Pg[:, 1]
         return 0.5 * h * (A1 + A2) + (math.sqrt(3) / 12.0) * h * h * _comm(A2, A1)

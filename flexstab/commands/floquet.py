@@ -24,7 +24,9 @@ def register(sub) -> None:
     add_model_options(p)
     p.add_argument("--kp", type=non_negative_float, default=0.0, help="proportional gain on the hub (N m/rad)")
     p.add_argument("--kd", type=non_negative_float, default=0.0, help="derivative gain on the hub (N m s/rad)")
-    p.add_argument("--method", default=None, help="Floquet method (magnus6, magnus4, paper); default magnus6")
+    p.add_argument("--method", default=None,
+                   help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
+                        "reduced model, magnus2 for the Exudyn model")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
@@ -36,7 +38,7 @@ def floquet_report(args: argparse.Namespace) -> dict:
 
     cfg = load_config(args.config)
     omega = args.omega if args.omega is not None else cfg.omega
-    method = args.method or DEFAULT_METHOD
+    method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     out: dict = {"model": args.model}
@@ -66,21 +68,33 @@ def floquet_report(args: argparse.Namespace) -> dict:
 
 
 def _table(d: dict) -> str:
+    modes = d.get("modes")
     lines = [
         f"model: {d['model']}    omega = {d['omega']:.6g} rad/s ({d['omega'] / math.pi:.6g} pi)    T = {d['period']:.6g} s",
         f"kp = {d['kp']:.6g}    kd = {d['kd']:.6g}    method = {d['method']} ({d['n_steps']} steps)",
         "",
-        f"{'#':>3}  {'Re rho':>14}  {'Im rho':>14}  {'|rho|':>14}  digits",
+        f"{'#':>3}  {'Re rho':>14}  {'Im rho':>14}  {'|rho|':>14}  digits" + ("  mode" if modes else ""),
     ]
     for i, ((re, im), mod, dig) in enumerate(zip(d["multipliers"], d["moduli"], d["reliable_digits"]), 1):
-        lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}")
+        label = ""
+        if modes:
+            m = modes[i - 1]
+            label = f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
+        lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (step doubling, relative)",
-        f"Liouville        |det Phi / exp(int tr P) - 1| = {d['liouville_residual']:.1e}",
+        f"Liouville        |det Phi / exp(int tr P) - 1| = {d['liouville_residual']:.1e}"
+        f" (from the {d['liouville_source']})",
     ]
+    if d["model"] == "exudyn":
+        lines += [
+            f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
+            f" ({d['dominant_mode']}); {d['undamped_multipliers']} multipliers of undamped structural modes",
+            f"orbit residual {d['orbit_residual']:.1e}, {d['samples']} samples, {d['elements']} elements",
+        ]
     return "\n".join(lines)
 
 
