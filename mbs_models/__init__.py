@@ -10,6 +10,35 @@ from mbs_models.reduced import (
     mode_constants,
 )
 
+#: Names provided by the Exudyn layer, imported on first use (Exudyn adds ~0.1 s).
+_LAZY = {
+    "ExudynLinkConfig": "mbs_models.exudyn_link",
+    "ExudynLinkModel": "mbs_models.exudyn_link",
+    "ExudynSolverError": "mbs_models.exudyn_link",
+    "build_link_model": "mbs_models.exudyn_link",
+    "find_periodic_orbit": "mbs_models.orbit",
+    "rigid_reference": "mbs_models.orbit",
+    "PeriodicOrbit": "mbs_models.orbit",
+    "OrbitConvergenceError": "mbs_models.orbit",
+    "exudyn_frequencies": "mbs_models.modes",
+    "analytic_frequencies": "mbs_models.modes",
+    "ModesResult": "mbs_models.modes",
+    "exudyn_floquet": "mbs_models.exudyn_floquet",
+    "exudyn_plant": "mbs_models.exudyn_floquet",
+    "ExudynPlant": "mbs_models.exudyn_floquet",
+    "direct_monodromy": "mbs_models.exudyn_floquet",
+    "ExudynFloquetResult": "mbs_models.exudyn_floquet",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'mbs_models' has no attribute {name!r}")
+
+
 __all__ = [
     "ManipulatorParameters",
     "ReducedModel",
@@ -18,4 +47,5 @@ __all__ = [
     "PAPER_MODE_CONSTANTS",
     "derived_mode_constants",
     "mode_constants",
+    *sorted(_LAZY),
 ]

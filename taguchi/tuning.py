@@ -88,7 +88,9 @@ class GainObjective:
         Keyword arguments for :func:`stability.floquet`.  The default uses a
         fixed number of sub-intervals without step doubling (fast inside the
         loop); the final gains are re-checked by the caller with the default
-        adaptive method.
+        adaptive method.  A plant with ``spectral_measure(kp, kd)`` supplies
+        its own response instead (the Exudyn link: the dominant multiplier of
+        its damped modes).
     """
 
     def __init__(self, plant: Any, floquet_options: Optional[dict] = None) -> None:
@@ -101,6 +103,9 @@ class GainObjective:
         from stability import floquet
 
         kp, kd = float(gains[0]), float(gains[1])
+        measure = getattr(self.plant, "spectral_measure", None)
+        if callable(measure):  # the plant defines its own response (e.g. the Exudyn link)
+            return float(measure(kp, kd))
         return floquet(self.plant.with_gains(kp, kd), **self.floquet_options).spectral_radius
 
 
