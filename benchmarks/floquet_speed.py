@@ -1,0 +1,270 @@
+"""Benchmark: the default Floquet method vs the best ``scipy.integrate.solve_ivp`` baseline.
+
+For the 8 cases of the paper's Tables 2 and 3 (p. 489: uncontrolled manipulator
+at Omega = 2pi..8pi, and the same with Table 3's printed PD gains) this measures,
+in one run,
+
+* the time per evaluation of ``stability.floquet(model)`` as called by default
+  (``magnus6``, adaptive step doubling, rtol 1e-10): median of >= 5 repeats;
+* the time of the fastest ``solve_ivp`` baseline on the matrix ODE
+  ``Phi' = P(t) Phi``, ``Phi(0) = I`` (16 states for the 4x4 model): the
+  fastest of RK45, DOP853, Radau, BDF, LSODA, each at the loosest
+  ``rtol`` in 1e-6 .. 1e-12 (``atol = 1e-3 rtol``) that reaches <= 1e-8
+  relative error on every modulus >= 1e-6 of the largest;
+
+against a reference computed once per case (default: ``method="paper"``,
+Radau at rtol 1e-11, the paper's procedure).  A baseline run that is already
+slower than the best accepted one is abandoned (tighter tolerances are only
+slower), which keeps the search affordable without changing its outcome.
+
+Usage::
+
+    python benchmarks/floquet_speed.py            # full run (~10 min: the Radau references)
+    python benchmarks/floquet_speed.py --quick    # 2 cases, 2 tolerances, DOP853 reference
+    python benchmarks/floquet_speed.py --out results
+
+Writes ``<out>/floquet_speed.json`` (default ``results/``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import statistics
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import scipy
+from scipy.integrate import solve_ivp
+
+from mbs_models.reduced import ReducedModel
+from stability import floquet
+from stability.reference import ReferenceOptions, paper_monodromy
+
+#: (label, Omega/pi, kp, kd): paper Table 2 (uncontrolled) and Table 3 (printed gains), p. 489.
+CASES = [
+    ("T2 2pi", 2, 0.0, 0.0),
+    ("T2 4pi", 4, 0.0, 0.0),
+    ("T2 6pi", 6, 0.0, 0.0),
+    ("T2 8pi", 8, 0.0, 0.0),
+    ("T3 2pi", 2, 37.1617, 29.2410),
+    ("T3 4pi", 4, 28.7617, 11.7501),
+    ("T3 6pi", 6, 22.2666, 6.7208),
+    ("T3 8pi", 8, 23.0147, 6.8628),
+]
+QUICK_CASES = ["T2 8pi", "T3 8pi"]
+
+IVP_METHODS = ["DOP853", "RK45", "LSODA", "BDF", "Radau"]
+IMPLICIT = {"Radau", "BDF", "LSODA"}
+RTOLS = [1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11, 1e-12]
+QUICK_RTOLS = [1e-9, 1e-11]
+#: atol = ATOL_FACTOR * rtol (the entries of Phi are O(1) .. O(1e3)).
+ATOL_FACTOR = 1e-3
+#: Required relative accuracy on every modulus >= MODULUS_FLOOR * the largest.
+TARGET = 1e-8
+MODULUS_FLOOR = 1e-6
+#: Wall-clock cap on a single baseline run before any has been accepted.
+FIRST_RUN_CAP = 300.0
+
+
+class _Abandoned(Exception):
+    pass
+
+
+@dataclass
+class CaseResult:
+    case: str
+    omega: float
+    kp: float
+    kd: float
+    reference_moduli: list
+    reference_seconds: float
+    default_ms: float
+    default_repeats: int
+    default_n_steps: int
+    default_max_rel_error: float
+    best_method: Optional[str]
+    best_rtol: Optional[float]
+    best_ms: Optional[float]
+    best_max_rel_error: Optional[float]
+    ratio: Optional[float]
+    tried: list
+
+
+def _moduli(Phi: np.ndarray) -> np.ndarray:
+    return np.sort(np.abs(np.linalg.eigvals(Phi)))[::-1]
+
+
+def _max_rel_error(moduli: np.ndarray, ref: np.ndarray) -> float:
+    keep = ref >= MODULUS_FLOOR * ref[0]
+    return float(np.max(np.abs(moduli[keep] / ref[keep] - 1.0)))
+
+
+def _reference(model: ReducedModel, kind: str) -> np.ndarray:
+    if kind == "paper":
+        return floquet(model, method="paper", error_estimate=False).moduli
+    Phi, _ = paper_monodromy(model, model.period, ReferenceOptions("DOP853", rtol=1e-13, atol=1e-16))
+    return _moduli(Phi)
+
+
+def _ivp_monodromy(model: ReducedModel, method: str, rtol: float, deadline: float) -> np.ndarray:
+    """Phi(T) from one solve_ivp call on the n^2-dimensional matrix ODE (row-major vec)."""
+    n = model(0.0).shape[0]
+    eye = np.eye(n)
+
+    def rhs(t, y):
+        if time.perf_counter() > deadline:
+            raise _Abandoned
+        return (model(t) @ y.reshape(n, n)).ravel()
+
+    kwargs = {}
+    if method in IMPLICIT:
+        # d vec(P Phi) / d vec(Phi) = kron(P, I) for row-major vec
+        kwargs["jac"] = lambda t, y: np.kron(model(t), eye)
+    sol = solve_ivp(rhs, (0.0, model.period), eye.ravel(), method=method,
+                    rtol=rtol, atol=ATOL_FACTOR * rtol, **kwargs)
+    if not sol.success:
+        raise RuntimeError(sol.message)
+    return sol.y[:, -1].reshape(n, n)
+
+
+def _time_default(model: ReducedModel, min_repeats: int, min_seconds: float):
+    floquet(model)  # warm-up
+    times = []
+    t_start = time.perf_counter()
+    while len(times) < min_repeats or time.perf_counter() - t_start < min_seconds:
+        t0 = time.perf_counter()
+        res = floquet(model)
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), len(times), res
+
+
+def _best_baseline(model, ref, methods, rtols, repeats, log):
+    best = None  # (seconds, method, rtol, err)
+    tried = []
+    for method in methods:
+        for rtol in rtols:
+            cap = best[0] if best is not None else FIRST_RUN_CAP
+            t0 = time.perf_counter()
+            try:
+                Phi = _ivp_monodromy(model, method, rtol, t0 + cap)
+            except _Abandoned:
+                tried.append({"method": method, "rtol": rtol, "status": f"abandoned (> {cap:.3g} s)"})
+                log(f"    {method:6s} rtol={rtol:.0e}: abandoned after {cap:.3g} s")
+                break  # tighter tolerances are slower still
+            except Exception as exc:  # integrator failure: record and try a tighter tolerance
+                tried.append({"method": method, "rtol": rtol, "status": f"failed: {exc}"})
+                continue
+            dt = time.perf_counter() - t0
+            err = _max_rel_error(_moduli(Phi), ref)
+            ok = err <= TARGET
+            tried.append({"method": method, "rtol": rtol, "seconds": dt, "max_rel_error": err, "accepted": ok})
+            log(f"    {method:6s} rtol={rtol:.0e}: {dt * 1e3:9.1f} ms  err={err:.1e} {'ok' if ok else ''}")
+            if ok:
+                if best is None or dt < best[0]:
+                    best = (dt, method, rtol, err)
+                break  # the loosest accepted tolerance of this method
+            if best is not None and dt > best[0]:
+                break
+    if best is None:
+        return None, tried
+    # re-time the winner (median of `repeats`, the search run included)
+    _, method, rtol, err = best
+    runs = [best[0]]
+    for _ in range(repeats - 1):
+        t0 = time.perf_counter()
+        _ivp_monodromy(model, method, rtol, math.inf)
+        runs.append(time.perf_counter() - t0)
+    return (statistics.median(runs), method, rtol, err), tried
+
+
+def run(quick: bool = False, out: Path = Path("results"), reference: Optional[str] = None,
+        verbose: bool = True) -> dict:
+    log = (lambda s: print(s, flush=True)) if verbose else (lambda s: None)
+    cases = [c for c in CASES if c[0] in QUICK_CASES] if quick else CASES
+    rtols = QUICK_RTOLS if quick else RTOLS
+    reference = reference or ("dop853" if quick else "paper")
+    results = []
+    for label, k, kp, kd in cases:
+        model = ReducedModel(k * math.pi, kp, kd)
+        log(f"{label}: reference ({reference}) ...")
+        t0 = time.perf_counter()
+        ref = _reference(model, reference)
+        ref_s = time.perf_counter() - t0
+        d_s, d_rep, d_res = _time_default(model, min_repeats=5, min_seconds=0.0 if quick else 0.5)
+        d_err = _max_rel_error(d_res.moduli, ref)
+        log(f"  default magnus6: {d_s * 1e3:.3f} ms (N={d_res.n_steps}, err={d_err:.1e})")
+        best, tried = _best_baseline(model, ref, IVP_METHODS, rtols, 1 if quick else 3, log)
+        results.append(CaseResult(
+            case=label, omega=k * math.pi, kp=kp, kd=kd,
+            reference_moduli=[float(x) for x in ref], reference_seconds=ref_s,
+            default_ms=d_s * 1e3, default_repeats=d_rep, default_n_steps=int(d_res.n_steps),
+            default_max_rel_error=d_err,
+            best_method=best[1] if best else None, best_rtol=best[2] if best else None,
+            best_ms=best[0] * 1e3 if best else None, best_max_rel_error=best[3] if best else None,
+            ratio=(best[0] / d_s) if best else None, tried=tried,
+        ))
+    timed = [r for r in results if r.best_ms is not None]
+    total_ratio = (sum(r.best_ms for r in timed) / sum(r.default_ms for r in timed)) if timed else None
+    table = _table(results, total_ratio)
+    print(table)
+    payload = {
+        "quick": quick,
+        "reference": reference,
+        "target_rel_error": TARGET,
+        "modulus_floor": MODULUS_FLOOR,
+        "rtols": rtols,
+        "methods": IVP_METHODS,
+        "total_ratio": total_ratio,
+        "cases": [asdict(r) for r in results],
+        "platform": {"python": platform.python_version(), "numpy": np.__version__,
+                     "scipy": scipy.__version__, "machine": platform.machine()},
+        "table": table,
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "floquet_speed.json").write_text(json.dumps(payload, indent=2))
+    return payload
+
+
+def _table(results, total_ratio) -> str:
+    lines = [
+        f"{'case':8s} {'default ms':>10s} {'N':>5s} {'err':>8s} | {'best solve_ivp':>14s} "
+        f"{'rtol':>6s} {'ms':>10s} {'err':>8s} | {'ratio':>8s}",
+        "-" * 92,
+    ]
+    for r in results:
+        if r.best_ms is None:
+            base = f"{'none passed':>14s} {'':>6s} {'':>10s} {'':>8s}"
+            ratio = f"{'-':>8s}"
+        else:
+            base = f"{r.best_method:>14s} {r.best_rtol:6.0e} {r.best_ms:10.1f} {r.best_max_rel_error:8.1e}"
+            ratio = f"{r.ratio:7.0f}x"
+        lines.append(f"{r.case:8s} {r.default_ms:10.3f} {r.default_n_steps:5d} "
+                     f"{r.default_max_rel_error:8.1e} | {base} | {ratio}")
+    lines.append("-" * 92)
+    if total_ratio is not None:
+        sd = sum(r.default_ms for r in results if r.best_ms is not None)
+        sb = sum(r.best_ms for r in results if r.best_ms is not None)
+        lines.append(f"total: baseline {sb:.1f} ms / default {sd:.3f} ms = {total_ratio:.0f}x")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="2 cases, 2 tolerances, DOP853 reference")
+    ap.add_argument("--out", type=Path, default=Path("results"), help="output directory (default: results)")
+    ap.add_argument("--reference", choices=["paper", "dop853"], default=None,
+                    help="reference for the accuracy check (default: paper; dop853 with --quick)")
+    ap.add_argument("--quiet", action="store_true", help="print only the table")
+    args = ap.parse_args(argv)
+    run(quick=args.quick, out=args.out, reference=args.reference, verbose=not args.quiet)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
