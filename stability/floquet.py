@@ -432,8 +432,12 @@ def _balancing_scale(wrapped: PeriodicMatrixFunction, period: float) -> Optional
     A = np.mean(np.abs(wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))), axis=0)
     if np.count_nonzero(A - np.diag(np.diag(A))) == 0:
         return None  # diagonal (or zero): nothing to balance
-    _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
-    if np.all(scale == 1.0):
+    with warnings.catch_warnings():
+        # scipy casts LAPACK's (unused, permute=False) permutation output to int,
+        # which warns for matrices near the underflow threshold
+        warnings.simplefilter("ignore", RuntimeWarning)
+        _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
+    if not np.all(np.isfinite(scale)) or np.all(scale == 1.0):
         return None
     return np.asarray(scale, dtype=float)
 
