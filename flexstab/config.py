@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Union
 
 from mbs_models.parameters import ManipulatorParameters
+from taguchi.tuning import check_gain_range
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -31,20 +32,6 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 __all__ = ["StudyConfig", "load_config"]
-
-
-def _range(value: Any, name: str) -> tuple[float, float]:
-    try:
-        lo, hi = (float(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a pair [low, high], got {value!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if lo < 0:
-        raise ValueError(f"{name} must not contain negative gains, got {value!r}")
-    if hi <= lo:
-        raise ValueError(f"{name} is empty or inverted: [{lo}, {hi}]")
-    return (lo, hi)
 
 
 @dataclass(frozen=True)
@@ -76,8 +63,8 @@ class StudyConfig:
             raise ValueError(f"omega must be finite and > 0, got {self.omega!r}")
         if not (math.isfinite(self.target) and self.target > 0):
             raise ValueError(f"target must be finite and > 0, got {self.target!r}")
-        object.__setattr__(self, "kp_range", _range(self.kp_range, "kp_range"))
-        object.__setattr__(self, "kd_range", _range(self.kd_range, "kd_range"))
+        object.__setattr__(self, "kp_range", check_gain_range(self.kp_range, "kp_range"))
+        object.__setattr__(self, "kd_range", check_gain_range(self.kd_range, "kd_range"))
         if isinstance(self.elements, bool) or not isinstance(self.elements, int) or self.elements < 1:
             raise ValueError(f"elements must be an integer >= 1, got {self.elements!r}")
 

@@ -63,6 +63,7 @@ __all__ = [
     "TaguchiIteration",
     "TaguchiResult",
     "TuningConfig",
+    "check_gain_range",
     "taguchi_tune",
     "STATUS_CONVERGED",
     "STATUS_BUDGET",
@@ -109,6 +110,27 @@ class GainObjective:
         return floquet(self.plant.with_gains(kp, kd), **self.floquet_options).spectral_radius
 
 
+def check_gain_range(value: Any, name: str) -> tuple[float, float]:
+    """Validate a gain range ``(low, high)``: finite, ``0 <= low < high``.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name``: not a pair, not finite, negative, empty or inverted.
+    """
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (low, high), got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if lo < 0:
+        raise ValueError(f"{name}: gains must be >= 0, got low = {lo}")
+    if hi <= lo:
+        raise ValueError(f"{name} is empty or inverted: ({lo}, {hi})")
+    return (lo, hi)
+
+
 @dataclass(frozen=True)
 class TuningConfig:
     """Options of :func:`taguchi_tune`.
@@ -145,18 +167,7 @@ class TuningConfig:
         if not (isinstance(self.target, (int, float)) and math.isfinite(self.target) and self.target > 0):
             raise ValueError(f"target rho_d must be finite and > 0, got {self.target!r}")
         for name in ("kp_range", "kd_range"):
-            rng = getattr(self, name)
-            try:
-                lo, hi = (float(v) for v in rng)
-            except (TypeError, ValueError):
-                raise ValueError(f"{name} must be a pair (low, high), got {rng!r}") from None
-            if not (math.isfinite(lo) and math.isfinite(hi)):
-                raise ValueError(f"{name} must be finite, got {rng!r}")
-            if lo < 0:
-                raise ValueError(f"{name}: gains must be >= 0, got low = {lo}")
-            if hi <= lo:
-                raise ValueError(f"{name} is empty or inverted: ({lo}, {hi})")
-            object.__setattr__(self, name, (lo, hi))
+            object.__setattr__(self, name, check_gain_range(getattr(self, name), name))
         if isinstance(self.levels, bool) or not isinstance(self.levels, int) or self.levels < 2:
             raise ValueError(f"levels must be an integer >= 2, got {self.levels!r}")
         if self.tolerance is not None and not (math.isfinite(self.tolerance) and self.tolerance > 0):
