@@ -348,7 +348,13 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                 # root of the matrix error and never meet rtol, although Phi has converged;
                 # then the remaining eigenvalue error is conditioning, not discretisation,
                 # and ``error_estimate`` (which stays large) widens the critical band.
-                matrix_est = float(np.linalg.norm(Phi2 - Phi) / np.linalg.norm(Phi2)) / richardson
+                with np.errstate(over="ignore", invalid="ignore"):
+                    scale_ = float(np.max(np.abs(Phi2))) or 1.0  # keep the norms in range
+                    matrix_est = float(
+                        np.linalg.norm((Phi2 - Phi) / scale_) / np.linalg.norm(Phi2 / scale_)
+                    ) / richardson
+                if not math.isfinite(matrix_est):
+                    matrix_est = math.inf
                 log_det, Phi, spec, N = log_det2, Phi2, spec2, 2 * N
                 if est <= rtol or matrix_est <= 0.1 * rtol:
                     break

@@ -107,6 +107,19 @@ def run(args: argparse.Namespace) -> int:
         print(f" {it['index']:>4}   [{it['kp_range'][0]:8.4g}, {it['kp_range'][1]:8.4g}]  "
               f"[{it['kd_range'][0]:8.4g}, {it['kd_range'][1]:8.4g}]  {inc['kp']:10.5g}  {inc['kd']:10.5g}  "
               f"{inc['spectral_radius']:.6g}")
+    last = d["iterations"][-1] if d["iterations"] else None
+    if last:
+        rt = last["response_table"]
+        print(f"\nresponse table of the last experiment (mean S/N in dB per level; levels 1..{len(rt['level_means'][0])}):")
+        print(f"{'level':>7} {'kp':>12} {'kd':>12}")
+        for k in range(len(rt["level_means"][0])):
+            print(f"{k + 1:>7} {rt['level_means'][0][k]:12.3f} {rt['level_means'][1][k]:12.3f}")
+        print(f"{'delta':>7} {rt['delta'][0]:12.3f} {rt['delta'][1]:12.3f}")
+        print(f"{'rank':>7} {rt['rank'][0]:12d} {rt['rank'][1]:12d}")
+        c = last["contribution_percent"]
+        print(f"contribution (ANOVA on S/N): kp {c[0]:.1f} %, kd {c[1]:.1f} %, error {last['error_contribution_percent']:.1f} %")
+        print(f"predicted S/N at the best levels {last['predicted_sn']:.2f} dB, "
+              f"confirmation run {last['confirmation']['sn']:.2f} dB")
     for dr in d.get("direct", []):
         print(f"direct {dr['method']}: {dr['status']}, {dr['evaluations']} evaluations, "
               f"{dr['elapsed']:.2f} s, kp = {dr['kp']:.6g}, kd = {dr['kd']:.6g}")
