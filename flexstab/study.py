@@ -116,22 +116,21 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
 
 def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    import importlib.util
-    import sys
+    from flexstab.transients import make_transients
 
-    script = Path(__file__).resolve().parent.parent / "scripts" / "transients.py"
-    if not script.exists():
-        raise RuntimeError("scripts/transients.py is not available in this installation")
-    spec = importlib.util.spec_from_file_location("flexstab_transients_script", script)
-    mod = importlib.util.module_from_spec(spec)
-    assert spec.loader is not None
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    argv = ["--out", str(opts.out)] + (["--quick"] if opts.quick else [])
-    mod.main(argv)
-    figs = sorted(p.name for p in opts.out.glob("fig*.png"))
-    return {"json": "transients.json", "markdown": "Linear transient responses from x(0) = [0, 0, 0.25 pi, 0] "
-            "(paper Eqs. 26/35) with the envelope rho^(t/T) of the dominant multiplier.", "figures": figs}
+    doc = make_transients(opts.out, quick=opts.quick)
+    figs = [c["figure_file"] for c in doc["cases"]]
+    lines = [
+        "Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25 pi, 0]",
+        "(Eqs. 26/35), with the envelope rho1^(t/T) of the dominant multiplier. Measured growth per period:",
+        "",
+        "| figure | kp | kd | rho1 | last measured ratio | relative error |",
+        "|---|---|---|---|---|---|",
+    ]
+    for c in doc["cases"]:
+        lines.append(f"| {c['figure_file']} | {c.get('kp', 0):g} | {c.get('kd', 0):g} | {c['spectral_radius']:.6g} | "
+                     f"{c['last_ratio']:.6g} | {c['last_ratio_relative_error']:+.2%} |")
+    return {"json": "transients.json", "markdown": "\n".join(lines), "figures": figs}
 
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
@@ -207,16 +206,24 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
         cases = TABLE3_PRINTED[:1] if opts.quick else TABLE3_PRINTED
         gains = [(k, kp, kd, "paper Table 3") for k, _, kp, kd, _ in cases]
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
+    from mbs_models.validation_plots import plot_validation_figure
+
     rows = []
+    results = []
     for k, kp, kd, source in gains:
         v = validate_closed_loop(cfg.manipulator, k * math.pi, kp, kd, elements=elements,
                                  periods=3 if opts.quick else 5)
+        results.append(v)
         d = v.to_dict()
         d.update({"omega_over_pi": k, "gains_source": source})
         for key in ("times", "hub_error", "tip_error", "drift"):
             d.pop(key, None)
         rows.append(d)
     (opts.out / "validation.json").write_text(json.dumps({"rows": rows}, indent=2, default=float))
+    fig = "validation_tuned_gains.png"
+    plot_validation_figure(results, opts.out / fig,
+                           titles=[f"Omega = {g[0]} pi: kp = {g[1]:.4g}, kd = {g[2]:.4g}" for g in gains],
+                           suptitle="Nonlinear vs linearised Exudyn (tuned gains)")
     md = [
         f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD, started from the periodic",
         "orbit with the hub velocity raised by 0.25 pi rad/s (Eqs. 26/35); the perturbation is the",
@@ -232,7 +239,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
             f"{r['measured_ratio_per_period']:.4f} | {r['predicted_multiplier_exudyn']:.4f} | "
             f"{r['predicted_multiplier_reduced']:.4f} | {r['relative_error_exudyn']:.2%} | {r['diverged']} |"
         )
-    return {"json": "validation.json", "markdown": "\n".join(md), "figures": []}
+    return {"json": "validation.json", "markdown": "\n".join(md), "figures": [fig]}
 
 
 def _with_config(cfg: StudyConfig, opts: StudyOptions, fn: Callable[[str], Any]) -> Any:

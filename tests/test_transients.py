@@ -160,7 +160,9 @@ def test_script_quick_writes_figures_and_json(tmp_path):
     assert script.main(["--quick", "--out", str(tmp_path)]) == 0
     doc = json.loads((tmp_path / "transients.json").read_text())
     assert doc["quick"] and not doc["figures_include_forcing"]
-    assert [c["figure"] for c in doc["cases"]] == list(script.QUICK_FIGURES)
+    from flexstab.transients import QUICK_FIGURES
+
+    assert [c["figure"] for c in doc["cases"]] == list(QUICK_FIGURES)
     for case in doc["cases"]:
         png = tmp_path / case["figure_file"]
         assert png.is_file() and png.stat().st_size > 20_000
