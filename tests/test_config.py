@@ -83,3 +83,13 @@ def test_config_changes_the_model(tmp_path, capsys):
 def test_default_config_is_the_paper():
     cfg = StudyConfig()
     assert cfg.omega == pytest.approx(2 * math.pi) and cfg.target == 0.3
+
+
+@pytest.mark.parametrize("argv", [["floquet", "--kp", "-1"], ["floquet", "--omega", "0"], ["nosuch"],
+                                  ["floquet", "--method", "rk4"], ["tune", "--array", "L7"]])
+def test_cli_usage_errors_are_one_line(argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        raise SystemExit(cli_main(argv))
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "error" in err[0] and "Traceback" not in err[0]
