@@ -28,6 +28,10 @@ def register(sub) -> None:
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
+                   help="structural bending damping of the ANCF elements (Exudyn's bendingDamping; default 0)")
+    p.add_argument("--axial-damping", type=non_negative_float, default=0.0,
+                   help="structural axial damping of the ANCF elements (Exudyn's axialDamping; default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -52,9 +56,11 @@ def floquet_report(args: argparse.Namespace) -> dict:
         from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
 
         elements = args.elements if args.elements is not None else cfg.elements
-        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method)
+        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
+                            bending_damping=args.bending_damping, axial_damping=args.axial_damping)
         res = ex.floquet
         out.update(ex.summary())
+        out.update({"bending_damping": args.bending_damping, "axial_damping": args.axial_damping})
     out.update(
         {
             "omega": omega,
