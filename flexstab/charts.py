@@ -20,6 +20,8 @@ from mbs_models.parameters import ManipulatorParameters
 
 __all__ = [
     "ReducedRadius",
+    "PlantRadius",
+    "ExudynOmegaRadius",
     "GainChart",
     "OmegaChart",
     "gain_chart",
@@ -45,6 +47,38 @@ class ReducedRadius:
         model = ReducedModel(point["omega"], point["kp"], point["kd"], self.params, self.constants)
         opts: dict[str, Any] = {"n_steps": self.n_steps, "error_estimate": False} if self.n_steps else {}
         return float(floquet(model, **opts).spectral_radius)
+
+
+@dataclass(frozen=True)
+class PlantRadius:
+    """Picklable task for a plant at one Omega (e.g. the Exudyn linearisation): ``{"kp", "kd"} -> response``.
+
+    The response is ``plant.spectral_measure(kp, kd)`` (for the Exudyn link: the dominant multiplier
+    of the hub / first bending mode).  ``point["omega"]`` must be the plant's own Omega.
+    """
+
+    plant: Any
+    omega: float
+
+    def __call__(self, point: dict) -> float:
+        if abs(point["omega"] - self.omega) > 1e-12 * self.omega:
+            raise ValueError(f"this plant was linearised at omega = {self.omega}, not {point['omega']}")
+        return float(self.plant.spectral_measure(point["kp"], point["kd"]))
+
+
+@dataclass(frozen=True)
+class ExudynOmegaRadius:
+    """Picklable task: ``{"omega", "kp", "kd"} -> dominant |rho|`` of the Exudyn link (orbit per Omega)."""
+
+    params: ManipulatorParameters = field(default_factory=ManipulatorParameters)
+    elements: int = 4
+
+    def __call__(self, point: dict) -> float:
+        from mbs_models.exudyn_floquet import exudyn_floquet
+
+        r = exudyn_floquet(self.params, omega=point["omega"], kp=point["kp"], kd=point["kd"],
+                           elements=self.elements, verify_orbit=False)
+        return float(abs(r.dominant_multiplier))
 
 
 def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
@@ -140,7 +174,8 @@ def omega_chart(
     return OmegaChart(omegas, r[0], r[1], float(kp), float(kd))
 
 
-def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequence[Sequence[float]]] = None) -> Path:
+def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequence[Sequence[float]]] = None,
+                    label: str = "linearised manipulator") -> Path:
     """Filled contours of log10 max|rho| with the rho = 1 and rho = rho_d lines and the Taguchi path."""
     import matplotlib
 
@@ -164,14 +199,14 @@ def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequenc
         ax.legend(loc="upper right")
     ax.set_xlabel("kp (N m/rad)")
     ax.set_ylabel("kd (N m s/rad)")
-    ax.set_title(f"max|rho| of the linearised manipulator, Omega = {chart.omega / math.pi:.3g} pi rad/s")
+    ax.set_title(f"max|rho|, {label}\nOmega = {chart.omega / math.pi:.3g} pi rad/s", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
 
 
-def plot_omega_chart(chart: OmegaChart, path: Path) -> Path:
+def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model") -> Path:
     """max|rho| against Omega (log scale), uncontrolled and controlled."""
     import matplotlib
 
@@ -185,7 +220,7 @@ def plot_omega_chart(chart: OmegaChart, path: Path) -> Path:
     ax.axhline(1.0, color="red", lw=1, ls="--", label="|rho| = 1")
     ax.set_xlabel("Omega / pi (rad/s)")
     ax.set_ylabel("max|rho|")
-    ax.set_title("max|rho| against the frequency Omega of the fundamental motion")
+    ax.set_title(f"max|rho| against the frequency Omega of the fundamental motion\n{label}", fontsize=10)
     ax.legend()
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()

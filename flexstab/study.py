@@ -102,7 +102,7 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
         config=None, constants="paper", kp_range=list(cfg.kp_range), kd_range=list(cfg.kd_range),
         grid=15 if opts.quick else 41, target=cfg.target, omega_range=None,
         omega_points=31 if opts.quick else 121, kp=None, kd=None, no_taguchi=False, out=str(opts.out),
-        scheduler=opts.scheduler, workers=None, omega=cfg.omega,
+        scheduler=opts.scheduler, workers=None, omega=cfg.omega, model="reduced", elements=None,
     )
     # make_charts reads the manipulator from --config; pass the study's through a temporary config
     s = _with_config(cfg, opts, lambda path: make_charts(_set(args, config=path), progress=opts.progress))

@@ -67,3 +67,18 @@ def test_cli_chart_unwritable_out(tmp_path, capsys):
     rc = cli_main(["chart", "--grid", "3", "--out", str(blocker / "sub"), "--no-taguchi"])
     assert rc == 2
     assert "cannot create output folder" in capsys.readouterr().err
+
+
+def test_exudyn_gain_chart_points_equal_exudyn_floquet(tmp_path):
+    """Chart points of the Exudyn plant equal an independent exudyn_floquet call (own orbit, own steps)."""
+    from flexstab.charts import PlantRadius
+    from mbs_models.exudyn_floquet import exudyn_floquet, exudyn_plant
+
+    plant = exudyn_plant(omega=2 * math.pi, elements=2, samples=16)
+    chart = gain_chart(PlantRadius(plant, 2 * math.pi), 2 * math.pi, np.array([10.0, 37.1617]),
+                       np.array([29.2410]), SerialExecutor(), tmp_path / "e.jsonl")
+    ref = exudyn_floquet(omega=2 * math.pi, kp=37.1617, kd=29.2410, elements=2, samples=16, verify_orbit=False)
+    # 256 vs 512 exponential-midpoint steps: the dominant damped multiplier agrees to ~1e-6
+    assert chart.radius[0, 1] == pytest.approx(abs(ref.dominant_multiplier), rel=1e-5)
+    with pytest.raises(ValueError, match="linearised at omega"):
+        PlantRadius(plant, 2 * math.pi)({"omega": 4 * math.pi, "kp": 1.0, "kd": 1.0})

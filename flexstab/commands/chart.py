@@ -19,14 +19,17 @@ def register(sub) -> None:
         help="max|rho| over a (kp, kd) grid and against Omega",
         description="Stability charts (reduced model). Interrupted sweeps resume from what they wrote.",
     )
+    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced",
+                   help="reduced (default) or exudyn (dominant damped multiplier; slower: use --grid ~11)")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
     add_model_options(p)
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
     p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
-    p.add_argument("--grid", type=int, default=41, help="points per gain axis (default 41)")
+    p.add_argument("--grid", type=int, default=None, help="points per gain axis (default 41; exudyn 11)")
     p.add_argument("--target", type=positive_float, default=None, help="rho_d contour and Taguchi path")
     p.add_argument("--omega-range", type=omega_type, nargs=2, metavar=("LO", "HI"), default=None,
                    help="Omega range of the second chart (default pi 10pi)")
-    p.add_argument("--omega-points", type=int, default=181)
+    p.add_argument("--omega-points", type=int, default=None, help="default 181; exudyn 8")
     p.add_argument("--kp", type=float, default=None, help="fixed gains of the Omega chart (default: tuned)")
     p.add_argument("--kd", type=float, default=None)
     p.add_argument("--no-taguchi", action="store_true", help="do not draw the Taguchi path")
@@ -40,7 +43,8 @@ def register(sub) -> None:
 def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
     """Compute and plot both charts; return the JSON-ready summary."""
     from flexstab.charts import (
-        ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart,
+        ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
+        plot_omega_chart,
     )
     from flexstab.executor import make_executor
     from mbs_models.reduced import ReducedModel
@@ -51,38 +55,53 @@ def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
     kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     if min(kp_rng) < 0 or min(kd_rng) < 0:
         raise ValueError("gain ranges must be >= 0")
-    kp = check_grid(*kp_rng, args.grid, "kp")
-    kd = check_grid(*kd_rng, args.grid, "kd")
-    w_lo, w_hi = args.omega_range if args.omega_range else (math.pi, 10 * math.pi)
-    omegas = check_grid(w_lo, w_hi, args.omega_points, "omega")
+    exudyn = getattr(args, "model", "reduced") == "exudyn"
+    grid = args.grid if args.grid is not None else (11 if exudyn else 41)
+    n_omega = args.omega_points if args.omega_points is not None else (8 if exudyn else 181)
+    kp = check_grid(*kp_rng, grid, "kp")
+    kd = check_grid(*kd_rng, grid, "kd")
+    w_lo, w_hi = args.omega_range if args.omega_range else ((math.pi, 8 * math.pi) if exudyn else (math.pi, 10 * math.pi))
+    omegas = check_grid(w_lo, w_hi, n_omega, "omega")
     target = args.target if args.target is not None else cfg.target
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
-    tag = f"w{args.omega:.6g}_{args.constants}"
-    task = ReducedRadius(cfg.manipulator, args.constants)
+    if exudyn:
+        from mbs_models.exudyn_floquet import exudyn_plant
+
+        elements = getattr(args, "elements", None) or cfg.elements
+        tag = f"w{args.omega:.6g}_exudyn{elements}"
+        plant = exudyn_plant(cfg.manipulator, omega=args.omega, elements=elements)
+        task = PlantRadius(plant, float(args.omega))
+        omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
+        objective = GainObjective(plant)
+        label = f"Exudyn model ({elements} elements; hub / first bending mode)"
+    else:
+        tag = f"w{args.omega:.6g}_{args.constants}"
+        task = ReducedRadius(cfg.manipulator, args.constants)
+        omega_task = task
+        objective = GainObjective(ReducedModel(args.omega, params=cfg.manipulator, constants=args.constants))
+        label = "linearised reduced model"
 
     path = None
     tuned = None
     if not args.no_taguchi:
-        tuned = taguchi_tune(
-            GainObjective(ReducedModel(args.omega, params=cfg.manipulator, constants=args.constants)),
-            TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
-        )
+        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
         path = [it.incumbent_gains for it in tuned.iterations]
     n_tasks = kp.size * kd.size
-    with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers,
-                       scheduler=args.scheduler, n_tasks=n_tasks) as ex:
+    kind = "dask" if args.scheduler else ("process" if exudyn and args.workers != 1 else "auto")
+    with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
         gc = gain_chart(task, args.omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
                         progress=progress)
         gkp = args.kp if args.kp is not None else (tuned.kp if tuned else 0.0)
         gkd = args.kd if args.kd is not None else (tuned.kd if tuned else 0.0)
-        oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{args.constants}_{gkp:.6g}_{gkd:.6g}.jsonl",
+        otag = tag.split("_", 1)[1]
+        oc = omega_chart(omega_task, omegas, gkp, gkd, ex, out / f"chart_omega_{otag}_{gkp:.6g}_{gkd:.6g}.jsonl",
                          progress=progress)
-    png1 = plot_gain_chart(gc, out / f"chart_gains_{tag}.png", path)
-    png2 = plot_omega_chart(oc, out / f"chart_omega_{args.constants}.png")
+    png1 = plot_gain_chart(gc, out / f"chart_gains_{tag}.png", path, label=label)
+    png2 = plot_omega_chart(oc, out / f"chart_omega_{otag}.png", label=label)
     summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
                "figures": [str(png1), str(png2)]}
