@@ -1,7 +1,9 @@
 """The ``flexstab`` command-line tool.
 
 Every sub-command lives in :mod:`flexstab.commands`.  Invalid input ends
-with one line on stderr and exit code 2, never a traceback.
+with one line on stderr and exit code 2; a computation that cannot be
+completed (an orbit that does not converge, an Exudyn solver failure) with
+one line and exit code 1; never a traceback.
 """
 from __future__ import annotations
 
@@ -56,9 +58,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     )
     try:
         return int(args.func(args) or 0)
-    except (ValueError, CLIError, OSError, FileNotFoundError) as exc:
+    except (ValueError, CLIError, OSError) as exc:
         print(f"flexstab {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except (RuntimeError, FloatingPointError, ArithmeticError) as exc:
+        # a computation that could not be completed (an orbit that does not converge,
+        # an Exudyn solver failure): one line naming the cause, exit code 1
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        print(f"flexstab {args.command}: failed: {type(exc).__name__}: {first}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"flexstab {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -93,3 +93,13 @@ def test_cli_usage_errors_are_one_line(argv, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "error" in err[0] and "Traceback" not in err[0]
+
+
+def test_cli_non_converging_orbit_is_one_line_exit_1(tmp_path, capsys):
+    """A link so soft that no periodic orbit is found: one line naming the cause, exit code 1."""
+    f = tmp_path / "soft.toml"
+    f.write_text("[manipulator]\nyoungs_modulus = 2e7\n")
+    rc = cli_main(["floquet", "--model", "exudyn", "--elements", "1", "--config", str(f)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 1
+    assert len(err) == 1 and "OrbitConvergenceError" in err[0] and "did not converge" in err[0]
