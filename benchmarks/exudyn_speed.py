@@ -28,7 +28,7 @@ def main(argv=None) -> int:
     ap.add_argument("--kp", type=float, default=37.1617)
     ap.add_argument("--kd", type=float, default=29.2410)
     ap.add_argument("--samples", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=128, help="exponential-midpoint steps (then doubled once)")
+    ap.add_argument("--steps", type=int, default=128, help="exponential-midpoint steps (the error estimate compares with half as many)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     omega = args.omega_pi * math.pi
