@@ -284,6 +284,10 @@ def _log_abs_det(matrices: np.ndarray) -> float:
 
 
 # --------------------------------------------------------------------------- methods
+class _MagnusOverflow(ValueError):
+    """A Magnus exponent overflowed (too large ``h ||P||`` for the commutator terms)."""
+
+
 @dataclass(frozen=True)
 class _Propagation:
     monodromy: np.ndarray
@@ -293,6 +297,7 @@ class _Propagation:
     n_evaluations: int
     error_estimate: float
     changes: Optional[np.ndarray]  # relative change per modulus at the last refinement
+    factors: Optional[np.ndarray] = None  # sub-interval propagators of the final solve, if kept
 
 
 def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
@@ -306,6 +311,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         max_steps: int,
         reference: Optional[ReferenceOptions] = None,
         accuracy: str = "multipliers",
+        keep_factors: bool = False,
     ) -> _Propagation:
         q = len(scheme.nodes)
         richardson = 2.0**scheme.order - 1.0
@@ -315,13 +321,16 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                 E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
             if not np.all(np.isfinite(E)):
                 h_norm = float(np.max(np.abs(np.linalg.eigvals(wrapped.evaluate(np.array([0.0]))[0])))) * period / N
-                raise ValueError(
+                raise _MagnusOverflow(
                     f"{scheme.name}: the Magnus exponent overflowed with {N} sub-intervals "
                     f"(h*|lambda(P)| = {h_norm:.3g}); the commutator terms of high-order Magnus "
                     f"schemes grow like (h ||P||)^2 -- use method='magnus2' or more steps"
                 )
             Phi = ordered_product(E)
+            kept[N] = E if keep_factors else None
             return log_det, Phi, _spectrum(Phi)
+
+        kept: dict[int, Optional[np.ndarray]] = {}
 
         changes = None
         est = math.nan
@@ -336,8 +345,17 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                 est = _estimate(changes, spec, richardson)
         else:
             N = _initial_steps(wrapped, period, max_steps)
-            log_det, Phi, spec = solve(N)
-            evaluations = q * N
+            evaluations = 0
+            while True:  # a too coarse start can overflow the commutator terms: refine first
+                try:
+                    log_det, Phi, spec = solve(N)
+                    evaluations += q * N
+                    break
+                except _MagnusOverflow:
+                    evaluations += q * N
+                    if 4 * N > max_steps:
+                        raise
+                    N *= 2
             while True:
                 log_det2, Phi2, spec2 = solve(2 * N)
                 evaluations += q * 2 * N
@@ -366,7 +384,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                         stacklevel=4,
                     )
                     break
-        return _Propagation(Phi, spec, log_det, N, evaluations, est, changes)
+        return _Propagation(Phi, spec, log_det, N, evaluations, est, changes, kept.get(N))
 
     run.__name__ = f"_run_{scheme.name}"
     return run
@@ -382,6 +400,7 @@ def _paper_method(
     max_steps: int,
     reference: Optional[ReferenceOptions] = None,
     accuracy: str = "multipliers",
+    keep_factors: bool = False,
 ) -> _Propagation:
     opts = reference or ReferenceOptions()
     Phi, nfev = paper_monodromy(wrapped, period, opts)
@@ -448,6 +467,58 @@ def _balancing_scale(wrapped: PeriodicMatrixFunction, period: float) -> Optional
     return np.asarray(scale, dtype=float)
 
 
+#: QR sweeps over one period for ``small_multipliers="qr"`` (each sweep is one period
+#: of power iteration; moduli 1e-17 apart converge in one sweep).
+QR_SWEEPS = 4
+
+
+def _qr_log_moduli(factors: np.ndarray, sweeps: int = QR_SWEEPS) -> tuple[np.ndarray, np.ndarray]:
+    """ln|rho_i| by QR sweeps over the propagators; also the change over the last sweep."""
+    n = factors.shape[-1]
+    Q = np.eye(n)
+    prev = None
+    logs = np.zeros(n)
+    for _ in range(sweeps):
+        logs = np.zeros(n)
+        for E in factors:
+            Q, R = np.linalg.qr(E @ Q)
+            d = np.abs(np.diag(R))
+            with np.errstate(divide="ignore"):
+                logs += np.log(d)
+        if prev is not None:
+            change = np.abs(logs - prev)
+        prev = logs
+    # pairs of equal modulus (complex multipliers) do not triangularise; their sum is exact
+    i = 0
+    out = logs.copy()
+    while i < n - 1:
+        if change[i] > 1e-6 * max(1.0, abs(logs[i])) and change[i + 1] > 1e-6 * max(1.0, abs(logs[i + 1])):
+            out[i] = out[i + 1] = 0.5 * (logs[i] + logs[i + 1])
+            change[i] = change[i + 1] = abs((logs[i] + logs[i + 1]) - (prev[i] + prev[i + 1]))
+            i += 2
+        else:
+            i += 1
+    return out, change
+
+
+def _qr_small_multipliers(spec: _Spectrum, digits: np.ndarray, factors: np.ndarray, noise: float):
+    """Replace the moduli below the noise floor by their QR-sweep values."""
+    logs, change = _qr_log_moduli(factors)
+    order = np.argsort(-logs)
+    logs, change = logs[order], change[order]
+    small = np.exp(spec.log_moduli) <= 100.0 * noise
+    new_logs = spec.log_moduli.copy()
+    new_logs[small] = logs[small]
+    with np.errstate(divide="ignore"):
+        qr_digits = np.clip(-np.log10(np.maximum(change / np.maximum(np.abs(logs), 1e-300), 1e-16)), 0.0, 16.0)
+    new_digits = digits.copy()
+    new_digits[small] = qr_digits[small]
+    phases = np.angle(spec.values)
+    with np.errstate(under="ignore"):
+        values = np.exp(new_logs) * np.exp(1j * phases)
+    return _Spectrum(values, new_logs), new_digits
+
+
 def _liouville(log_det: float, trace: float) -> float:
     """``|det / exp(trace) - 1|`` from logarithms (inf when it overflows)."""
     d = log_det - trace
@@ -469,6 +540,7 @@ def floquet(
     reference: Optional[ReferenceOptions] = None,
     balance: bool = True,
     accuracy: str = "multipliers",
+    small_multipliers: str = "flag",
 ) -> FloquetResult:
     """Floquet multipliers and stability verdict of ``x' = P(t) x``.
 
@@ -506,6 +578,17 @@ def floquet(
         multipliers (default), or the moduli only -- for models with
         undamped high-frequency modes (the Exudyn link's axial modes) whose
         phases are irrelevant to stability and never converge cheaply.
+    small_multipliers : {"flag", "qr"}
+        Multipliers below the noise floor of the formed product are
+        ``"flag"``-ged with ``reliable_digits = 0`` (default, free), or their
+        moduli are computed accurately by ``"qr"``: repeated QR sweeps over
+        the sub-interval propagators (the discrete QR method for Lyapunov
+        exponents, applied to the periodic product: each sweep is one more
+        period, so the triangular factors converge to the periodic Schur form
+        at the rate of the ratio of consecutive moduli).  ``log_moduli`` then
+        holds e.g. -3172.8 for a multiplier of 1e-1378.  Costs a few
+        milliseconds more (a Python loop over the sub-intervals); factor
+        methods only.
     balance : bool
         Work with ``D^-1 P(t) D`` for a constant diagonal ``D`` (powers of 2,
         LAPACK's balancing of the mean ``|P|``): the multipliers are
@@ -555,6 +638,10 @@ def floquet(
         raise ValueError(f"n_steps must be a positive integer, got {n_steps!r}")
     if not (math.isfinite(rtol) and rtol > 0):
         raise ValueError(f"rtol must be finite and > 0, got {rtol!r}")
+    if small_multipliers not in ("flag", "qr"):
+        raise ValueError(f"small_multipliers must be 'flag' or 'qr', got {small_multipliers!r}")
+    if small_multipliers == "qr" and method == "paper":
+        raise ValueError("small_multipliers='qr' needs a factor method (magnus2/4/6), not 'paper'")
     if accuracy not in ("multipliers", "moduli"):
         raise ValueError(f"accuracy must be 'multipliers' or 'moduli', got {accuracy!r}")
     if not (math.isfinite(stability_tol) and stability_tol >= 0):
@@ -572,6 +659,7 @@ def floquet(
         max_steps=max_steps,
         reference=reference,
         accuracy=accuracy,
+        keep_factors=small_multipliers == "qr",
     )
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
@@ -586,6 +674,9 @@ def floquet(
             refine_digits = np.full(n, 16.0)
     digits = np.minimum(noise_digits, refine_digits)
     reliable_all = bool(np.all(np.exp(spec.log_moduli) > 100.0 * noise))
+    if small_multipliers == "qr" and prop.factors is not None and not reliable_all:
+        spec, digits = _qr_small_multipliers(spec, digits, prop.factors, noise)
+        reliable_all = bool(np.all(digits > 0))
     multiplier_liouville = (
         _liouville(float(np.sum(spec.log_moduli)), trace) if reliable_all else math.nan
     )

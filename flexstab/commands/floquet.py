@@ -32,6 +32,9 @@ def register(sub) -> None:
                    help="structural bending damping of the ANCF elements (Exudyn's bendingDamping; default 0)")
     p.add_argument("--axial-damping", type=non_negative_float, default=0.0,
                    help="structural axial damping of the ANCF elements (Exudyn's axialDamping; default 0)")
+    p.add_argument("--small-multipliers", choices=["flag", "qr"], default="flag",
+                   help="multipliers below the rounding floor of the product: flag them (default) or "
+                        "compute their moduli accurately by QR sweeps (log_moduli)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -50,7 +53,8 @@ def floquet_report(args: argparse.Namespace) -> dict:
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        res = floquet(model, method=method)
+        res = floquet(model, method=method,
+                      small_multipliers=args.small_multipliers if method != "paper" else "flag")
         out["constants"] = args.constants
     else:
         from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
@@ -81,11 +85,15 @@ def _table(d: dict) -> str:
         "",
         f"{'#':>3}  {'Re rho':>14}  {'Im rho':>14}  {'|rho|':>14}  digits" + ("  mode" if modes else ""),
     ]
-    for i, ((re, im), mod, dig) in enumerate(zip(d["multipliers"], d["moduli"], d["reliable_digits"]), 1):
+    for i, ((re, im), mod, dig, lg) in enumerate(
+        zip(d["multipliers"], d["moduli"], d["reliable_digits"], d["log_moduli"]), 1
+    ):
         label = ""
+        if mod == 0.0 and math.isfinite(lg):  # underflows as a number: show it through its logarithm
+            label = f"  |rho| = 10^{lg / math.log(10):.2f}"
         if modes:
             m = modes[i - 1]
-            label = f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
+            label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
         lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
     lines += [
