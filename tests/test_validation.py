@@ -6,7 +6,7 @@ exponential-midpoint monodromy, no time simulation).  The nonlinear runs
 measure the per-period ratio of the hub-angle perturbation; the paper's
 Table 3 (p. 489) targets |rho_1| = 0.3 at Omega = 2 pi with kp = 37.1617,
 kd = 29.2410.  Runs use 2 elements (the dominant multiplier is 0.29981 at 2,
-4 and 8 elements, notes_exudyn.md) to stay fast.
+4 and 8 elements, docs/exudyn_notes.md) to stay fast.
 """
 from __future__ import annotations
 
