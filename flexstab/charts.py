@@ -37,7 +37,7 @@ class ReducedRadius:
     """Picklable task: ``{"omega", "kp", "kd"} -> max|rho|`` of the reduced model."""
 
     params: ManipulatorParameters = field(default_factory=ManipulatorParameters)
-    constants: str = "paper"
+    constants: str = "auto"
     n_steps: Optional[int] = 256
 
     def __call__(self, point: dict) -> float:

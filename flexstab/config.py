@@ -73,6 +73,11 @@ class StudyConfig:
         """Build from the parsed TOML mapping (see module docstring)."""
         from flexstab.options import parse_omega
 
+        if not isinstance(data, Mapping):
+            raise ValueError("config must be a TOML document with [manipulator] and/or [study] tables")
+        for section in ("manipulator", "study"):
+            if section in data and not isinstance(data[section], Mapping):
+                raise ValueError(f"[{section}] must be a table of key = value pairs, got {type(data[section]).__name__}")
         unknown = sorted(set(data) - {"manipulator", "study"})
         if unknown:
             raise ValueError(f"unknown config section(s) {', '.join(unknown)}; allowed: manipulator, study")

@@ -5,7 +5,7 @@ import argparse
 import math
 import re
 
-__all__ = ["parse_omega", "omega_type", "add_model_options", "non_negative_float", "positive_float"]
+__all__ = ["dump_json", "parse_omega", "omega_type", "add_model_options", "non_negative_float", "positive_float"]
 
 _PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -63,9 +63,11 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator (see README)")
     parser.add_argument(
         "--constants",
-        choices=["paper", "derived"],
-        default="paper",
-        help="mode constants of the reduced model (default: paper, as printed)",
+        choices=["auto", "paper", "derived"],
+        default="auto",
+        help="mode constants of the reduced model: paper (as printed, for the 0.9 m link), derived "
+             "(from the clamped-free mode of the configured link), auto (default: paper for the paper's "
+             "link length, derived otherwise)",
     )
     parser.add_argument(
         "--omega",
@@ -74,3 +76,32 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
         metavar="W",
         help="frequency of the fundamental motion, rad/s or like '2pi' (default 2pi)",
     )
+
+
+def _finite_or_none(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_none(v) for v in obj]
+    return obj
+
+
+def _default(obj):
+    import numpy as np
+
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return str(obj)
+
+
+def dump_json(obj, fp) -> None:
+    """Write ``obj`` as strict JSON (NaN/inf become ``null``) followed by a newline."""
+    import json
+
+    text = json.dumps(obj, default=_default)  # first pass converts numpy types
+    fp.write(json.dumps(_finite_or_none(json.loads(text)), allow_nan=False))
+    fp.write("\n")

@@ -52,7 +52,7 @@ def liouville_error(moduli, trace_integral: float) -> float:
     return abs(math.expm1(float(np.sum(np.log(moduli))) - trace_integral))
 
 
-def table2_rows(constants: str = "paper", params=None) -> list[dict]:
+def table2_rows(constants: str = "auto", params=None) -> list[dict]:
     """Rows of Table 2 recomputed (see module docstring)."""
     rows = []
     for k, printed in TABLE2_PRINTED.items():
@@ -110,7 +110,7 @@ def table2_markdown(rows: list[dict]) -> str:
     return "\n".join(out) + "\n"
 
 
-def table3_rows(cases=TABLE3_PRINTED, constants: str = "paper", array: Optional[str] = None, params=None) -> list[dict]:
+def table3_rows(cases=TABLE3_PRINTED, constants: str = "auto", array: Optional[str] = None, params=None) -> list[dict]:
     """Rows of Table 3 recomputed (see module docstring)."""
     rows = []
     for k, rho_d, kp_p, kd_p, _ in cases:

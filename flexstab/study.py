@@ -99,7 +99,7 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
     from flexstab.commands.chart import make_charts
 
     args = argparse.Namespace(
-        config=None, constants="paper", kp_range=list(cfg.kp_range), kd_range=list(cfg.kd_range),
+        config=None, constants="auto", kp_range=list(cfg.kp_range), kd_range=list(cfg.kd_range),
         grid=15 if opts.quick else 41, target=cfg.target, omega_range=None,
         omega_points=31 if opts.quick else 121, kp=None, kd=None, no_taguchi=False, out=str(opts.out),
         scheduler=opts.scheduler, workers=None, omega=cfg.omega, model="reduced", elements=None,
@@ -112,13 +112,13 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
         f"rho_d = {cfg.target:g} contours and the Taguchi path; and max|rho| against Omega, uncontrolled "
         f"and with the tuned gains."
     )
-    return {"json": f"chart_w{cfg.omega:.6g}_paper.json", "markdown": md, "figures": name}
+    return {"json": Path(s["json"]).name, "markdown": md, "figures": name}
 
 
 def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
     from flexstab.transients import make_transients
 
-    doc = make_transients(opts.out, quick=opts.quick)
+    doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator)
     figs = [c["figure_file"] for c in doc["cases"]]
     lines = [
         "Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25 pi, 0]",

@@ -47,6 +47,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from mbs_models.parameters import ManipulatorParameters  # noqa: E402
 from mbs_models.reduced import ReducedModel  # noqa: E402
 from stability import floquet  # noqa: E402
 from stability.response import (  # noqa: E402
@@ -118,9 +119,11 @@ QUICK = Settings(plot_uncontrolled=2, plot_controlled=4, measure_uncontrolled=3,
                  per_cycle=8, min_points=100)
 
 
-def run_case(case: Case, settings: Settings, with_forcing: bool) -> dict:
+def run_case(case: Case, settings: Settings, with_forcing: bool,
+             params: Optional[ManipulatorParameters] = None) -> dict:
     """Floquet analysis, homogeneous (and optionally forced) response of one case."""
-    model = ReducedModel(omega=case.omega_over_pi * math.pi, kp=case.kp, kd=case.kd, constants="paper")
+    model = ReducedModel(omega=case.omega_over_pi * math.pi, kp=case.kp, kd=case.kd,
+                         params=params or ManipulatorParameters())
     T = model.period
     fl = floquet(model)
     rho1 = complex(fl.multipliers[0])
@@ -278,6 +281,7 @@ def make_transients(
     with_forcing: bool = False,
     figures: Optional[Iterable[int]] = None,
     settings: Optional[Settings] = None,
+    params: Optional[ManipulatorParameters] = None,
 ) -> dict:
     """Compute and plot the transient figures; write ``transients.json`` (or ``transients_forced.json``).
 
@@ -295,7 +299,7 @@ def make_transients(
     for case in CASES:
         if case.figure not in figures:
             continue
-        res = run_case(case, settings, with_forcing)
+        res = run_case(case, settings, with_forcing, params)
         plot_case(res, out / res["summary"]["figure_file"], with_forcing)
         rows.append(res["summary"])
     doc = {

@@ -30,6 +30,7 @@ __all__ = [
     "PAPER_MODE_CONSTANTS",
     "derived_mode_constants",
     "mode_constants",
+    "PAPER_LENGTH",
     "FundamentalMotion",
     "ReducedModel",
 ]
@@ -123,13 +124,35 @@ def derived_mode_constants(length: float) -> ModeConstants:
     )
 
 
-def mode_constants(which: Literal["paper", "derived"], length: float) -> ModeConstants:
-    """Return the ``"paper"`` (printed) or ``"derived"`` mode constants."""
+#: Link length (m) for which the paper prints its mode constants (Table 1).
+PAPER_LENGTH = 0.9
+
+
+def mode_constants(which: Literal["paper", "derived", "auto"], length: float) -> ModeConstants:
+    """Return the ``"paper"`` (printed) or ``"derived"`` mode constants.
+
+    ``"auto"`` gives the printed ones for the paper's link length (0.9 m) and
+    the derived ones otherwise.
+
+    Raises
+    ------
+    ValueError
+        For an unknown name, or ``"paper"`` with another link length (the
+        printed constants are integrals over the 0.9 m link and would be
+        silently wrong).
+    """
+    if which == "auto":
+        which = "paper" if abs(length - PAPER_LENGTH) <= 1e-12 * PAPER_LENGTH else "derived"
     if which == "paper":
+        if abs(length - PAPER_LENGTH) > 1e-12 * PAPER_LENGTH:
+            raise ValueError(
+                f"constants='paper' are the paper's printed mode constants for length = {PAPER_LENGTH} m, "
+                f"not {length} m; use constants='derived' (or 'auto')"
+            )
         return PAPER_MODE_CONSTANTS
     if which == "derived":
         return derived_mode_constants(length)
-    raise ValueError(f"constants must be 'paper' or 'derived', got {which!r}")
+    raise ValueError(f"constants must be 'paper', 'derived' or 'auto', got {which!r}")
 
 
 @dataclass(frozen=True)
@@ -181,8 +204,10 @@ class ReducedModel:
         PD gains of Eq. (27) on the hub angle (>= 0), in N m/rad and N m s/rad.
     params : ManipulatorParameters
         Table 1 data.
-    constants : {"paper", "derived"}
-        Which mode constants to use (see :func:`mode_constants`).
+    constants : {"auto", "paper", "derived"}
+        Which mode constants to use (see :func:`mode_constants`); ``"auto"``
+        (default) = the printed ones for the paper's 0.9 m link, derived
+        ones for any other length.
 
     Notes
     -----
@@ -206,7 +231,7 @@ class ReducedModel:
     kp: float = 0.0
     kd: float = 0.0
     params: ManipulatorParameters = field(default_factory=ManipulatorParameters)
-    constants: str = "paper"
+    constants: str = "auto"
 
     def __post_init__(self) -> None:
         for name in ("omega", "kp", "kd"):

@@ -180,8 +180,8 @@ class FloquetResult:
         return self.verdict == VERDICT_STABLE
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (multipliers as ``[re, im]`` pairs)."""
-        return {
+        """JSON-ready summary (multipliers as ``[re, im]`` pairs; non-finite numbers as ``None``)."""
+        return _json_safe({
             "period": self.period,
             "method": self.method,
             "multipliers": [[float(z.real), float(z.imag)] for z in self.multipliers],
@@ -202,7 +202,18 @@ class FloquetResult:
             "n_steps": int(self.n_steps),
             "n_evaluations": int(self.n_evaluations),
             "elapsed": float(self.elapsed),
-        }
+        })
+
+
+def _json_safe(obj: Any) -> Any:
+    """Replace non-finite floats by ``None`` (strict JSON has no NaN/Infinity)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    return obj
 
 
 # --------------------------------------------------------------------------- helpers

@@ -36,6 +36,8 @@ SINGULAR_MASS_RCOND = 1e-13
 
 def check_period(period: Any, name: str = "period") -> float:
     """Return ``period`` as a float, or raise ``ValueError`` if it is not finite and > 0."""
+    if isinstance(period, (bool, str, bytes)):
+        raise ValueError(f"{name} must be a real number, got {period!r}")
     try:
         value = float(period)
     except (TypeError, ValueError):
@@ -96,6 +98,12 @@ def first_order_matrix(
             raise ValueError(
                 f"mass matrix M(t) is singular (condition number {np.max(cond):.3g})"
             )
+        if M.ndim == 3 and M.shape[0] > 1:
+            # a uniformly scaled M has condition number 1 however small it gets: compare
+            # each sample's size with the largest over the samples
+            size = np.linalg.norm(M, ord=2, axis=(1, 2))
+            if np.any(size < SINGULAR_MASS_RCOND * np.max(size)):
+                raise ValueError("mass matrix M(t) is singular at some sample time (it vanishes there)")
         MinvK = np.linalg.solve(M, K)
         MinvC = np.linalg.solve(M, C)
     P = np.zeros(M.shape[:-2] + (2 * f, 2 * f))
@@ -181,15 +189,29 @@ class PeriodicMatrixFunction:
     def __init__(self, func: Any, period: Optional[float] = None) -> None:
         if not callable(func):
             raise ValueError(f"P must be callable (t -> (n, n) array), got {type(func).__name__}")
+        own = getattr(func, "period", None)
         if period is None:
-            period = getattr(func, "period", None)
+            period = own
             if period is None:
                 raise ValueError("period is required: P carries no .period attribute")
+        elif own is not None and abs(check_period(period) - check_period(own)) > 1e-12 * check_period(own):
+            raise ValueError(f"period = {period!r} conflicts with the period {own!r} that P carries")
         self.func = func
         self.period = check_period(period)
         self._vectorised = callable(getattr(func, "evaluate", None))
-        P0 = self._check(np.asarray(func(0.0), dtype=float)[None], "P(0)")
+        P0 = self._check(self._as_real(func(0.0), "P(0)")[None], "P(0)")
         self.n = P0.shape[-1]
+
+    @staticmethod
+    def _as_real(value: Any, what: str) -> np.ndarray:
+        arr = np.asarray(value)
+        if np.iscomplexobj(arr):
+            raise ValueError(f"{what} must be real-valued; got a complex matrix (write it as a real system "
+                             f"of twice the size)")
+        try:
+            return np.asarray(arr, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what} must be a real (n, n) array, got {type(value).__name__}") from None
 
     def _check(self, P: np.ndarray, what: str) -> np.ndarray:
         if P.ndim != 3 or P.shape[-1] != P.shape[-2] or P.shape[-1] == 0:
@@ -207,9 +229,9 @@ class PeriodicMatrixFunction:
         """Stack of ``P(t)`` for ``times`` (shape ``(m, n, n)``), validated."""
         times = np.asarray(times, dtype=float)
         if self._vectorised:
-            P = np.asarray(self.func.evaluate(times), dtype=float)
+            P = self._as_real(self.func.evaluate(times), "P(t)")
         else:
-            P = np.array([np.asarray(self.func(t), dtype=float) for t in times])
+            P = np.array([self._as_real(self.func(t), "P(t)") for t in times])
         return self._check(P, "P(t)")
 
 

@@ -23,7 +23,9 @@ to the target ``rho_d``.  One *iteration* is one Taguchi experiment:
    an additive model describes only locally.
 7. **Re-centre and shrink.** Each range is re-centred on the incumbent and
    its width multiplied by ``shrink`` (default 0.5); a range is shifted, not
-   cut, to stay within ``gains >= 0``.
+   cut, to stay within the user's initial range, which is the constraint
+   ``u_min <= u <= u_max`` of the paper's Eq. (12): the returned gains always
+   lie inside it.
 8. **Stop** when ``|y_incumbent - rho_d| <= tolerance`` (default
    ``1e-3 rho_d``) -- status ``"converged"`` -- or when the next iteration
    would exceed ``max_evaluations`` -- status ``"budget exhausted"``, with
@@ -310,11 +312,14 @@ def _levels(rng: tuple[float, float], n: int) -> np.ndarray:
     return np.linspace(rng[0], rng[1], n)
 
 
-def _recentre(centre: float, width: float) -> tuple[float, float]:
-    lo = centre - width / 2
-    if lo < 0.0:
-        lo = 0.0
-    return (lo, lo + width)
+def _recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[float, float]:
+    """A window of ``width`` centred on ``centre``, shifted (not cut) to stay inside ``bounds``."""
+    lo = max(bounds[0], centre - width / 2)
+    hi = lo + width
+    if hi > bounds[1]:
+        hi = bounds[1]
+        lo = max(bounds[0], hi - width)
+    return (lo, hi)
 
 
 def _evaluate(fn: Callable, points: list, executor: Optional[cf.Executor]) -> list[float]:
@@ -417,8 +422,8 @@ def taguchi_tune(
             )
             if abs(best_y - target) <= tol:
                 break
-            kp_rng = _recentre(best_gains[0], (kp_rng[1] - kp_rng[0]) * config.shrink)
-            kd_rng = _recentre(best_gains[1], (kd_rng[1] - kd_rng[0]) * config.shrink)
+            kp_rng = _recentre(best_gains[0], (kp_rng[1] - kp_rng[0]) * config.shrink, config.kp_range)
+            kd_rng = _recentre(best_gains[1], (kd_rng[1] - kd_rng[0]) * config.shrink, config.kd_range)
     finally:
         if bar is not None:
             bar.close()

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
-from flexstab.options import add_model_options, omega_type, positive_float
+from flexstab.options import dump_json, add_model_options, omega_type, positive_float
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -68,18 +68,24 @@ def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    # the resumable stores are keyed by everything that changes the numbers
+    import hashlib
+
+    fingerprint = hashlib.sha1(
+        json.dumps([cfg.manipulator.to_dict(), args.constants], sort_keys=True).encode()
+    ).hexdigest()[:8]
     if exudyn:
         from mbs_models.exudyn_floquet import exudyn_plant
 
         elements = getattr(args, "elements", None) or cfg.elements
-        tag = f"w{args.omega:.6g}_exudyn{elements}"
+        tag = f"w{args.omega:.6g}_exudyn{elements}_{fingerprint}"
         plant = exudyn_plant(cfg.manipulator, omega=args.omega, elements=elements)
         task = PlantRadius(plant, float(args.omega))
         omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
         objective = GainObjective(plant)
         label = f"Exudyn model ({elements} elements; hub / first bending mode)"
     else:
-        tag = f"w{args.omega:.6g}_{args.constants}"
+        tag = f"w{args.omega:.6g}_{args.constants}_{fingerprint}"
         task = ReducedRadius(cfg.manipulator, args.constants)
         omega_task = task
         objective = GainObjective(ReducedModel(args.omega, params=cfg.manipulator, constants=args.constants))
@@ -104,7 +110,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
     png2 = plot_omega_chart(oc, out / f"chart_omega_{otag}.png", label=label)
     summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
-               "figures": [str(png1), str(png2)]}
+               "figures": [str(png1), str(png2)], "json": str(out / f"chart_{tag}.json")}
     (out / f"chart_{tag}.json").write_text(json.dumps(summary))
     return summary
 
@@ -112,8 +118,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
 def run(args: argparse.Namespace) -> int:
     s = make_charts(args, progress=not args.json and sys.stderr.isatty())
     if args.json:
-        json.dump(s, sys.stdout)
-        sys.stdout.write("\n")
+        dump_json(s, sys.stdout)
     else:
         g = s["gain_chart"]
         print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, {g['n_computed']} computed)")

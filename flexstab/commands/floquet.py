@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from flexstab.config import load_config
-from flexstab.options import add_model_options, non_negative_float
+from flexstab.options import dump_json, add_model_options, non_negative_float
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -115,8 +115,7 @@ def _table(d: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     d = floquet_report(args)
     if args.json:
-        json.dump(d, sys.stdout)
-        sys.stdout.write("\n")
+        dump_json(d, sys.stdout)
     else:
         print(_table(d))
     return 0

@@ -29,6 +29,12 @@ def run(args: argparse.Namespace) -> int:
     from flexstab.study import StudyOptions, run_study
 
     cfg = load_config(args.config)
+    if args.scheduler:
+        from flexstab.executor import validate_scheduler_address
+
+        validate_scheduler_address(args.scheduler)  # fail before hours of work, not after
+    if args.stages is not None and not args.stages.strip():
+        raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
     res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
                                       progress=sys.stderr.isatty(), scheduler=args.scheduler))

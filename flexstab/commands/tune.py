@@ -7,7 +7,7 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import add_model_options, positive_float
+from flexstab.options import dump_json, add_model_options, positive_float
 
 __all__ = ["register", "run", "tune_report", "build_plant"]
 
@@ -92,10 +92,11 @@ def tune_report(args: argparse.Namespace) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     d = tune_report(args)
+    if not d["converged"]:
+        print(f"flexstab tune: not converged: {d['message']}", file=sys.stderr)
     if args.json:
-        json.dump(d, sys.stdout, default=float)
-        sys.stdout.write("\n")
-        return 0
+        dump_json(d, sys.stdout)
+        return 0 if d["converged"] else 1
     print(f"Omega = {d['omega']:.6g} rad/s, target rho_d = {d['target']:g}, array {d['array']}")
     print(f"status: {d['status']} -- {d['message']}")
     print(f"kp = {d['kp']:.6g}   kd = {d['kd']:.6g}   max|rho| = {d['spectral_radius']:.6g}"

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Optional
 
 from flexstab.config import load_config
-from flexstab.options import parse_omega
+from flexstab.options import dump_json, parse_omega
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -171,8 +171,7 @@ def run(args: argparse.Namespace) -> int:
         plot_validation_figure([res], out / "validation.png",
                                titles=[f"Omega = {d['omega_over_pi']:.4g} pi, kp = {d['kp']:.4g}, kd = {d['kd']:.4g}"])
     if args.json:
-        json.dump(d, sys.stdout)
-        sys.stdout.write("\n")
+        dump_json(d, sys.stdout)
     else:
         print(_text(d))
     return 0

@@ -1,0 +1,94 @@
+"""Input validation and output contracts found by an adversarial review (API and CLI)."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from flexstab.cli import main as cli_main
+from mbs_models.parameters import ManipulatorParameters
+from mbs_models.reduced import ReducedModel, derived_mode_constants
+from stability import SecondOrderPeriodicSystem, floquet
+from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+
+def test_complex_P_is_rejected_not_cast():
+    with pytest.raises(ValueError, match="real-valued"):
+        floquet(lambda t: np.array([[0, 1], [1j, 0]]), period=1.0)
+
+
+def test_period_conflicting_with_the_objects_own_period():
+    with pytest.raises(ValueError, match="conflicts"):
+        floquet(ReducedModel(omega=2 * math.pi), period=0.5)
+    # the same period is fine
+    assert floquet(ReducedModel(omega=2 * math.pi), period=1.0).spectral_radius == pytest.approx(13.779, rel=1e-4)
+
+
+@pytest.mark.parametrize("period", [True, "1"])
+def test_period_must_be_a_number(period):
+    with pytest.raises(ValueError, match="period"):
+        floquet(lambda t: np.eye(2), period=period)
+
+
+def test_mass_vanishing_inside_the_period():
+    sys_ = SecondOrderPeriodicSystem(1.0, lambda t: [[math.cos(math.pi * t) ** 2]], lambda t: [[1.0]],
+                                     lambda t: [[1.0]])
+    with pytest.raises(ValueError, match="singular"):
+        floquet(sys_)
+
+
+def test_paper_constants_belong_to_the_paper_link():
+    other = ManipulatorParameters(length=0.5, tip_mass=1.0)
+    with pytest.raises(ValueError, match="length = 0.9"):
+        ReducedModel(params=other, constants="paper")
+    auto = ReducedModel(params=other)  # default "auto": derived constants for this link
+    assert auto.mode.source == "derived"
+    assert auto.mode.C1 == pytest.approx(derived_mode_constants(0.5).C1)
+    assert ReducedModel().mode.source == "paper"
+
+
+def test_tuned_gains_stay_inside_the_user_ranges():
+    """Paper Eq. (12): u_min <= u <= u_max; the windows are shifted, never leave the ranges."""
+    cfg = TuningConfig(target=0.3, kp_range=(0.0, 60.0), kd_range=(0.0, 40.0))
+    res = taguchi_tune(GainObjective(ReducedModel(omega=4 * math.pi)), cfg)
+    assert res.converged
+    assert 0.0 <= res.kp <= 60.0 and 0.0 <= res.kd <= 40.0
+    for it in res.iterations:
+        assert 0.0 <= it.kp_range[0] < it.kp_range[1] <= 60.0
+        assert 0.0 <= it.kd_range[0] < it.kd_range[1] <= 40.0
+
+
+def test_tune_exit_code_does_not_depend_on_json(capsys):
+    argv = ["tune", "--target", "100", "--max-evaluations", "30"]
+    assert cli_main(argv) == 1
+    capsys.readouterr()
+    assert cli_main(argv + ["--json"]) == 1
+    out = capsys.readouterr()
+    assert json.loads(out.out)["converged"] is False
+    assert "not converged" in out.err
+
+
+def test_json_output_is_strict(capsys):
+    # the paper method cannot form det Phi of the controlled case (it underflows):
+    # the residual is reported as null, never as the non-standard token Infinity
+    assert cli_main(["floquet", "--json", "--method", "paper", "--omega", "8pi", "--kp", "23.0147",
+                     "--kd", "6.8628"]) == 0
+    text = capsys.readouterr().out
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"non-standard JSON token {c}"))
+
+
+@pytest.mark.parametrize("text", ["manipulator = 3\n", "[[manipulator]]\nlength = 1.0\n", "study = [1, 2]\n"])
+def test_config_sections_must_be_tables(tmp_path, text, capsys):
+    f = tmp_path / "c.toml"
+    f.write_text(text)
+    assert cli_main(["floquet", "--config", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "table" in err[0]
+
+
+def test_study_rejects_a_bad_scheduler_before_working(tmp_path, capsys):
+    assert cli_main(["study", "--quick", "--scheduler", "foo", "--out", str(tmp_path)]) == 2
+    assert "scheduler" in capsys.readouterr().err
+    assert not (tmp_path / "report.md").exists()
