@@ -248,7 +248,13 @@ def exudyn_frequencies(
     M = J.T @ model.mass_matrix() @ J
     K = 0.5 * (K + K.T)
     lam = scipy.linalg.eigh(K, M, eigvals_only=True)
-    rigid = lam < RIGID_MODE_RTOL * np.max(np.abs(lam))
+    # the clamped beam has no rigid-body mode; the pinned one has exactly one (rotation about O,
+    # gravity off). A relative threshold alone misfires at fine meshes, where the highest axial
+    # eigenvalue is ~1e10 times the first bending one.
+    rigid = np.zeros(lam.shape, dtype=bool)
+    if hub == "pinned":
+        rigid[int(np.argmin(np.abs(lam)))] = True
+        rigid |= lam < RIGID_MODE_RTOL * np.max(np.abs(lam))
     n_rigid = int(np.count_nonzero(rigid))
     freqs = np.sqrt(lam[~rigid]) / (2.0 * math.pi)
     analytic = analytic_frequencies(params, hub, analytic_count) if analytic_count > 0 else np.array([])

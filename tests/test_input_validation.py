@@ -92,3 +92,12 @@ def test_study_rejects_a_bad_scheduler_before_working(tmp_path, capsys):
     assert cli_main(["study", "--quick", "--scheduler", "foo", "--out", str(tmp_path)]) == 2
     assert "scheduler" in capsys.readouterr().err
     assert not (tmp_path / "report.md").exists()
+
+
+def test_fine_mesh_clamped_beam_keeps_its_first_mode(capsys):
+    """At 260 elements the first bending eigenvalue is ~1e-13 of the largest (axial) one; it must not be
+    mistaken for a rigid-body mode, and --json must stay pure JSON despite Exudyn's size warning."""
+    assert cli_main(["modes", "--elements", "260", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["rigid_modes"] == 0
+    assert d["frequencies_hz"][0] == pytest.approx(17.2052045, rel=1e-5)  # Euler-Bernoulli with tip mass

@@ -5,6 +5,8 @@ import argparse
 import json
 import sys
 
+from flexstab.options import dump_json
+
 __all__ = ["register", "run", "modes_report"]
 
 
@@ -52,7 +54,11 @@ def modes_report(args: argparse.Namespace) -> dict:
             elements = cfg.elements
     elements = 8 if elements is None else elements
     # analytic values exist for the bending modes; give as many as asked for
-    res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count, analytic_count=args.count)
+    from mbs_models.validation import _exudyn_console
+
+    with _exudyn_console(quiet=bool(getattr(args, "json", False))):  # keep --json output pure JSON
+        res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,
+                                 analytic_count=args.count)
     out = res.to_dict()
     # only bending modes have an Euler-Bernoulli value: keep the analytic list
     # as long as the Exudyn frequencies it matches (within 5 %)
@@ -70,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     """Run ``flexstab modes``; return the exit code."""
     out = modes_report(args)
     if args.json:
-        print(json.dumps(out))
+        dump_json(out, sys.stdout)
         return 0
     lines = [
         f"Exudyn ANCF link, {out['elements']} elements, hub {out['hub']}"
