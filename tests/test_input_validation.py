@@ -101,3 +101,8 @@ def test_fine_mesh_clamped_beam_keeps_its_first_mode(capsys):
     d = json.loads(capsys.readouterr().out)
     assert d["rigid_modes"] == 0
     assert d["frequencies_hz"][0] == pytest.approx(17.2052045, rel=1e-5)  # Euler-Bernoulli with tip mass
+
+
+def test_exudyn_only_flags_rejected_for_the_reduced_model(capsys):
+    assert cli_main(["floquet", "--elements", "4"]) == 2
+    assert "--model exudyn only" in capsys.readouterr().err

@@ -50,6 +50,11 @@ def floquet_report(args: argparse.Namespace) -> dict:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     out: dict = {"model": args.model}
     if args.model == "reduced":
+        exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
+                                                ("--bending-damping", args.bending_damping != 0.0),
+                                                ("--axial-damping", args.axial_damping != 0.0)) if given]
+        if exudyn_only:
+            raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only")
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
