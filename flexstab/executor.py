@@ -42,6 +42,8 @@ from typing import Any, TypeVar
 import numpy as np
 from tqdm import tqdm
 
+from stability.serialization import json_ready
+
 __all__ = [
     "AUTO_SERIAL_MAX_TASKS",
     "DEFAULT_CONNECT_TIMEOUT",
@@ -356,19 +358,6 @@ def map_ordered(
         return [f.result() for f in futures]
 
 
-def _jsonable(obj: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples into JSON-ready Python objects."""
-    if isinstance(obj, np.ndarray):
-        return [_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, dict):
-        return {(k.item() if isinstance(k, np.generic) else k): _jsonable(v) for k, v in obj.items()}
-    return obj
-
-
 def point_key(point: Any) -> str:
     """Stable text key of a sweep point: canonical JSON of the point.
 
@@ -383,7 +372,7 @@ def point_key(point: Any) -> str:
         If the point is not JSON-serialisable.
     """
     try:
-        return json.dumps(_jsonable(point), sort_keys=True, separators=(",", ":"))
+        return json.dumps(json_ready(point, finite=False), sort_keys=True, separators=(",", ":"))
     except (TypeError, ValueError) as exc:
         raise ValueError(f"sweep point {point!r} is not JSON-serialisable: {exc}") from exc
 
@@ -503,8 +492,8 @@ def run_sweep(
 
     def record(fh: Any, key: str, point: Any, result: Any) -> None:
         try:
-            result_json = _jsonable(result)
-            line = json.dumps({"key": key, "point": _jsonable(point), "result": result_json})
+            result_json = json_ready(result, finite=False)
+            line = json.dumps({"key": key, "point": json_ready(point, finite=False), "result": result_json})
         except (TypeError, ValueError) as exc:
             raise ValueError(f"result for point {point!r} is not JSON-serialisable: {exc}") from exc
         fh.write(line + "\n")

@@ -78,30 +78,11 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _finite_or_none(obj):
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _finite_or_none(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite_or_none(v) for v in obj]
-    return obj
-
-
-def _default(obj):
-    import numpy as np
-
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return str(obj)
-
-
 def dump_json(obj, fp) -> None:
-    """Write ``obj`` as strict JSON (NaN/inf become ``null``) followed by a newline."""
+    """Write ``obj`` as strict JSON (numpy types converted, NaN/inf as ``null``) and a newline."""
     import json
 
-    text = json.dumps(obj, default=_default)  # first pass converts numpy types
-    fp.write(json.dumps(_finite_or_none(json.loads(text)), allow_nan=False))
+    from stability.serialization import json_ready
+
+    fp.write(json.dumps(json_ready(obj), allow_nan=False, default=str))
     fp.write("\n")

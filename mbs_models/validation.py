@@ -81,6 +81,7 @@ import numpy as np
 
 from mbs_models.exudyn_link import ExudynSolverError, build_link_model, fundamental_motion
 from mbs_models.parameters import ManipulatorParameters
+from stability.serialization import json_ready
 
 __all__ = [
     "AGREEMENT_TOLERANCE",
@@ -120,23 +121,6 @@ NOISE_FLOOR = 1e-9
 AGREEMENT_TOLERANCE = 0.10
 #: Exponential-midpoint steps per period of :func:`linear_prediction`.
 DEFAULT_PREDICTION_STEPS = 256
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 @contextlib.contextmanager
@@ -332,7 +316,7 @@ class ValidationResult:
             "reason": self.reason,
             "timings": dict(self.timings),
         }
-        return _jsonable(d)
+        return json_ready(d)
 
 
 # --------------------------------------------------------------------------- helpers

@@ -37,7 +37,7 @@ import logging
 import math
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -45,6 +45,7 @@ import numpy as np
 from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
+from stability.serialization import json_ready
 
 __all__ = [
     "FloquetResult",
@@ -181,7 +182,7 @@ class FloquetResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (multipliers as ``[re, im]`` pairs; non-finite numbers as ``None``)."""
-        return _json_safe({
+        return json_ready({
             "period": self.period,
             "method": self.method,
             "multipliers": [[float(z.real), float(z.imag)] for z in self.multipliers],
@@ -203,17 +204,6 @@ class FloquetResult:
             "n_evaluations": int(self.n_evaluations),
             "elapsed": float(self.elapsed),
         })
-
-
-def _json_safe(obj: Any) -> Any:
-    """Replace non-finite floats by ``None`` (strict JSON has no NaN/Infinity)."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    return obj
 
 
 # --------------------------------------------------------------------------- helpers
