@@ -23,9 +23,9 @@ import logging
 import math
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Optional
+from typing import Callable, Optional
 
 from flexstab.config import StudyConfig
 
@@ -104,8 +104,7 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
         omega_points=31 if opts.quick else 121, kp=None, kd=None, no_taguchi=False, out=str(opts.out),
         scheduler=opts.scheduler, workers=None, omega=cfg.omega, model="reduced", elements=None,
     )
-    # make_charts reads the manipulator from --config; pass the study's through a temporary config
-    s = _with_config(cfg, opts, lambda path: make_charts(_set(args, config=path), progress=opts.progress))
+    s = make_charts(args, progress=opts.progress, cfg=cfg)
     name = [Path(f).name for f in s["figures"]]
     md = (
         f"max|rho| over the (kp, kd) plane at Omega = {cfg.omega / math.pi:.3g} pi with the |rho| = 1 and "
@@ -240,22 +239,6 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
             f"{r['predicted_multiplier_reduced']:.4f} | {r['relative_error_exudyn']:.2%} | {r['diverged']} |"
         )
     return {"json": "validation.json", "markdown": "\n".join(md), "figures": [fig]}
-
-
-def _with_config(cfg: StudyConfig, opts: StudyOptions, fn: Callable[[str], Any]) -> Any:
-    path = opts.out / "study_config.toml"
-    lines = ["[manipulator]"] + [f"{k} = {v!r}" for k, v in cfg.manipulator.to_dict().items()]
-    lines += ["", "[study]", f"omega = {str(cfg.omega)!r}", f"target = {cfg.target!r}",
-              f"kp_range = {list(cfg.kp_range)!r}", f"kd_range = {list(cfg.kd_range)!r}",
-              f"elements = {cfg.elements!r}"]
-    path.write_text("\n".join(lines) + "\n")
-    return fn(str(path))
-
-
-def _set(ns, **kw):
-    for k, v in kw.items():
-        setattr(ns, k, v)
-    return ns
 
 
 #: Registry of the study's stages, in order.

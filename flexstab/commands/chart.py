@@ -40,8 +40,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
-    """Compute and plot both charts; return the JSON-ready summary."""
+def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> dict:
+    """Compute and plot both charts; return the JSON-ready summary.
+
+    ``cfg`` (a :class:`~flexstab.config.StudyConfig`) overrides ``args.config``.
+    """
     from flexstab.charts import (
         ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
         plot_omega_chart,
@@ -50,7 +53,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True) -> dict:
     from mbs_models.reduced import ReducedModel
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
-    cfg = load_config(args.config)
+    cfg = cfg if cfg is not None else load_config(args.config)
     kp_rng = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     if min(kp_rng) < 0 or min(kd_rng) < 0:
