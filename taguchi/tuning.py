@@ -387,7 +387,7 @@ def taguchi_tune(
             result = analyze(oa, sn, factor_names=("kp", "kd"))
             lv = result.best_levels
             conf = (float(kp_lv[lv[0]]), float(kd_lv[lv[1]]))
-            y_conf = _evaluate(objective, [conf], None if executor is None else executor)[0]
+            y_conf = float(objective(conf))  # one run: no point shipping it to a worker
             _check_responses([y_conf], [conf])
             evaluations += n_runs + 1
             if bar is not None:
