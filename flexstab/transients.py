@@ -1,7 +1,7 @@
 """Figs. 2-9 of the paper: transient response of the linearised manipulator (library side).
 
 From ``x(0) = [0, 0, pi/4, 0]`` (paper Eqs. 26 and 35) the linearised reduced
-model (paper constants) is integrated for the four Table 2 cases without
+model (the paper's constants for the built-in link) is integrated for the four Table 2 cases without
 control (Omega = 2pi, 4pi, 6pi, 8pi -> ``fig2`` .. ``fig5``) and with the PD
 gains printed in Table 3 (``fig6`` .. ``fig9``).  Each PNG has four panels:
 the hub-angle perturbation ``y1`` (rad) and the tip deflection ``X1 y2`` (m)
@@ -39,7 +39,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Optional, Sequence
+from typing import Iterable, Optional
 
 import matplotlib
 
@@ -159,6 +159,7 @@ def run_case(case: Case, settings: Settings, with_forcing: bool,
             "omega_over_pi": case.omega_over_pi,
             "period": T,
             "kp": case.kp,
+            "constants": model.mode.source,
             "kd": case.kd,
             "dominant_multiplier": [rho1.real, rho1.imag],
             "spectral_radius": float(fl.spectral_radius),
@@ -198,8 +199,7 @@ def _caption(case: Case, res: dict, with_forcing: bool) -> str:
         what = (f"Coloured: response including h_L (Eq. {31 if case.controlled else 20} with Eq. 24); "
                 f"grey: homogeneous ({eq}). Envelope of the homogeneous response; {tail}.")
     else:
-        what = f"Homogeneous response ({eq}: h_L omitted) of the linearised reduced model (paper constants)."
-    rho = s["spectral_radius"]
+        what = f"Homogeneous response ({eq}: h_L omitted) of the linearised reduced model ({s['constants']} constants)."
     return (
         f"{what} x(0) = [0, 0, π/4, 0] (Eq. {35 if case.controlled else 26}).\n"
         f"Dashed: ±C·ρ₁^(t/T), ρ₁ = {s['dominant_multiplier'][0]:.6g} (dominant Floquet multiplier; printed {case.printed_rho1}); "

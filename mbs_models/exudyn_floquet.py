@@ -34,7 +34,6 @@ Hazards (issue 4) and how they are handled
 """
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
@@ -80,10 +79,6 @@ DIRECT_EPSILON = 1e-6
 
 
 # --------------------------------------------------------------------------- propagator
-def _safe_expm1_abs(x: float) -> float:
-    return math.inf if x > 700.0 else float(abs(math.expm1(x)))
-
-
 def exponential_midpoint_floquet(
     system: Any,
     *,

@@ -15,7 +15,7 @@ place where the first-order matrix ``P(t) = [[0, I], [-M^-1 K, -M^-1 C]]``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np

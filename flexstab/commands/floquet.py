@@ -2,11 +2,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
-
-import numpy as np
 
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, non_negative_float
