@@ -69,7 +69,7 @@ class ExudynSystem:
         settings = exu.SimulationSettings()
         settings.timeIntegration.verboseMode = 0
         settings.linearSolver.solverType = exu.LinearSolverType.EigenDense
-        settings.solution.writeSolutionToFile = False
+        settings.solution.file.write = False
         self._solver.InitializeSolver(self.mbs, settings)
         self._zero_lambda = np.zeros(self.m)
         self._mass_constant: bool | None = None
@@ -157,6 +157,17 @@ class ExudynSystem:
             for i in ltg:
                 labels[int(i)] = label
         return labels
+
+    def slope_nodes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """ANCF ``NodePoint2DSlope1`` nodes: ``(ODE2 indices (x, y, x', y'), reference coordinates)``."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            node = mbs.GetNode(j)
+            if node.get("nodeType") == "Point2DSlope1":
+                ltg = np.array(list(mbs.systemData.GetNodeLTGODE2(j)), dtype=int)
+                out.append((ltg, np.asarray(node["referenceCoordinates"], dtype=float)))
+        return out
 
     def describe(self) -> dict[str, Any]:
         return {"ode2": self.n, "constraints": self.m, "drives": [d.name for d in self.built.drives]}

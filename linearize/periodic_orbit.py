@@ -171,6 +171,8 @@ class PeriodicOrbit:
         :func:`linearize.constrained.linearize_orbit`).
     coordinate_labels : tuple of str
         Exudyn item name per ODE2 coordinate.
+    slope_nodes : tuple
+        ANCF slope nodes ``(ODE2 indices, reference coordinates)`` (for mode labels).
     wall_time : float
     """
 
@@ -191,6 +193,7 @@ class PeriodicOrbit:
     iterations: int
     tangent: TangentBlocks = field(repr=False)
     coordinate_labels: tuple = field(repr=False, default=())
+    slope_nodes: tuple = field(repr=False, default=())
     wall_time: float = 0.0
 
     @property
@@ -254,7 +257,6 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
             fm = -system.rhs(q - e, v, t)
             if not const_mass:
                 fp += system.mass(q + e, t) @ a
-                fm -= 0.0
                 fm += system.mass(q - e, t) @ a
             Kf[k, :, j] = (fp - fm) / (2 * hq[j])
             if m:
@@ -335,6 +337,18 @@ def _solve(J: np.ndarray):
     return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
 
 
+def _weights(col: _Collocation, X: np.ndarray, qscale: float) -> np.ndarray:
+    """Per-unknown weights of the Newton norm: coordinates by their scale, multipliers and
+    torques by the largest of their kind (so a correction of each kind counts alike)."""
+    n, m = col.n, col.m
+    w = np.empty(X.shape[1])
+    w[:n] = 1.0 / qscale
+    for sl in (slice(n, n + m), slice(n + m, None)):
+        if X[:, sl].size:
+            w[sl] = 1.0 / max(float(np.max(np.abs(X[:, sl]))), 1e-300)
+    return w
+
+
 def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
@@ -355,7 +369,8 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
             J, tb = col.jacobian(X)
             solve = _solve(J)
         dX = solve(-out.reshape(-1)).reshape(X.shape)
-        step_norm = float(np.max(np.abs(dX[:, :col.n])))
+        weights = _weights(col, X + dX, qscale)
+        step_norm = float(np.max(np.abs(dX) * weights))
         lam = 1.0
         trial = X
         for _ in range(MAX_STEP_HALVINGS):
@@ -363,11 +378,12 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
             out_t, _ = col.residual(trial)
             if np.all(np.isfinite(out_t)):
                 simplified = solve(-out_t.reshape(-1)).reshape(X.shape)
-                if float(np.max(np.abs(simplified[:, :col.n]))) <= (1.0 - 0.25 * lam) * step_norm:
+                # Deuflhard's natural monotonicity test in a scaled max norm
+                if float(np.max(np.abs(simplified) * weights)) <= (1.0 - 0.25 * lam) * step_norm:
                     break
             lam *= 0.5
         X = trial
-        if float(np.max(np.abs(lam * dX[:, :col.n]))) <= UPDATE_TOLERANCE * qscale and res <= 1e3 * tol:
+        if float(np.max(np.abs(lam * dX) * weights)) <= UPDATE_TOLERANCE and res <= 1e3 * tol:
             out, fscale = col.residual(X)
             history.append(col.relative(out, fscale, qscale))
             return X, history, True, tb
@@ -394,7 +410,10 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
     s.timeIntegration.automaticStepSize = False
     s.timeIntegration.newton.relativeTolerance = 1e-10
     s.timeIntegration.newton.absoluteTolerance = 1e-12
-    s.solution.writeSolutionToFile = False
+    s.solution.file.write = False
+    s.solution.file.writeInitialValues = False
+    s.show.statistics = False
+    s.show.computationTime = False
     s.linearSolver.solverType = exu.LinearSolverType.EigenDense
     rows: list = []
     if record_times is not None:
@@ -534,7 +553,8 @@ def find_orbit(
         model=definition, omega=float(omega), period=col.T, times=col.times, q=Q, q_t=V, q_tt=A, lambdas=L,
         torques=U, drive_names=tuple(d.name for d in built.drives), drive_vectors=col.B, residual=residual,
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
-        coordinate_labels=tuple(col.system.coordinate_labels()), wall_time=time.perf_counter() - tic,
+        coordinate_labels=tuple(col.system.coordinate_labels()),
+        slope_nodes=tuple(col.system.slope_nodes()), wall_time=time.perf_counter() - tic,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
