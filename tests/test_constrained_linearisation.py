@@ -132,3 +132,79 @@ def test_dropping_reaction_stiffness_fails_the_mathieu_oracle():
     bad = floquet(linearize_orbit(orbit, reaction_stiffness=False), method="magnus6").multipliers
     assert _close_sets(good, ref) < 1e-6
     assert _close_sets(bad, ref) > 1e-2
+
+
+# --------------------------------------------------------------------------- double pendulum, two drives
+DOUBLE = str(HERE / "models" / "double_pendulum.py")
+_dspec = importlib.util.spec_from_file_location("double_pendulum_constants", DOUBLE)
+_dp = importlib.util.module_from_spec(_dspec)
+_dspec.loader.exec_module(_dp)
+
+
+def double_pendulum_matrices(t: float, omega: float, kp, kd):
+    """Hand-derived linearisation in absolute angles (phi1, phi2) about the driven motion.
+
+    T = 1/2 (J1 + m1 c1^2 + m2 L1^2) phi1'^2 + m2 L1 c2 cos(phi1 - phi2) phi1' phi2' + 1/2 (J2 + m2 c2^2) phi2'^2,
+    V = g (m1 c1 + m2 L1) sin phi1 + g m2 c2 sin phi2  (angles from the horizontal, gravity -y).
+    M phi'' + h + G = B tau,  h = mu sin(phi1 - phi2) (phi2'^2, -phi1'^2),  mu = m2 L1 c2,
+    B = [[1, -1], [0, 1]] (drives: phi1, phi2 - phi1), tau = tau_ff - kp B^T dphi - kd B^T dphi' - joint damping.
+    """
+    r1, r2 = _dp.motions(omega)
+    a, at, att = r1(t)
+    b, bt, btt = r2(t)
+    p1, p2 = a, a + b
+    w1, w2 = at, at + bt
+    e1, e2 = att, att + btt
+    mu = _dp.M2 * _dp.L1 * _dp.C2
+    s, c = math.sin(p1 - p2), math.cos(p1 - p2)
+    M = np.array([[_dp.J1 + _dp.M1 * _dp.C1**2 + _dp.M2 * _dp.L1**2, mu * c], [mu * c, _dp.J2 + _dp.M2 * _dp.C2**2]])
+    # d(M phi'')/dphi
+    dMa = np.array([[-mu * s * e2, mu * s * e2], [-mu * s * e1, mu * s * e1]])
+    # dh/dphi, dh/dphi'
+    dh = np.array([[mu * c * w2**2, -mu * c * w2**2], [-mu * c * w1**2, mu * c * w1**2]])
+    dhv = np.array([[0.0, 2 * mu * s * w2], [-2 * mu * s * w1, 0.0]])
+    dG = np.diag([-_dp.G * (_dp.M1 * _dp.C1 + _dp.M2 * _dp.L1) * math.sin(p1), -_dp.G * _dp.M2 * _dp.C2 * math.sin(p2)])
+    B = np.array([[1.0, -1.0], [0.0, 1.0]])
+    K = dMa + dh + dG + B @ np.diag(kp) @ B.T
+    C = dhv + B @ np.diag(np.asarray(kd) + _dp.ALPHA) @ B.T
+    return M, C, K
+
+
+def double_pendulum_multipliers(omega, kp, kd):
+    T = 2 * math.pi / omega
+
+    def rhs(t, x):
+        M, C, K = double_pendulum_matrices(t, omega, kp, kd)
+        y, v = x[:2], x[2:]
+        return np.concatenate([v, -np.linalg.solve(M, C @ v + K @ y)])
+
+    cols = [scipy.integrate.solve_ivp(rhs, (0, T), e, method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1]
+            for e in np.eye(4)]
+    mu = np.linalg.eigvals(np.array(cols).T)
+    return mu[np.argsort(-np.abs(mu), kind="stable")]
+
+
+@pytest.mark.parametrize("kp, kd", [((5.0, 2.0), (0.5, 0.2)), ((0.0, 0.0), (0.0, 0.0))])
+def test_double_pendulum_two_drives_against_hand_linearisation(kp, kd):
+    """Two drives, revolute joints (reaction stiffness), configuration-dependent inertia coupling."""
+    omega = 2 * math.pi
+    res = analyze(DOUBLE, omega, kp=kp, kd=kd, samples=32, method="magnus6", n_steps=None)
+    ref = double_pendulum_multipliers(omega, kp, kd)
+    assert res.drives == ("shoulder", "elbow")
+    assert res.linearization.size == 2
+    assert _close_sets(res.floquet.multipliers, ref) < 1e-6 * max(1.0, float(np.max(np.abs(ref))))
+    # a 5 % change of one gain moves the multipliers far beyond the tolerance (the check can fail)
+    wrong = double_pendulum_multipliers(omega, (1.05 * kp[0], kp[1]), kd) if kp[0] else \
+        double_pendulum_multipliers(omega, (0.1, 0.0), kd)
+    assert _close_sets(res.floquet.multipliers, wrong) > 1e-4
+
+
+def test_gains_per_drive_and_with_gains_agree():
+    """Per-drive gains set at linearisation or later through with_gains give the same system."""
+    orbit = find_orbit(DOUBLE, 2 * math.pi, samples=16, verify=False)
+    a = linearize_orbit(orbit, kp=(5.0, 2.0), kd=(0.5, 0.2))
+    b = linearize_orbit(orbit).with_gains((5.0, 2.0), (0.5, 0.2))
+    np.testing.assert_allclose(a.K, b.K, rtol=0, atol=1e-12 * np.max(np.abs(a.K)))
+    np.testing.assert_allclose(a.C, b.C, rtol=0, atol=1e-12 * np.max(np.abs(a.C)))
+    with pytest.raises(ValueError, match="one value per drive"):
+        linearize_orbit(orbit, kp=(1.0, 2.0, 3.0))
