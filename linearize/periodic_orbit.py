@@ -36,6 +36,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -427,12 +428,26 @@ class _Collocation:
         return J.reshape(Kn * s, Kn * s), tb
 
 
+#: Relative pivot below which the collocation Newton matrix counts as singular.
+SINGULAR_PIVOT = 1e-14
+
+
 def _solve(J: np.ndarray):
     """Factorise the Newton matrix (dense LU; one place to swap in a sparse solver)."""
     # column scaling equilibrates metres, radians and newtons
     scale = np.max(np.abs(J), axis=0)
     scale[scale == 0] = 1.0
-    lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
+    if not np.all(np.isfinite(J)):
+        raise OrbitConvergenceError("the collocation Newton matrix contains NaN or inf (the model's forces "
+                                    "are not finite along the guess)", [])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
+        lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
+    pivots = np.abs(np.diagonal(lu[0]))
+    if not np.all(pivots > SINGULAR_PIVOT * np.max(pivots)):
+        raise OrbitConvergenceError(
+            "the collocation Newton matrix is singular: redundant constraints, or a drive on a coordinate "
+            "the model's constraints already fix", [])
     return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
 
 
