@@ -441,10 +441,6 @@ class _Collocation:
         return J.reshape(Kn * s, Kn * s), tb
 
 
-#: Relative pivot below which the collocation Newton matrix counts as singular.
-SINGULAR_PIVOT = 1e-14
-
-
 def _solve(J: np.ndarray):
     """Factorise the Newton matrix (dense LU; one place to swap in a sparse solver)."""
     # column scaling equilibrates metres, radians and newtons
@@ -457,7 +453,7 @@ def _solve(J: np.ndarray):
         warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
         lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
     pivots = np.abs(np.diagonal(lu[0]))
-    if not np.all(pivots > SINGULAR_PIVOT * np.max(pivots)):
+    if not np.all(pivots > 0.0):
         raise OrbitConvergenceError(
             "the collocation Newton matrix is singular: redundant constraints, or a drive on a coordinate "
             "the model's constraints already fix", [])
