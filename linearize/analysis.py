@@ -16,6 +16,9 @@ from linearize.system import LinearizedPeriodicSystem
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
+    "ModelPlant",
+    "TUNING_PROPAGATOR_STEPS",
+    "model_plant",
     "FrozenModes",
     "frozen_modes",
     "UNDAMPED_TOLERANCE",
@@ -338,3 +341,48 @@ def analyze(
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
                               kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings)
+
+
+#: Sub-intervals of the Floquet evaluations inside a tuning loop.
+TUNING_PROPAGATOR_STEPS = 256
+
+
+@dataclass(frozen=True)
+class ModelPlant:
+    """A model file's linearisation as a plant for PD-gain tuning.
+
+    ``with_gains(kp, kd)`` (one value per drive or one for all) gives the periodic
+    system; :meth:`spectral_measure` is the tuning response: the modulus of
+    :attr:`ModelFloquetResult.dominant_multiplier` (drive modes and the first
+    bending mode; undamped structural modes sit on the unit circle whatever the
+    gains).  Holds the orbit (its model may come from a file loaded at run time),
+    so it is meant for in-process (serial) executors.
+    """
+
+    linearization: LinearizedPeriodicSystem = field(repr=False)
+    orbit: PeriodicOrbit = field(repr=False)
+    n_steps: int = TUNING_PROPAGATOR_STEPS
+
+    @property
+    def drives(self) -> tuple:
+        return self.orbit.drive_names
+
+    def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
+        return self.linearization.with_gains(kp, kd)
+
+    def floquet(self, kp, kd, n_steps: Optional[int] = None):
+        from stability import floquet
+
+        return floquet(self.with_gains(kp, kd), method="magnus2", n_steps=n_steps or self.n_steps,
+                       error_estimate=False, accuracy="moduli")
+
+    def spectral_measure(self, kp, kd) -> float:
+        lin = self.with_gains(kp, kd)
+        res = self.floquet(kp, kd)
+        return float(abs(_dominant(res, label_multipliers(lin, self.orbit, res), self.orbit.drive_names)))
+
+
+def model_plant(model: Any, omega: float, *, samples: int = DEFAULT_SAMPLES, **options: Any) -> ModelPlant:
+    """Orbit + linearisation (gains 0) of a model, packaged for :func:`taguchi.taguchi_tune`."""
+    orbit = find_orbit(model, omega, samples=samples, verify=False, **options)
+    return ModelPlant(linearize_orbit(orbit), orbit)
