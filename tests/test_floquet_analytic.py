@@ -105,8 +105,12 @@ def test_constant_P(case, method):
     assert res.verdict == verdict
     # Liouville: det expm(AT) = exp(T tr A) = exp(T sum(eigs))
     assert res.trace_integral == pytest.approx(T * np.sum(eigs).real, rel=1e-12, abs=1e-12)
-    assert res.liouville_residual <= 1e-10
-    assert res.multiplier_liouville_residual <= 1e-8
+    # from the multipliers, ln|det| = sum ln|rho_i| carries each rho_i's relative rounding
+    # error, noise_floor / |rho_i| (3.5e-9 for the stiff case's 3e-7 multiplier): the
+    # residual is bounded by their sum (x cond(V)^2 <= 25 for the non-normal A)
+    rounding = 25.0 * res.noise_floor * float(np.sum(1.0 / np.abs(expected)))
+    assert res.liouville_residual <= max(1e-10, rounding)
+    assert res.multiplier_liouville_residual <= max(1e-8, rounding)
 
 
 def test_constant_P_underflowing_stiff_multiplier_is_flagged():
