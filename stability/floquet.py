@@ -587,8 +587,10 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
             factor = (fine.n_steps / coarse.n_steps) ** p - 1.0
             estimates = _select_changes(fine.spectrum, coarse.spectrum, accuracy) / factor
             phase_estimate[0] = _estimate(_phase_changes(fine.spectrum, coarse.spectrum), fine.spectrum, factor)
-            return estimates, _estimate(estimates, fine.spectrum, 1.0), _matrix_change(
-                fine.monodromy, coarse.monodromy) / factor
+            est = _estimate(estimates, fine.spectrum, 1.0)
+            # the matrix estimate matters only when the eigenvalue estimate misses rtol
+            matrix_est = 0.0 if est <= rtol else _matrix_change(fine.monodromy, coarse.monodromy) / factor
+            return estimates, est, matrix_est
 
         if n_steps is not None:
             try:
@@ -643,7 +645,7 @@ def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: 
     N = INITIAL_STEPS
     if scheme.order <= 2:
         return N
-    intervals = np.unique(np.linspace(0, N - 1, min(N, PROBE_INTERVALS)).astype(int))
+    intervals = np.arange(0, N, max(1, N // PROBE_INTERVALS))
     nodes = np.asarray(scheme.nodes)
     n = wrapped.n
     h = period / N
