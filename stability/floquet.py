@@ -235,8 +235,20 @@ class _Spectrum:
     log_moduli: np.ndarray
 
 
+def _eigvals(Phi: np.ndarray) -> np.ndarray:
+    """Eigenvalues of a real square matrix (LAPACK ``dgeev`` directly: 4x faster than
+    ``np.linalg.eigvals`` for the 4x4 monodromy matrix; the same routine)."""
+    from scipy.linalg.lapack import dgeev
+
+    if Phi.dtype == np.float64 and Phi.ndim == 2:
+        wr, wi, _, _, info = dgeev(Phi, compute_vl=0, compute_vr=0)
+        if info == 0:
+            return wr + 1j * wi
+    return np.linalg.eigvals(Phi).astype(complex)
+
+
 def _spectrum(Phi: np.ndarray) -> _Spectrum:
-    vals = np.linalg.eigvals(Phi).astype(complex)
+    vals = _eigvals(Phi)
     logs = np.log(np.abs(vals))  # -inf for an exact zero (callers run under np.errstate)
     # descending modulus; within a conjugate pair the positive imaginary part first
     order = np.lexsort((-vals.imag, -logs))
@@ -1042,7 +1054,7 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     rho = float(math.exp(spec.log_moduli[0]))
     trace = _trace_integral(P, wrapped, T)
     n = spec.values.size
-    noise = float(n * np.finfo(float).eps * np.linalg.norm(prop.monodromy, 2))
+    noise = float(n * np.finfo(float).eps * np.linalg.svd(prop.monodromy, compute_uv=False)[0])  # ||Phi||_2
     moduli = np.exp(spec.log_moduli)
     noise_digits = np.clip(np.log10(moduli / noise), 0.0, 16.0)
     if prop.changes is not None:
