@@ -85,7 +85,7 @@ def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float]) -> tup
 
 def validation_report(args: argparse.Namespace):
     """Run the validation requested by ``args``; return ``(dict, ValidationResult)``."""
-    from mbs_models.validation import PAPER_PERTURBATION, validate_closed_loop
+    from validation.closed_loop import PAPER_PERTURBATION, validate_closed_loop
 
     cfg = load_config(args.config)
     omega = parse_omega(args.omega) if args.omega is not None else cfg.omega
@@ -164,7 +164,7 @@ def _text(d: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     d, res = validation_report(args)
     if args.out is not None:
-        from mbs_models.validation_plots import plot_validation_figure
+        from validation.plots import plot_validation_figure
 
         out = Path(args.out)
         (out / "validation.json").write_text(json.dumps(d, indent=2))

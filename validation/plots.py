@@ -1,11 +1,11 @@
 """Figures of the nonlinear validation: nonlinear runs against the linear prediction.
 
 :func:`plot_validation_figure` draws one column per
-:class:`~mbs_models.validation.ValidationResult` with three rows:
+:class:`~validation.closed_loop.ValidationResult` with three rows:
 
 1. the hub-angle error ``Delta q_a(t)`` of the nonlinear run (perturbed minus
    reference), the response of the linearised Exudyn system to the same
-   initial perturbation (:func:`~mbs_models.validation.linear_prediction`) and
+   initial perturbation (:func:`~validation.closed_loop.linear_prediction`) and
    the envelope ``+- C |rho|^(t/T)``;
 2. ``|Delta q_a|`` on a log scale with the stroboscopic samples ``|Delta q_a(kT)|``
    of both and the envelope (the per-period ratio is the slope);
@@ -23,7 +23,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from mbs_models.validation import LinearPrediction, ValidationResult, linear_prediction
+from validation.closed_loop import LinearPrediction, ValidationResult, linear_prediction
 
 __all__ = ["plot_validation_figure"]
 
@@ -53,7 +53,7 @@ def plot_validation_figure(
     titles : sequence of str, optional
         Column titles (default: the gains).
     predictions : sequence of LinearPrediction or None, optional
-        Default: :func:`~mbs_models.validation.linear_prediction` of each result.
+        Default: :func:`~validation.closed_loop.linear_prediction` of each result.
     suptitle : str, optional
 
     Returns
