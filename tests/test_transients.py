@@ -116,7 +116,7 @@ def test_envelope_constant_recovers_amplitude():
     t = np.linspace(0.0, 5 * T, 5 * 400 + 1)
     y = a * np.sin(2 * math.pi * t / T) * rho ** (t / T)
     # max |y| rho^(-t/T) = a |sin|: its peak t = T/4 + 4T lies on the grid (400 per period), so only
-    # rounding of sin and of rho^(t/T) remains (~1e-15); 1e-5 also covers a grid offset of <= 2.5e-3 T
+    # rounding of sin and of rho^(t/T) remains (~1e-15); 1e-5 would also cover a grid offset up to 7e-4 T
     assert envelope_constant(t, y, rho, T, t_from=4 * T) == pytest.approx(a, rel=1e-5)
 
 
