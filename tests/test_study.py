@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -9,6 +10,10 @@ import pytest
 from flexstab.cli import main as cli_main
 from flexstab.config import StudyConfig
 from flexstab.study import StudyOptions, run_study
+from mbs_models.exudyn_link import ExudynLinkConfig
+from mbs_models.orbit import find_periodic_orbit
+
+from _model_bounds import model_difference_bound  # tests/ helper
 
 
 @pytest.fixture(scope="module")
@@ -37,8 +42,12 @@ def test_report_tables_match_json(study):
     ex = json.loads((study.out / "exudyn.json").read_text())["rows"]
     for row in ex:
         assert f"{row['printed_gains_dominant_exudyn']:.5f}" in md
-        # independent physics check: the Exudyn model and the reduced model agree within 2 %
-        assert abs(row["printed_gains_dominant_exudyn"] / row["printed_gains_dominant_reduced"] - 1) < 0.02
+        # model agreement (not an oracle): Exudyn vs reduced within what separates the two
+        # models, the orbit's deflection (tests/_model_bounds.py)
+        orbit = find_periodic_orbit(config=ExudynLinkConfig(elements=row["elements"], omega=row["omega"]),
+                                    samples=16, verify=False)
+        bound = model_difference_bound(orbit, row["printed_gains_dominant_reduced"])
+        assert abs(math.log(row["printed_gains_dominant_exudyn"] / row["printed_gains_dominant_reduced"])) <= bound
 
 
 def test_study_json_summary(study):
