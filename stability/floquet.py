@@ -42,13 +42,15 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
+from stability.expm import expm_stack
+from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_exponents, ordered_product
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
 from stability.serialization import json_ready
 
 __all__ = [
     "FloquetResult",
+    "FloquetError",
     "floquet",
     "METHODS",
     "DEFAULT_METHOD",
@@ -64,13 +66,6 @@ VERDICT_UNSTABLE = "unstable"
 VERDICT_CRITICAL = "critical"
 
 DEFAULT_METHOD = "magnus6"
-#: Smallest first number of sub-intervals tried by the adaptive factor methods.
-INITIAL_STEPS = 16
-#: The first number of sub-intervals is the power of two just below
-#: ``T * max|Im lambda(P)| / PHASE_PER_STEP``: no scheme resolves an
-#: oscillation with much more than ~2 rad of phase per step, so coarser
-#: solves are wasted work.
-PHASE_PER_STEP = 2.0
 #: Upper limit on sub-intervals before the adaptive methods give up refining.
 MAX_STEPS = 2**15
 #: Moduli below this fraction of the spectral radius are not used for the
@@ -113,7 +108,10 @@ class FloquetResult:
         accumulated from the propagators (``"propagators"``: ``sum tr
         Omega_k`` for Magnus, which checks the quadrature of ``tr P`` only).
     liouville_source : str
-        ``"multipliers"`` or ``"propagators"`` (see above).
+        ``"multipliers"`` or ``"propagators"`` (see above), or
+        ``"unavailable"`` (NaN residual) for the ``"paper"`` method when
+        some multiplier is below the noise floor: it keeps no propagators,
+        and ``det`` of the formed matrix is then rounding noise.
     multiplier_liouville_residual : float
         The same identity checked on the returned multipliers,
         ``|expm1(sum ln|rho_i| - int tr P)|``; NaN when some multiplier is
@@ -130,10 +128,9 @@ class FloquetResult:
         formed monodromy matrix are rounding noise (a lower bound: non-normal
         monodromy matrices amplify it by the eigenvalue condition number).
     reliable_digits : ndarray, shape (n,)
-        Per multiplier, the number of significant digits on which the last
-        two refinements agree (``-log10`` of the relative change of the
-        modulus, capped at 16), further capped by the noise floor; 0 means
-        the value is noise.
+        Per multiplier, ``-log10`` of its own refinement error estimate
+        (the Richardson estimate of the last pair of solves, capped at 16),
+        further capped by the noise floor; 0 means the value is noise.
     method : str
     n_steps : int
         Sub-intervals of the final propagation (factor methods) or accepted
@@ -266,17 +263,6 @@ def _verdict(rho: float, tol: float) -> str:
     return VERDICT_CRITICAL
 
 
-def _initial_steps(wrapped: PeriodicMatrixFunction, period: float, max_steps: int) -> int:
-    """First sub-interval count of the adaptive loop (see :data:`PHASE_PER_STEP`)."""
-    P = wrapped.evaluate(np.arange(4) * (period / 4))
-    omega = float(np.max(np.abs(np.linalg.eigvals(P).imag)))
-    target = period * omega / PHASE_PER_STEP
-    N = INITIAL_STEPS
-    while 2 * N <= target and 4 * N <= max_steps:
-        N *= 2
-    return N
-
-
 def _log_abs_det(matrices: np.ndarray) -> float:
     sign, logdet = np.linalg.slogdet(matrices)
     if np.any(sign == 0):
@@ -285,8 +271,16 @@ def _log_abs_det(matrices: np.ndarray) -> float:
 
 
 # --------------------------------------------------------------------------- methods
-class _MagnusOverflow(ValueError):
-    """A Magnus exponent overflowed (too large ``h ||P||`` for the commutator terms)."""
+class FloquetError(ArithmeticError):
+    """The monodromy matrix cannot be computed to the requested standard (one clear line says why)."""
+
+
+class _Unresolved(Exception):
+    """A propagation whose sub-intervals do not resolve ``P`` (or that overflowed)."""
+
+    def __init__(self, message: str, *, genuine_overflow: bool = False) -> None:
+        super().__init__(message)
+        self.genuine_overflow = genuine_overflow
 
 
 @dataclass(frozen=True)
@@ -297,8 +291,142 @@ class _Propagation:
     n_steps: int
     n_evaluations: int
     error_estimate: float
-    changes: Optional[np.ndarray]  # relative change per modulus at the last refinement
+    changes: Optional[np.ndarray]  # per-multiplier relative error estimate of the result
     factors: Optional[np.ndarray] = None  # sub-interval propagators of the final solve, if kept
+
+
+@dataclass(frozen=True)
+class _Solve:
+    n_steps: int
+    monodromy: np.ndarray
+    spectrum: _Spectrum
+    log_abs_det: float
+    factors: Optional[np.ndarray]
+
+
+#: First sub-interval count of the adaptive factor methods.  Magnus schemes
+#: integrate frozen oscillations exactly, so the count is chosen from the
+#: accuracy actually reached (a pilot pair ``N, 2N`` and the error model
+#: ``err ~ C N^-p``), not from the fastest oscillation of ``P``.
+INITIAL_STEPS = 16
+#: The refinement aims at ``SAFETY * rtol`` so that the certified estimate of
+#: the refined solve lands below ``rtol`` in one pass.
+SAFETY = 0.25
+#: Largest growth of the sub-interval count in one refinement pass (the
+#: Richardson estimate with ratio ``r`` divides by ``r^p - 1``; a bounded
+#: ratio keeps it from resting on the asymptotic model alone).
+MAX_REFINE_RATIO = 4.0
+#: A refinement pass is trusted only if the pair it forms measures the
+#: coarser solve's error within this factor of what the previous pair
+#: predicted for it (the observed order agrees with the scheme's).
+CONSISTENCY = 4.0
+#: A sub-interval is *unresolved* when the commutator part of its Magnus
+#: exponent, ``||Omega_k - h Pbar_k||_1``, exceeds this: it then changes the
+#: propagator by up to ``e^10``, i.e. it is no correction any more and the
+#: truncated series means nothing (it overflows for coarse steps and stiff P).
+COMMUTATOR_LIMIT = 10.0
+#: Memory allowed for the stacks of ``(N, n, n)`` work arrays of one solve.
+MEMORY_LIMIT = 1.5e9
+#: Number of ``(N, n, n)``-sized work arrays alive at once in a solve (P at the
+#: Gauss points, exponents, commutators, Pade terms).
+WORK_ARRAYS = 12
+#: ``T * ||P||`` beyond which the period is too long for double precision:
+#: ``ln rho = T lambda`` carries an absolute rounding error ``eps T |lambda|``,
+#: so at 1e12 not even the first digits of the phases are left (and moduli
+#: like ``exp(T lambda)`` overflow long before).
+PERIOD_SCALE_LIMIT = 1e12
+
+
+def _quadrature_mean(scheme: MagnusScheme, Pg: np.ndarray) -> np.ndarray:
+    """Gauss-Legendre mean of ``P`` over each sub-interval (the 2nd-order part of ``Omega_k / h``)."""
+    if scheme.order == 2:
+        return Pg[:, 0]
+    if scheme.order == 4:
+        return 0.5 * (Pg[:, 0] + Pg[:, 1])
+    return (5.0 * Pg[:, 0] + 8.0 * Pg[:, 1] + 5.0 * Pg[:, 2]) / 18.0
+
+
+#: Sub-intervals probed for the commutator test before a full solve (cheap
+#: rejection of step counts far too coarse for a stiff, fast ``P``).
+PROBE_INTERVALS = 8
+
+
+def _commutator_limit(scheme: MagnusScheme, Om: np.ndarray, Pg: np.ndarray, h: float, N: int) -> None:
+    """Raise :class:`_Unresolved` if the commutator part of an exponent exceeds :data:`COMMUTATOR_LIMIT`."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        corr = float(np.max(np.sum(np.abs(Om - h * _quadrature_mean(scheme, Pg)), axis=1)))
+    if not corr <= COMMUTATOR_LIMIT:  # also catches NaN
+        raise _Unresolved(
+            f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
+            f"with {N} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
+        )
+
+
+def _check_commutators(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, intervals: np.ndarray,
+                       h: float, N: int) -> None:
+    """:func:`_commutator_limit` on the given sub-intervals only."""
+    nodes = np.asarray(scheme.nodes)
+    n = wrapped.n
+    times = (intervals[:, None] + nodes[None, :]) * h
+    Pg = wrapped.evaluate(times.ravel()).reshape(len(intervals), len(nodes), n, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Om = magnus_exponents(scheme, Pg, h)
+    _commutator_limit(scheme, Om, Pg, h, N)
+
+
+def _magnus_solve(
+    scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, keep_factors: bool,
+    strict: bool = True,
+) -> _Solve:
+    """One propagation with ``N`` sub-intervals; raises :class:`_Unresolved` if it means nothing.
+
+    ``strict=False`` (a step count fixed by the caller) skips the
+    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.
+    """
+    n = wrapped.n
+    need = WORK_ARRAYS * len(scheme.nodes) * N * n * n * 8.0
+    if need > MEMORY_LIMIT:
+        raise _Unresolved(
+            f"{scheme.name} would need {N} sub-intervals of {n}x{n} matrices "
+            f"(~{need / 1e9:.1f} GB of work arrays, limit {MEMORY_LIMIT / 1e9:.1f} GB)",
+            genuine_overflow=False,
+        )
+    h = period / N
+    nodes = np.asarray(scheme.nodes)
+    if strict and scheme.order > 2 and N > 4 * PROBE_INTERVALS:
+        # cheap probe on a few sub-intervals spread over the period before the full stack
+        probe = np.unique(np.linspace(0, N - 1, PROBE_INTERVALS).astype(int))
+        _check_commutators(scheme, wrapped, probe, h, N)
+    times = (np.arange(N)[:, None] + nodes[None, :]) * h
+    Pg = wrapped.evaluate(times.ravel()).reshape(N, len(nodes), n, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Om = magnus_exponents(scheme, Pg, h)
+        if strict and scheme.order > 2:
+            _commutator_limit(scheme, Om, Pg, h, N)
+        E = expm_stack(Om)
+        if not np.all(np.isfinite(E)):
+            raise _Unresolved(
+                f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
+                f"(h*||P|| up to {float(np.max(np.sum(np.abs(Om), axis=1))):.3g})",
+                genuine_overflow=True,
+            )
+        Phi = ordered_product(E)
+        if not np.all(np.isfinite(Phi)):
+            raise _Unresolved(
+                f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
+                f"within one period)",
+                genuine_overflow=True,
+            )
+    log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
+    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
+
+
+def _matrix_change(fine: np.ndarray, coarse: np.ndarray) -> float:
+    """Normwise relative change of the (balanced) monodromy matrix between two solves."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale_ = float(np.max(np.abs(fine))) or 1.0  # keep the norms in range
+        value = float(np.linalg.norm((fine - coarse) / scale_) / np.linalg.norm(fine / scale_))
+    return value if math.isfinite(value) else math.inf
 
 
 def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
@@ -315,80 +443,115 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         keep_factors: bool = False,
     ) -> _Propagation:
         q = len(scheme.nodes)
-        richardson = 2.0**scheme.order - 1.0
+        p = scheme.order
+        evaluations = 0
 
-        def solve(N: int) -> tuple[float, np.ndarray, _Spectrum]:
-            with np.errstate(over="ignore", invalid="ignore"):
-                E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
-            if not np.all(np.isfinite(E)):
-                h_norm = float(np.max(np.abs(np.linalg.eigvals(wrapped.evaluate(np.array([0.0]))[0])))) * period / N
-                raise _MagnusOverflow(
-                    f"{scheme.name}: the Magnus exponent overflowed with {N} sub-intervals "
-                    f"(h*|lambda(P)| = {h_norm:.3g}); the commutator terms of high-order Magnus "
-                    f"schemes grow like (h ||P||)^2 -- use method='magnus2' or more steps"
-                )
-            Phi = ordered_product(E)
-            kept[N] = E if keep_factors else None
-            return log_det, Phi, _spectrum(Phi)
+        def solve(N: int, strict: bool = True) -> _Solve:
+            nonlocal evaluations
+            evaluations += q * N
+            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict)
 
-        kept: dict[int, Optional[np.ndarray]] = {}
+        def pair_estimate(fine: _Solve, coarse: _Solve) -> tuple[np.ndarray, float, float]:
+            """Per-multiplier Richardson estimates of the fine solve's error, their max over
+            the moduli >= ESTIMATE_FLOOR of the largest, and the matrix estimate.
 
-        changes = None
-        est = math.nan
+            Maths: with ``err(N) ~ C N^-p`` and ``r = N_f / N_c``, the change between the
+            two solves is ``err(N_f) (r^p - 1)``.
+            """
+            factor = (fine.n_steps / coarse.n_steps) ** p - 1.0
+            estimates = _select_changes(fine.spectrum, coarse.spectrum, accuracy) / factor
+            return estimates, _estimate(estimates, fine.spectrum, 1.0), _matrix_change(
+                fine.monodromy, coarse.monodromy) / factor
+
         if n_steps is not None:
-            N = n_steps
-            log_det, Phi, spec = solve(N)
-            evaluations = q * N
-            if error_estimate and N >= 2:
-                coarse = solve(N // 2)[2]
-                evaluations += q * (N // 2)
-                changes = _select_changes(spec, coarse, accuracy)
-                est = _estimate(changes, spec, richardson)
-        else:
-            N = _initial_steps(wrapped, period, max_steps)
-            evaluations = 0
-            while True:  # a too coarse start can overflow the commutator terms: refine first
+            try:
+                fine = solve(n_steps, strict=False)
+            except _Unresolved as exc:
+                raise FloquetError(f"{exc}; use more steps (n_steps) or method='magnus2'") from None
+            changes, est = None, math.nan
+            if error_estimate and n_steps >= 2:
                 try:
-                    log_det, Phi, spec = solve(N)
-                    evaluations += q * N
-                    break
-                except _MagnusOverflow:
-                    evaluations += q * N
-                    if 4 * N > max_steps:
-                        raise
-                    N *= 2
-            while True:
-                log_det2, Phi2, spec2 = solve(2 * N)
-                evaluations += q * 2 * N
-                changes = _select_changes(spec2, spec, accuracy)
-                est = _estimate(changes, spec2, richardson)
-                # normwise change of the (balanced) monodromy matrix: near a multiple
-                # multiplier (a stability boundary) the eigenvalues move like the square
-                # root of the matrix error and never meet rtol, although Phi has converged;
-                # then the remaining eigenvalue error is conditioning, not discretisation,
-                # and ``error_estimate`` (which stays large) widens the critical band.
-                with np.errstate(over="ignore", invalid="ignore"):
-                    scale_ = float(np.max(np.abs(Phi2))) or 1.0  # keep the norms in range
-                    matrix_est = float(
-                        np.linalg.norm((Phi2 - Phi) / scale_) / np.linalg.norm(Phi2 / scale_)
-                    ) / richardson
-                if not math.isfinite(matrix_est):
-                    matrix_est = math.inf
-                log_det, Phi, spec, N = log_det2, Phi2, spec2, 2 * N
-                if est <= rtol or matrix_est <= 0.1 * rtol:
-                    break
-                if 2 * N > max_steps:
-                    warnings.warn(
-                        f"{scheme.name}: error estimate {est:.2e} > rtol {rtol:.1e} at the step "
-                        f"limit of {N} sub-intervals; the result is less accurate than requested",
-                        RuntimeWarning,
-                        stacklevel=4,
-                    )
-                    break
-        return _Propagation(Phi, spec, log_det, N, evaluations, est, changes, kept.get(N))
+                    changes, est, _ = pair_estimate(fine, solve(n_steps // 2, strict=False))
+                except _Unresolved:
+                    est = math.inf  # the half-step solve is meaningless: no certificate
+        else:
+            fine, changes, est = _adaptive(solve, pair_estimate, rtol, max_steps, scheme)
+        return _Propagation(fine.monodromy, fine.spectrum, fine.log_abs_det, fine.n_steps, evaluations,
+                            est, changes, fine.factors)
 
     run.__name__ = f"_run_{scheme.name}"
     return run
+
+
+def _first_resolved(solve, N: int, max_steps: int, scheme: MagnusScheme) -> _Solve:
+    """The first solve at ``N, 2N, 4N, ...`` whose sub-intervals resolve ``P``."""
+    last: Optional[_Unresolved] = None
+    while N <= max_steps:
+        try:
+            return solve(N)
+        except _Unresolved as exc:
+            if "GB of work arrays" in str(exc):
+                reason = f"{last}; refining further {exc}" if last is not None else str(exc)
+                break
+            last = exc
+            reason = f"{exc}; no step count up to {max_steps} resolves it"
+            N *= 2
+    hint = " (the commutator terms of high-order Magnus schemes grow with h||P||: use method='magnus2' " \
+           "for stiff, fast systems)" if scheme.order > 2 else ""
+    if last is not None and last.genuine_overflow:
+        hint = " (solutions grow beyond double precision within one period)"
+    raise FloquetError(reason + hint)
+
+
+def _adaptive(solve, pair_estimate, rtol: float, max_steps: int, scheme: MagnusScheme):
+    """Refinement from a pilot pair with the error model ``err ~ C N^-p``.
+
+    1. Pilot: the first resolved solve at ``INITIAL_STEPS * 2^j``, then twice as
+       many sub-intervals (classical step doubling).
+    2. If the Richardson estimate ``e_b`` of the finer solve exceeds ``rtol``,
+       the next count is ``N_b (e_b / (SAFETY rtol))^(1/p)`` (at most
+       ``MAX_REFINE_RATIO N_b``): one pass usually suffices.
+    3. The new pair ``(N_b, N_c)`` gives the certified estimate
+       ``|change| / ((N_c/N_b)^p - 1)``; it is accepted only if the change also
+       measures ``N_b``'s error within ``CONSISTENCY`` of what the previous pair
+       predicted (the observed order agrees with ``p``); otherwise refine again.
+    """
+    p = scheme.order
+    coarse = _first_resolved(solve, INITIAL_STEPS, max_steps, scheme)
+    N_next = 2 * coarse.n_steps
+    predicted_coarse_error = math.inf  # what the previous pair said about `coarse`
+    while True:
+        if N_next > max_steps:
+            N_next = max_steps
+        try:
+            fine = solve(N_next)
+        except _Unresolved:
+            coarse = _first_resolved(solve, 2 * N_next, max_steps, scheme)
+            N_next, predicted_coarse_error = 2 * coarse.n_steps, math.inf
+            continue
+        changes, est, matrix_est = pair_estimate(fine, coarse)
+        ratio = fine.n_steps / coarse.n_steps
+        # the change measures the coarse solve's error: |rho_c - rho_f| = e_c (1 - ratio^-p)
+        measured_coarse_error = est * (ratio**p - 1.0) / (1.0 - ratio**-p) if math.isfinite(est) else math.inf
+        consistent = ratio <= 2.0 + 1e-12 or measured_coarse_error <= CONSISTENCY * predicted_coarse_error
+        if consistent and (est <= rtol or matrix_est <= 0.1 * rtol):
+            return fine, changes, est
+        if fine.n_steps >= max_steps:
+            warnings.warn(
+                f"{scheme.name}: error estimate {est:.2e} > rtol {rtol:.1e} at the step "
+                f"limit of {fine.n_steps} sub-intervals; the result is less accurate than requested",
+                RuntimeWarning,
+                stacklevel=5,
+            )
+            return fine, changes, est
+        if consistent and math.isfinite(est) and est > 0:
+            grow = (est / (SAFETY * rtol)) ** (1.0 / p)
+            grow = min(max(grow, 1.25), MAX_REFINE_RATIO)
+        else:
+            grow = 2.0  # not (yet) in the asymptotic regime: classical doubling
+        N_next = int(math.ceil(fine.n_steps * grow))
+        predicted_coarse_error = est if math.isfinite(est) else math.inf
+        coarse = fine
 
 
 def _paper_method(
@@ -449,23 +612,39 @@ class _Balanced:
         return self.evaluate(np.array([t]))[0]
 
 
-def _balancing_scale(wrapped: PeriodicMatrixFunction, period: float) -> Optional[np.ndarray]:
-    """Diagonal scaling from LAPACK's balancing of ``mean |P(t)|``; ``None`` if not worth it."""
-    from scipy.linalg import matrix_balance
+def _samples(wrapped: PeriodicMatrixFunction, period: float) -> np.ndarray:
+    """``P`` at :data:`BALANCE_SAMPLES` equally spaced times (balancing and the scale check)."""
+    return wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))
 
-    if wrapped.n < 2:
+
+def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
+    """Diagonal scaling from LAPACK's balancing (``dgebal``) of ``mean |P(t)|``; ``None`` if not worth it."""
+    from scipy.linalg.lapack import dgebal
+
+    if samples.shape[-1] < 2:
         return None
-    A = np.mean(np.abs(wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))), axis=0)
+    A = np.mean(np.abs(samples), axis=0)
     if np.count_nonzero(A - np.diag(np.diag(A))) == 0:
         return None  # diagonal (or zero): nothing to balance
-    with warnings.catch_warnings():
-        # scipy casts LAPACK's (unused, permute=False) permutation output to int,
-        # which warns for matrices near the underflow threshold
-        warnings.simplefilter("ignore", RuntimeWarning)
-        _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
-    if not np.all(np.isfinite(scale)) or np.all(scale == 1.0):
+    *_, scale, info = dgebal(A, scale=1, permute=0)
+    if info != 0 or not np.all(np.isfinite(scale)) or np.all(scale == 1.0):
         return None
     return np.asarray(scale, dtype=float)
+
+
+def _check_period_scale(samples: np.ndarray, period: float) -> float:
+    """Reject periods too long for double precision (see :data:`PERIOD_SCALE_LIMIT`); return ``T max|lambda|``."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        lam = float(np.max(np.abs(np.linalg.eigvals(samples))))
+        scale_ = period * lam
+    if not scale_ <= PERIOD_SCALE_LIMIT:
+        raise ValueError(
+            f"the period T = {period:.3g} s is too long for the time scales of P(t) "
+            f"(T * max|lambda(P)| = {scale_:.3g} > {PERIOD_SCALE_LIMIT:.0e}): multipliers like "
+            f"exp(T lambda) and their phases are beyond double precision -- is the frequency "
+            f"(omega = 2 pi / T = {2 * math.pi / period:.3g} rad/s) too small?"
+        )
+    return scale_
 
 
 #: QR sweeps over one period for ``small_multipliers="qr"`` (each sweep is one period
@@ -649,19 +828,30 @@ def floquet(
         raise ValueError(f"stability_tol must be finite and >= 0, got {stability_tol!r}")
     wrapped = PeriodicMatrixFunction(P, period)
     T = wrapped.period
-    scale = _balancing_scale(wrapped, T) if balance else None
+    samples = _samples(wrapped, T)
+    time_scale = _check_period_scale(samples, T)
+    scale = _balancing_scale(samples) if balance else None
     target = wrapped if scale is None else _Balanced(wrapped, scale)
-    prop = METHODS[method](
-        target,
-        T,
-        n_steps=None if n_steps is None else int(n_steps),
-        rtol=rtol,
-        error_estimate=error_estimate,
-        max_steps=max_steps,
-        reference=reference,
-        accuracy=accuracy,
-        keep_factors=small_multipliers == "qr",
-    )
+    try:
+        prop = METHODS[method](
+            target,
+            T,
+            n_steps=None if n_steps is None else int(n_steps),
+            rtol=rtol,
+            error_estimate=error_estimate,
+            max_steps=max_steps,
+            reference=reference,
+            accuracy=accuracy,
+            keep_factors=small_multipliers == "qr",
+        )
+    except FloquetError as exc:
+        finest = time_scale / (n_steps or max_steps)
+        if finest > COMMUTATOR_LIMIT:
+            raise FloquetError(
+                f"{exc}; even {n_steps or max_steps} sub-intervals span h*max|lambda(P)| = {finest:.3g} "
+                f"each: the period T = {T:.3g} s is too long for the time scales of P (omega too small?)"
+            ) from None
+        raise
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
     trace = _trace_integral(P, wrapped, T)
@@ -683,8 +873,12 @@ def floquet(
     )
     if reliable_all:
         liouville, liouville_source = multiplier_liouville, "multipliers"
-    else:
+    elif math.isfinite(prop.log_abs_det) and method != "paper":
         liouville, liouville_source = _liouville(prop.log_abs_det, trace), "propagators"
+    else:
+        # the paper's procedure keeps no propagators and det Phi of the formed matrix is
+        # rounding noise when some multiplier is below the noise floor: nothing to check
+        liouville, liouville_source = math.nan, "unavailable"
     tol = stability_tol
     if math.isfinite(prop.error_estimate):
         tol = max(tol, prop.error_estimate * rho)
