@@ -410,6 +410,8 @@ class MultiplierValidation:
     info : dict
         Model, omega, gains, elements, period, timings.
     config : MultiplierCheckConfig
+    orbit : PeriodicOrbit or None
+        The orbit the runs started from (built-in link; reusable for other gains).
     """
 
     prediction: Prediction
@@ -430,6 +432,7 @@ class MultiplierValidation:
     growth: Optional[GrowthResult]
     info: dict
     config: MultiplierCheckConfig
+    orbit: Any = field(default=None, repr=False)
 
     @property
     def confirms(self) -> list:
@@ -877,6 +880,7 @@ def validate_link_multipliers(
             "timings": timings,
         }
         result = measure_multipliers(factory, x0, prediction, norm, config, alternatives=alts, info=info, period=T)
+        result = replace(result, orbit=orbit)
         if config.growth_periods > 0:
             t1 = time.perf_counter()
             m = model_for(config.step)
