@@ -34,6 +34,7 @@ from validation.multipliers import (
     measure_multipliers,
     prediction_from_monodromy,
     validate_link_multipliers,
+    validate_model_multipliers,
 )
 
 ELEMENTS = 2
@@ -287,6 +288,81 @@ def test_cli_json_and_figure(tmp_path, capsys):
 def test_cli_bad_input_one_line_exit_2(argv, capsys):
     from flexstab.cli import main
 
+    rc = main(["validate"] + argv)
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("flexstab validate: error:")
+
+
+# --------------------------------------------------------------------------- model files (generic path)
+def _oracles():
+    import importlib.util
+    from pathlib import Path
+
+    here = Path(__file__).parent
+    spec = importlib.util.spec_from_file_location("_cl_oracles", here / "test_constrained_linearisation.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_model_file_kapitza_pendulum_against_mathieu():
+    # pendulum on a vertically driven support, upright and vibration-stabilised: the damped Mathieu
+    # equation (scipy DOP853 oracle, independent of Exudyn and of the package)
+    o = _oracles()
+    omega, amp = 80.0, 0.05
+    T = 2 * math.pi / omega
+    cfg = MultiplierCheckConfig(step=T / 128, refinements=2, spectral_radius=0.95)
+    r = validate_model_multipliers(o.PENDULUM, omega, config=cfg, amplitude=amp, inverted=True)
+    ref = o.mathieu_multipliers(omega, amp, o._pend.DAMPING, True)
+    assert not r.diverged and r.agrees and r.step_converged and r.amplitude_check["passed"]
+    assert np.all(np.abs(r.measured) < 1.0)  # stabilised
+    for m, e in zip(r.measured, r.errors):
+        assert np.min(np.abs(ref - m)) <= e
+    assert max(r.errors) < 1e-4
+    # the measurement rejects the Mathieu multipliers of a 10 % smaller support amplitude
+    wrong = o.mathieu_multipliers(omega, 0.9 * amp, o._pend.DAMPING, True)
+    assert all(np.min(np.abs(wrong - m)) > e for m, e in zip(r.measured, r.errors))
+
+
+@pytest.mark.slow
+def test_model_file_two_drives_per_drive_gains_against_hand_linearisation():
+    o = _oracles()
+    omega, kp, kd = 2 * math.pi, (20.0, 8.0), (2.0, 1.0)
+    T = 2 * math.pi / omega
+    r = validate_model_multipliers(o.DOUBLE, omega, kp=kp, kd=kd,
+                                   config=MultiplierCheckConfig(step=T / 128, refinements=1))
+    assert [dr["name"] for dr in r.to_dict()["drives"]] == ["shoulder", "elbow"]
+    assert r.to_dict()["kp"] == list(kp)
+    ref = o.double_pendulum_multipliers(omega, kp, kd)
+    assert not r.diverged and r.agrees
+    for m, e in zip(r.measured, r.errors):
+        assert np.min(np.abs(ref - m)) <= e
+    # the hand linearisation with the shoulder gain 5 % off is rejected by the measurement
+    wrong = o.double_pendulum_multipliers(omega, (1.05 * kp[0], kp[1]), kd)
+    assert any(np.min(np.abs(wrong - m)) > e for m, e in zip(r.measured, r.errors))
+
+
+def test_cli_model_file_json(capsys):
+    from flexstab.cli import main
+
+    o = _oracles()
+    rc = main(["validate", "--model", o.PENDULUM, "--omega", "80", "--refinements", "1", "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["model"] == "vertical_pendulum" and d["drives"] == [] and len(d["measured_multipliers"]) == 2
+    ref = o.mathieu_multipliers(80.0, o._pend.AMPLITUDE, o._pend.DAMPING, False)
+    for m in d["multipliers"]:
+        z = complex(*m["measured"])
+        assert np.min(np.abs(ref - z)) <= m["error_bar"]
+
+
+@pytest.mark.parametrize("argv", [["--model", "/nonexistent/model.py"], ["--model", "MODEL", "--elements", "4"],
+                                  ["--model", "MODEL", "--spectral-radius", "1.5"]])
+def test_cli_model_file_bad_input(argv, capsys):
+    from flexstab.cli import main
+
+    argv = [a.replace("MODEL", _oracles().PENDULUM) for a in argv]
     rc = main(["validate"] + argv)
     assert rc == 2
     err = capsys.readouterr().err.strip()
