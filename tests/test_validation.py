@@ -1,4 +1,7 @@
-"""Nonlinear closed-loop validation (issue 5, items 1-2).
+"""Nonlinear closed-loop time series (issue 5, items 1-2): validation.closed_loop.
+
+The CLI ``flexstab validate`` and the study script now measure multipliers
+(issue 10, tests/test_multipliers.py); this module keeps the transient tool.
 
 Oracle: the dominant Floquet multiplier of the Exudyn linearisation along the
 periodic orbit (an independent computation: finite-difference matrices and an
@@ -10,11 +13,9 @@ kd = 29.2410.  Runs use 2 elements (the dominant multiplier is 0.29981 at 2,
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -36,7 +37,6 @@ TWO_PI = 2 * math.pi
 KP3, KD3 = 37.1617, 29.2410  # paper Table 3, Omega = 2 pi
 ELEMENTS = 2
 SAMPLES = 16
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_linear_nonlinear.py"
 
 
 @pytest.fixture(scope="module")
@@ -200,48 +200,3 @@ def test_library_rejects_bad_input(kwargs):
     base.update(kwargs)
     with pytest.raises(ValueError):
         validate_closed_loop(**base)
-
-
-def test_cli_json(capsys):
-    from flexstab.cli import main
-
-    rc = main(["validate", "--elements", "2", "--periods", "2", "--json"])
-    assert rc == 0
-    d = json.loads(capsys.readouterr().out)
-    for key in ("omega", "kp", "kd", "periods", "predicted_multiplier_reduced", "predicted_multiplier_exudyn",
-                "measured_ratio_per_period", "diverged", "gains_source"):
-        assert key in d
-    assert (d["kp"], d["kd"]) == (KP3, KD3) and "Table 3" in d["gains_source"]
-    assert d["diverged"] is False
-    assert abs(d["measured_ratio_per_period"] / d["predicted_multiplier_exudyn"] - 1) < AGREEMENT_TOLERANCE
-
-
-@pytest.mark.parametrize(
-    "argv",
-    [["--periods", "-1"], ["--periods", "0"], ["--elements", "0"], ["--omega", "nan"], ["--omega", "abc"],
-     ["--kp", "-2"], ["--periods", "2.5"], ["--perturbation", "0"], ["--config", "/nonexistent/x.toml"]],
-)
-def test_cli_bad_input_one_line_exit_2(argv, capsys):
-    from flexstab.cli import main
-
-    rc = main(["validate"] + argv)
-    assert rc == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and err.startswith("flexstab validate: error:")
-
-
-def test_compare_script_quick(tmp_path):
-    spec = importlib.util.spec_from_file_location("compare_linear_nonlinear", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    assert module.main(["--quick", "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "linear_vs_nonlinear.json").read_text())
-    md = (tmp_path / "linear_vs_nonlinear.md").read_text()
-    assert (tmp_path / "linear_vs_nonlinear_omega2pi.png").stat().st_size > 10_000
-    cases = {row["case"]: row for row in data["rows"]}
-    assert set(cases) == {"uncontrolled", "uncontrolled, small", "Table 3", "Taguchi"}
-    assert cases["Taguchi"]["agrees"] and cases["Table 3"]["agrees"]
-    assert cases["uncontrolled"]["linear_range_left_at"] is not None
-    for row in data["rows"]:  # every measured number in the table comes from the JSON
-        if row["measured_ratio_per_period"] is not None:
-            assert f"{row['measured_ratio_per_period']:.6g}" in md

@@ -174,7 +174,7 @@ def plot_multiplier_plane(
     results = list(results)
     if not results:
         raise ValueError("no results to plot")
-    titles = list(titles) if titles is not None else [f"kp = {r.info.get('kp', 0):.4g}, kd = {r.info.get('kd', 0):.4g}"
+    titles = list(titles) if titles is not None else [f"{r.info.get('model', '')}: kp = {r.info.get('kp')}, kd = {r.info.get('kd')}"
                                                       for r in results]
     ncol = len(results)
     fig, axes = plt.subplots(2, ncol, figsize=(4.6 * ncol, 9.0), squeeze=False)

@@ -41,7 +41,8 @@ def register(sub) -> None:
             "to the rigid-reference linearisation."
         ),
     )
-    p.add_argument("--model", default="exudyn", help="'exudyn' (built-in single link, default)")
+    p.add_argument("--model", default="exudyn",
+                   help="'exudyn' (built-in single link, default), a model file PATH.py or a built-in model name")
     p.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator (see README)")
     p.add_argument("--omega", default=None, metavar="W",
                    help="frequency of the fundamental motion, rad/s or like '2pi' (default: config, else 2pi)")
@@ -49,7 +50,10 @@ def register(sub) -> None:
     p.add_argument("--kd", default=None, help="derivative gain(s) (N m s/rad), comma-separated per drive")
     p.add_argument("--elements", default=None, help="ANCF elements (default 4)")
     p.add_argument("--samples", default="16", help="orbit / linearisation samples per period (default 16)")
-    p.add_argument("--step", default="1e-3", help="coarsest generalised-alpha step in s (default 1e-3)")
+    p.add_argument("--step", default=None,
+                   help="coarsest generalised-alpha step in s (default 1e-3 for the single link, T/128 for model files)")
+    p.add_argument("--spectral-radius", default="1",
+                   help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
     p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4)")
     p.add_argument("--amplitude", default="1e-3",
                    help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3)")
@@ -111,7 +115,7 @@ def validation_report(args: argparse.Namespace):
     from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
 
     if args.model != "exudyn":
-        raise ValueError(f"--model must be 'exudyn' (model files are not supported by validate yet), got {args.model!r}")
+        return _model_file_report(args)
     cfg = load_config(args.config)
     omega = parse_omega(args.omega) if args.omega is not None else cfg.omega
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
@@ -125,7 +129,7 @@ def validation_report(args: argparse.Namespace):
     samples = _number("samples", args.samples, minimum=4, integer=True)
     if samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
-    step = _number("step", args.step, minimum=0.0, strict=True)
+    step = _number("step", args.step if args.step is not None else "1e-3", minimum=0.0, strict=True)
     refinements = _number("refinements", args.refinements, minimum=0, integer=True)
     if refinements > 4:
         raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
@@ -144,12 +148,61 @@ def validation_report(args: argparse.Namespace):
     if growth is None:
         growth = 3 if (kp == 0.0 and kd == 0.0) else 0
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
-                                   growth_periods=growth)
+                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
     res = validate_link_multipliers(cfg.manipulator, omega, kp, kd, elements=elements, samples=samples,
                                     config=config, predict_reference=args.predict_reference)
     d = res.to_dict()
     d["gains_source"] = source
-    d["drives"] = [{"name": "hub", "kp": kp, "kd": kd}]
+    return d, res
+
+
+def _spectral_radius(args: argparse.Namespace) -> float:
+    rho = _number("spectral-radius", args.spectral_radius, minimum=0.0)
+    if rho > 1.0:
+        raise ValueError(f"--spectral-radius must be in [0, 1], got {args.spectral_radius!r}")
+    return rho
+
+
+def _model_file_report(args: argparse.Namespace):
+    """``--model PATH.py`` (or a built-in model name): the generic path."""
+    from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
+
+    if args.config is not None:
+        raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
+    if args.predict_reference != "periodic":
+        raise ValueError("--predict-reference rigid applies to the built-in single link only")
+    if args.elements is not None:
+        raise ValueError("--elements applies to the built-in single link only")
+    from mbs_models.model_file import resolve_model
+
+    definition = resolve_model(args.model)
+    omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
+    T = 2 * math.pi / omega
+    kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
+    samples = _number("samples", args.samples, minimum=4, integer=True)
+    if samples % 2:
+        raise ValueError(f"--samples must be even, got {args.samples!r}")
+    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else T / 128
+    if step >= T:
+        raise ValueError(f"--step must be smaller than the period T = {T:.6g} s, got {args.step!r}")
+    refinements = _number("refinements", args.refinements, minimum=0, integer=True)
+    if refinements > 4:
+        raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
+    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True)
+    compare = _number("compare", args.compare, minimum=1, integer=True)
+    growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
+    if args.out is not None:
+        try:
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
+    config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
+                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
+    res = validate_model_multipliers(definition, omega, kp=kps if kps else 0.0, kd=kds if kds else 0.0,
+                                     samples=samples, config=config)
+    d = res.to_dict()
+    d["gains_source"] = "command line" if (kps or kds) else "none given (0 for every drive)"
+    d.setdefault("elements", None)
     return d, res
 
 
@@ -165,10 +218,12 @@ def _text(d: dict) -> str:
         return "n/a" if x is None else format(x, fmt)
 
     steps = ", ".join(f"{h:g}" for h in d["steps"])
+    what = f"{d['elements']} elements" if d.get("elements") else f"model {d['model']}"
+    gains = ", ".join(f"{g['name']}: kp = {g['kp']:.6g}, kd = {g['kd']:.6g}" for g in d.get("drives", [])) or "no drives"
     lines = [
-        f"nonlinear multiplier measurement (Exudyn, {d['elements']} elements, generalised-alpha rho_inf = 1, h = {steps} s)",
+        f"nonlinear multiplier measurement (Exudyn, {what}, {d['integrator']}, h = {steps} s)",
         f"omega = {d['omega']:.6g} rad/s ({d['omega_over_pi']:.6g} pi), T = {d['period']:.6g} s",
-        f"kp = {d['kp']:.6g}, kd = {d['kd']:.6g}  ({d['gains_source']})",
+        f"{gains}  ({d['gains_source']})",
         f"prediction under test: {d['prediction']}",
         "",
         f"{'mode':<10} {'predicted':>26} {'measured':>26} {'|error|':>9} {'bar':>9} {'step':>9} {'ampl.':>9} {'agrees':>6}",
@@ -215,8 +270,9 @@ def run(args: argparse.Namespace) -> int:
 
         out = Path(args.out)
         (out / "validation.json").write_text(json.dumps(d, indent=2))
+        gains = ", ".join(f"{g['name']}: kp = {g['kp']:.4g}, kd = {g['kd']:.4g}" for g in d.get("drives", []))
         plot_multiplier_plane([res], out / "validation.png",
-                              titles=[f"Omega = {d['omega_over_pi']:.4g} pi, kp = {d['kp']:.4g}, kd = {d['kd']:.4g}"])
+                              titles=[f"{d['model']}, Omega = {d['omega_over_pi']:.4g} pi" + (f", {gains}" if gains else "")])
     if args.json:
         dump_json(d, sys.stdout)
     else:
