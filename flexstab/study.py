@@ -195,7 +195,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
     ``exudyn`` stage, so the numbers are traceable), else the paper's printed Table 3 gains.
     """
     from flexstab.paper_tables import TABLE3_PRINTED
-    from mbs_models.validation import validate_closed_loop
+    from validation.closed_loop import validate_closed_loop
 
     src = opts.out / "exudyn.json"
     if src.exists():
@@ -205,7 +205,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
         cases = TABLE3_PRINTED[:1] if opts.quick else TABLE3_PRINTED
         gains = [(k, kp, kd, "paper Table 3") for k, _, kp, kd, _ in cases]
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
-    from mbs_models.validation_plots import plot_validation_figure
+    from validation.plots import plot_validation_figure
 
     rows = []
     results = []

@@ -23,8 +23,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 def main(argv=None) -> int:
     from tqdm import tqdm
 
-    from mbs_models.validation_plots import plot_validation_figure
-    from mbs_models.validation_study import CASES, compare_linear_nonlinear, comparison_markdown
+    from validation.plots import plot_validation_figure
+    from validation.study import CASES, compare_linear_nonlinear, comparison_markdown
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results", help="output folder (default results/)")

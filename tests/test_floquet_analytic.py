@@ -86,27 +86,109 @@ CONSTANT_CASES = {
 }
 
 
+def _constant_P_bounds(A, T, cond_V, n_factors, noise_floor):
+    """Rounding bounds for ``P = A = V D V^-1`` constant (D normal: real 2x2 rotation blocks).
+
+    The Magnus exponent of a constant ``P`` is exactly ``h A``, so every error is rounding:
+
+    * ``phi``: ``||fl(E^N) - Phi|| <= N cond(V)^3 noise_floor``.  Each factor
+      ``E = V e^{Dh} V^-1`` is formed to ``n eps ||E||`` and ``||E^j|| <= cond(V) sigma^j``
+      (``sigma = max |e^{lambda h}|``), so the k-th error reaches the product as
+      ``||E^{N-k}|| n eps ||E|| ||E^{k-1}|| <= n eps cond(V)^3 rho_max``, and
+      ``noise_floor = n eps ||Phi|| >= n eps rho_max``;
+    * ``multiplier`` (absolute): ``cond(V) (phi + noise_floor)``: Bauer-Fike with
+      ``cond(V)``, plus LAPACK's eigenvalue backward error ``<= n eps ||Phi||``;
+    * ``trace``: ``T n (2 n + 2) eps cond(V) max|lambda|``: forming ``V D V^-1`` moves the
+      eigenvalues (and so ``tr A``) by ``<= 2 n eps cond(V) max|lambda|`` each, the
+      trapezoidal sum of a constant adds ``<= log2(TRACE_POINTS) eps`` relative;
+    * ``liouville``: ``sum_i multiplier / |rho_i| + trace`` (first order in
+      ``ln|det Phi| - int tr P``).
+
+    ``n_factors`` and ``noise_floor`` are what the result reports (``res.n_steps``,
+    ``res.noise_floor``); the test checks the latter against ``n eps ||expm(A T)||``.
+    """
+    eigs = np.linalg.eigvals(A)
+    n = A.shape[0]
+    rho = np.abs(np.exp(eigs * T))
+    phi = n_factors * cond_V**3 * noise_floor
+    multiplier = cond_V * (phi + noise_floor)
+    trace = T * n * (2 * n + 2 + math.log2(512)) * EPS * cond_V * np.abs(eigs).max()
+    liouville = float(np.sum(multiplier / rho)) + trace
+    return {"phi": phi, "multiplier": multiplier, "trace": trace, "liouville": liouville}
+
+
+def _constant_P_setup(case):
+    eigs, T, verdict = CONSTANT_CASES[case]
+    A, condV = _real_matrix_with_eigenvalues(np.array(eigs, dtype=complex), seed=len(case))
+    return np.array(eigs, dtype=complex), T, verdict, A, condV
+
+
 @pytest.mark.parametrize("method", ["magnus6", "magnus4"])
 @pytest.mark.parametrize("case", sorted(CONSTANT_CASES))
 def test_constant_P(case, method):
-    eigs, T, verdict = CONSTANT_CASES[case]
-    A, condV = _real_matrix_with_eigenvalues(np.array(eigs, dtype=complex), seed=len(case))
+    eigs, T, verdict, A, condV = _constant_P_setup(case)
     res = floquet(lambda t: A, period=T, method=method)
-    expected = np.exp(np.array(eigs) * T)
-    # The Magnus exponent of a constant P is exact (h P); the only error is
-    # rounding in expm and the product of N factors: ~ N eps cond(V)^2 ||Phi||.
-    tol = 1e-10 * max(1.0, np.abs(expected).max())
+    Phi = expm(A * T)
+    expected = np.exp(eigs * T)
+    n = A.shape[0]
+    # the reported noise floor is n eps ||Phi|| of the true monodromy; ||Phi|| is off by
+    # <= bound["phi"] / ||Phi|| < 1e-10 relative in these cases, so rel=1e-6 is safe
+    assert res.noise_floor == pytest.approx(n * EPS * np.linalg.norm(Phi, 2), rel=1e-6)
+    bound = _constant_P_bounds(A, T, condV, res.n_steps, res.noise_floor)
     got, exp_ = _match(res.multipliers, expected)
-    np.testing.assert_allclose(got, exp_, rtol=0, atol=tol)
-    np.testing.assert_allclose(res.monodromy, expm(A * T), rtol=0, atol=1e-10 * np.linalg.norm(expm(A * T)))
-    # sorted by modulus, descending; spectral radius is the first
-    assert np.all(np.diff(np.abs(res.multipliers)) <= 1e-12)
-    assert res.spectral_radius == pytest.approx(np.abs(expected).max(), rel=1e-10)
+    np.testing.assert_allclose(got, exp_, rtol=0, atol=bound["multiplier"])
+    # the oracle expm(A T) (Pade 13, s = ceil(log2(||A T||_1 / 5.37)) <= 4 squarings here)
+    # carries <= (s + 1) n eps ||Phi|| <= 5 noise floors; 10 leaves room for s <= 9
+    np.testing.assert_allclose(res.monodromy, Phi, rtol=0, atol=bound["phi"] + 10 * res.noise_floor)
+    # sorted by modulus, descending (ties of a conjugate pair are exact); spectral radius first
+    assert np.all(np.diff(np.abs(res.multipliers)) <= 2 * EPS * np.abs(res.multipliers[:-1]))
+    assert abs(res.spectral_radius - np.abs(expected).max()) <= bound["multiplier"]
     assert res.verdict == verdict
     # Liouville: det expm(AT) = exp(T tr A) = exp(T sum(eigs))
-    assert res.trace_integral == pytest.approx(T * np.sum(eigs).real, rel=1e-12, abs=1e-12)
-    assert res.liouville_residual <= 1e-10
-    assert res.multiplier_liouville_residual <= 1e-8
+    assert abs(res.trace_integral - T * np.sum(eigs).real) <= bound["trace"]
+    # The smallest multiplier (3e-7 in "stiff") is read from Phi to an absolute
+    # cond(V)(N cond(V)^3 + 1) noise_floor, so ln|rho| relative to it: see _constant_P_bounds.
+    assert res.liouville_residual <= bound["liouville"]
+    assert res.multiplier_liouville_residual <= bound["liouville"]
+
+
+class _ConstantWithTrace:
+    """``P(t) = A`` with a closed-form ``trace_integral`` (as models supply it)."""
+
+    def __init__(self, A, period, trace):
+        self.A, self.period, self._trace = A, period, trace
+
+    def __call__(self, t):
+        return self.A
+
+    def trace_integral(self):
+        return self._trace
+
+
+@pytest.mark.parametrize("case", sorted(CONSTANT_CASES))
+def test_constant_P_bounds_reject_wrong_answers(case):
+    """The derived bounds are tight enough to reject (a) the monodromy of ``A (1 + 1e-6)``
+    (relative error 1e-6 in every exponent, checked against the true ``int tr P``)
+    and (b) a trace integral wrong by 1e-6 relative.  (The Liouville bound of "stiff"
+    is 7e-6: ``ln`` of its 3e-7 multiplier read from ``Phi`` is no better; the
+    multiplier and monodromy bounds reject (a) by four orders more.)"""
+    eigs, T, _, A, condV = _constant_P_setup(case)
+    true_trace = T * float(np.sum(eigs).real)
+    expected = np.exp(eigs * T)
+    # (a) perturbed monodromy
+    res = floquet(_ConstantWithTrace(A * (1 + 1e-6), T, true_trace))
+    bound = _constant_P_bounds(A, T, condV, res.n_steps, res.noise_floor)
+    got, exp_ = _match(res.multipliers, expected)
+    assert np.max(np.abs(got - exp_)) > bound["multiplier"]
+    assert np.linalg.norm(res.monodromy - expm(A * T), 2) > bound["phi"]
+    if case != "oscillatory":  # T tr A = -0.026: ln det moves by 2.6e-8 only
+        assert res.liouville_residual > bound["liouville"]
+    # (b) wrong trace integral with the right monodromy
+    wrong = true_trace + 1e-6 * max(1.0, abs(true_trace))
+    res = floquet(_ConstantWithTrace(A, T, wrong))
+    bound = _constant_P_bounds(A, T, condV, res.n_steps, res.noise_floor)
+    assert abs(res.trace_integral - true_trace) > bound["trace"]
+    assert res.liouville_residual > bound["liouville"]
 
 
 def test_constant_P_underflowing_stiff_multiplier_is_flagged():

@@ -23,7 +23,7 @@ import pytest
 
 from mbs_models import exudyn_link
 from mbs_models.exudyn_floquet import exudyn_floquet
-from mbs_models.validation import (
+from validation.closed_loop import (
     AGREEMENT_TOLERANCE,
     PAPER_PERTURBATION,
     linear_prediction,

@@ -53,9 +53,9 @@ def modes_report(args: argparse.Namespace) -> dict:
             elements = cfg.elements
     elements = 8 if elements is None else elements
     # analytic values exist for the bending modes; give as many as asked for
-    from mbs_models.validation import _exudyn_console
+    from validation.closed_loop import exudyn_console
 
-    with _exudyn_console(quiet=bool(getattr(args, "json", False))):  # keep --json output pure JSON
+    with exudyn_console(quiet=bool(getattr(args, "json", False))):  # keep --json output pure JSON
         res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,
                                  analytic_count=args.count)
     out = res.to_dict()

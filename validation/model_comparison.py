@@ -16,14 +16,13 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Optional
 
+from mbs_models.paper_data import TABLE3_GAINS
 from mbs_models.parameters import ManipulatorParameters
 
 __all__ = ["TABLE3_GAINS", "ComparisonRow", "compare_models", "comparison_markdown"]
 
 logger = logging.getLogger(__name__)
 
-#: Paper Table 3 (p. 489): Omega / pi -> (kp, kd).
-TABLE3_GAINS = {2: (37.1617, 29.2410), 4: (28.7617, 11.7501), 6: (22.2666, 6.7208), 8: (23.0147, 6.8628)}
 
 
 @dataclass(frozen=True)
