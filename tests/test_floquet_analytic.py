@@ -578,6 +578,9 @@ def test_second_order_system_matches_hand_built_P():
     )
     res = floquet(sys)
     ref = floquet(lambda t: np.array([[0.0, 1.0], [-(3.0 + math.cos(2 * t)) / m, -c / m]]), period=math.pi)
-    np.testing.assert_allclose(res.multipliers, ref.multipliers, rtol=1e-12)
+    # the same P up to rounding of M^-1 K (m = 2: exact); equal to rounding when both adaptive runs stop
+    # at the same step count, else each within 10x its step-doubling estimate
+    tol = 1e-12 if res.n_steps == ref.n_steps else 10 * (res.error_estimate + ref.error_estimate)
+    np.testing.assert_allclose(res.multipliers, ref.multipliers, rtol=tol)
     # Liouville: det Phi = exp(-c/m T)
     assert np.prod(res.moduli) == pytest.approx(math.exp(-c / m * math.pi), rel=1e-9)

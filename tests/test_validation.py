@@ -118,9 +118,9 @@ def test_linear_prediction_decays_with_the_multiplier(controlled):
     lp = linear_prediction(controlled)
     s = lp.stroboscopic
     assert s[0] == 0.0
-    # after two periods the other multipliers (|rho_2| = 1.2e-3 of the hub pair, docs) are
-    # gone relative to rho_1 to (1.2e-3 / 0.3)^2 = 2e-5; 1e-3 leaves room for the undamped
-    # axial modes' small share of the hub angle
+    # after two periods the other damped multipliers (<= 1.2e-3, docs/exudyn_notes.md) are gone
+    # relative to rho_1 to (1.2e-3 / 0.3)^2 = 2e-5; 1e-3 leaves room for the undamped axial
+    # modes' small share of the hub angle
     assert s[3] / s[2] == pytest.approx(controlled.predicted_multiplier_exudyn, rel=1e-3)
     # the nonlinear run follows the linear prediction at t = kT (quadratic remainder)
     np.testing.assert_allclose(controlled.stroboscopic[1:], s[1:], rtol=_nonlinear_bound(controlled))
