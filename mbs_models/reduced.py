@@ -192,6 +192,10 @@ class FundamentalMotion:
         return -self.amplitude * self.omega**2 * np.sin(self.omega * np.asarray(t, dtype=float))
 
 
+#: Mean and amplitude of the paper's fundamental motion (what :attr:`ReducedModel.motion` uses).
+_DEFAULT_MOTION = FundamentalMotion(1.0)
+
+
 @dataclass(frozen=True)
 class ReducedModel:
     """The paper's linearised one-mode manipulator with an optional PD controller.
@@ -370,9 +374,10 @@ class ReducedModel:
         """
         times = np.atleast_1d(np.asarray(times, dtype=float))
         Pc, Ps, Pw = self._affine  # type: ignore[attr-defined]
-        motion = self.motion
-        s = np.sin(motion.angle(times))
-        w = motion.velocity(times) ** 2
+        motion = _DEFAULT_MOTION  # q_a^R = mean + amplitude sin(omega t), the paper's pi/2 + pi/2 sin
+        wt = self.omega * times
+        s = np.sin(motion.mean + motion.amplitude * np.sin(wt))
+        w = (motion.amplitude * self.omega * np.cos(wt)) ** 2
         return Pc + s[..., None, None] * Ps + w[..., None, None] * Pw
 
     def __call__(self, t: float) -> np.ndarray:
