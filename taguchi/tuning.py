@@ -217,6 +217,12 @@ class TaguchiIteration:
     incumbent_gains: tuple[float, float]
     incumbent_response: float
 
+    def __repr__(self) -> str:  # the design, responses and ANOVA are in to_dict(); keep a REPL readable
+        return (f"TaguchiIteration(index={self.index}, kp_range=({self.kp_range[0]:.6g}, {self.kp_range[1]:.6g}), "
+                f"kd_range=({self.kd_range[0]:.6g}, {self.kd_range[1]:.6g}), runs={len(self.design)}, "
+                f"incumbent=(kp={self.incumbent_gains[0]:.6g}, kd={self.incumbent_gains[1]:.6g}, "
+                f"max|rho|={self.incumbent_response:.6g}))")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
         return {
@@ -289,6 +295,12 @@ class TaguchiResult:
     array: str
     elapsed: float
     config: TuningConfig = field(repr=False, default_factory=TuningConfig)
+
+    def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
+        return (f"TaguchiResult(kp={self.kp:.6g}, kd={self.kd:.6g}, spectral_radius={self.spectral_radius:.6g}, "
+                f"target={self.target:g}, status={self.status!r}, evaluations={self.evaluations}, "
+                f"iterations=<{len(self.iterations)} TaguchiIteration>, array={self.array!r}, "
+                f"elapsed={self.elapsed:.3g} s)")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (``iterations`` is the history)."""
