@@ -335,6 +335,12 @@ class TaguchiIteration:
     def kd_levels(self) -> tuple[float, ...]:
         return self.factor_levels[1]
 
+    def __repr__(self) -> str:  # the design, responses and ANOVA are in to_dict(); keep a REPL readable
+        ranges = ", ".join(f"{s}=({r[0]:.6g}, {r[1]:.6g})" for s, r in zip(self.names, self.ranges))
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.incumbent_gains))
+        return (f"TaguchiIteration(index={self.index}, ranges[{ranges}], runs={len(self.design)}, "
+                f"incumbent=({gains}, max|rho|={self.incumbent_response:.6g}))")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (``<name>_range``/``<name>_levels`` per factor)."""
         out: dict[str, Any] = {"index": self.index, "names": list(self.names)}
@@ -423,6 +429,13 @@ class TaguchiResult:
         if key not in self.names:
             raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
         return self.gains[self.names.index(key)]
+
+    def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.gains))
+        return (f"TaguchiResult({gains}, spectral_radius={self.spectral_radius:.6g}, "
+                f"target={self.target:g}, status={self.status!r}, evaluations={self.evaluations}, "
+                f"iterations=<{len(self.iterations)} TaguchiIteration>, array={self.array!r}, "
+                f"elapsed={self.elapsed:.3g} s)")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (``iterations`` is the history; one key per factor)."""
