@@ -520,7 +520,7 @@ class _Diverged(Exception):
 
 
 def _images(period_map: Callable[[np.ndarray, float], np.ndarray], x0: np.ndarray, D: np.ndarray, h: float,
-            scale: float, t_start: float = 0.0) -> np.ndarray:
+            scale: float, norm: EnergyNorm, t_start: float = 0.0) -> np.ndarray:
     """Central-difference images ``(x_+(T) - x_-(T)) / 2`` of the columns of ``D``."""
     cols = []
     for j in range(D.shape[1]):
@@ -529,13 +529,16 @@ def _images(period_map: Callable[[np.ndarray, float], np.ndarray], x0: np.ndarra
             try:
                 xe = period_map(x0 + sign * D[:, j], h)
             except Exception as exc:  # the simulator's own error types (solver failure, bad state)
-                raise _Diverged(t_start, f"run along direction {j} ({'+' if sign > 0 else '-'}), step {h:g} s: {exc}") from None
+                raise _Diverged(t_start, f"one-period run from t = {t_start:g} s along direction {j} "
+                                         f"({'+' if sign > 0 else '-'}), step {h:g} s: {exc}") from None
             if not np.all(np.isfinite(xe)):
-                raise _Diverged(t_start, f"non-finite state after one period (direction {j}, step {h:g} s)")
+                raise _Diverged(t_start, f"non-finite state after the period from t = {t_start:g} s (direction {j}, step {h:g} s)")
             ends.append(xe)
         img = 0.5 * (ends[0] - ends[1])
-        if not np.all(np.isfinite(img)) or np.linalg.norm(img) > DIVERGENCE_FACTOR * scale:
-            raise _Diverged(t_start, f"perturbation image {np.linalg.norm(img):.3g} beyond {DIVERGENCE_FACTOR:g} x its start (direction {j}, step {h:g} s)")
+        size = norm.norm(img) if np.all(np.isfinite(img)) else math.inf
+        if size > DIVERGENCE_FACTOR * scale:
+            raise _Diverged(t_start, f"perturbation grew to {size / scale:.3g} x its start (limit "
+                                     f"{DIVERGENCE_FACTOR:g}) in the period from t = {t_start:g} s (direction {j}, step {h:g} s)")
         cols.append(img)
     return np.array(cols).T
 
@@ -629,14 +632,14 @@ def measure_multipliers(
         for j, h in enumerate(config.steps):
             t1 = time.perf_counter()
             f = period_map_factory(h)
-            X1 = _images(f, x0, D, h, scale)
+            X1 = _images(f, x0, D, h, scale, norm)
             A = np.linalg.solve(W.T @ D, W.T @ X1)
             levels.append(_eigs_matched(A, pred))
             if j == len(config.steps) - 1:
                 Z0, Z1 = norm.transform(D), norm.transform(X1)
                 galerkin = _eigs_matched(np.linalg.lstsq(Z0, Z1, rcond=None)[0], pred)
             if j == 0 and config.amplitude_check:
-                X1h = _images(f, x0, 0.5 * D, h, 0.5 * scale)
+                X1h = _images(f, x0, 0.5 * D, h, 0.5 * scale, norm)
                 Ah = np.linalg.solve(W.T @ (0.5 * D), W.T @ X1h)
                 amp_change = np.abs(_eigs_matched(Ah, pred) - levels[0])
             timings[f"step {h:g}"] = time.perf_counter() - t1

@@ -243,8 +243,9 @@ def _text(d: dict) -> str:
         f" ({'converging' if d['step_converged'] else 'NOT converging'})",
     ]
     for alt in d["alternatives"]:
-        lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> "
-                     f"{'consistent' if alt['consistent'] else 'excluded'} by the measurement")
+        verdict = ("no measurement" if alt["distance"] is None
+                   else ("consistent with" if alt["consistent"] else "excluded by") + " the measurement")
+        lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> {verdict}")
     lines.append(f"agrees: {'yes' if d['agrees'] else 'no'}; the measurement confirms: {', '.join(d['confirms']) or 'none'}")
     g = d.get("growth")
     if g:
