@@ -357,16 +357,6 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
 
 
-def _validation_api():
-    """``validate_closed_loop`` and ``plot_validation_figure`` (the validation package, or the older modules)."""
-    try:
-        from validation import plot_validation_figure, validate_closed_loop  # type: ignore[attr-defined]
-    except ImportError:
-        from mbs_models.validation import validate_closed_loop
-        from mbs_models.validation_plots import plot_validation_figure
-    return validate_closed_loop, plot_validation_figure
-
-
 def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
     rec = _load_record(opts.out, "exudyn")
     if rec is not None and rec.get("config_hash") == config_hash(cfg) and rec.get("quick") == opts.quick:
@@ -376,41 +366,52 @@ def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, floa
 
 
 def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """Nonlinear Exudyn simulation of the tuned closed loop at the study Omega against the predicted multipliers.
+    """Multipliers measured from nonlinear Exudyn runs of the tuned closed loop at the study Omega.
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
-    else the reference gains (see the module docstring).
+    else the reference gains (see the module docstring).  Measurement:
+    :func:`validation.multipliers.validate_link_multipliers` (issue 10): the one-period map of the
+    nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
+    linearisation within the measurement's own error bar.
     """
-    validate_closed_loop, plot_validation_figure = _validation_api()
+    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+    from validation.plots import plot_multiplier_plane
+
     kp, kd, source = _validation_gains(cfg, opts)
-    elements = min(cfg.elements, 4) if opts.quick else cfg.elements
-    v = validate_closed_loop(cfg.manipulator, cfg.omega, kp, kd, elements=elements, periods=3 if opts.quick else 5)
+    elements = 2 if opts.quick else min(cfg.elements, 4)
+    check = MultiplierCheckConfig(refinements=1 if opts.quick else 2)
+    v = validate_link_multipliers(cfg.manipulator, cfg.omega, kp, kd, elements=elements, config=check)
     d = v.to_dict()
     d.update({"omega_over_pi": cfg.omega / math.pi, "gains_source": source})
-    for key in ("times", "hub_error", "tip_error", "drift"):
-        d.pop(key, None)
     (opts.out / "validation.json").write_text(json.dumps({"rows": [d]}, indent=2, default=float))
-    fig = "validation_tuned_gains.png"
-    plot_validation_figure([v], opts.out / fig,
-                           titles=[f"Ω = {cfg.omega / math.pi:.4g}π: kp = {kp:.4g}, kd = {kd:.4g}"],
-                           suptitle="Nonlinear vs linearised Exudyn model")
+    fig = "validation_multipliers.png"
+    plot_multiplier_plane([v], opts.out / fig,
+                          titles=[f"Ω = {cfg.omega / math.pi:.4g}π: kp = {kp:.4g}, kd = {kd:.4g}"],
+                          suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
 
-    def num(x, digits=4):
-        return "n/a" if x is None else f"{x:.{digits}f}"
+    def z(c):
+        return "–" if c is None else f"{c[0]:+.6f}{c[1]:+.6f}i"
 
+    def e(x):
+        return "n/a" if x is None else f"{x:.2e}"
+
+    alts = {("rigid reference" if "rigid" in a["name"] else "reduced model"): a["distance"] for a in d["alternatives"]}
+    rows = []
+    for m in d["multipliers"]:
+        rows.append([m["mode"], z(m["predicted"]), z(m.get("measured")), e(m.get("abs_error")),
+                     e(m.get("error_bar")), "yes" if m.get("agrees") else "no"])
     blocks = [
-        text(f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD, started from the periodic "
-             "orbit with the hub velocity raised by 0.25π rad/s (Eqs. 26/35); the perturbation is the difference "
-             "from the unperturbed closed loop, sampled once per period. Measured per-period ratio against the "
-             "dominant multiplier predicted by the Exudyn linearisation and by the reduced model."),
-        table(["Ω", "kp (N·m/rad)", "kd (N·m·s/rad)", "gains", "measured ratio", "predicted (Exudyn)",
-               "predicted (reduced)", "relative difference (Exudyn)", "diverged"],
-              [[f"{cfg.omega / math.pi:.4g}π", f"{kp:.4f}", f"{kd:.4f}", source,
-                num(d["measured_ratio_per_period"]), num(d["predicted_multiplier_exudyn"]),
-                num(d["predicted_multiplier_reduced"]),
-                relative(d["relative_error_exudyn"]),
-                "yes" if d["diverged"] else "no"]]),
-        figure(fig, "Perturbation of the nonlinear closed loop (once per period) against the predicted decay."),
+        text(f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: {source}). The "
+             "one-period map of the nonlinear closed loop is measured on the subspace of the compared multipliers "
+             "(central differences of runs from the periodic orbit perturbed along the predicted Floquet vectors, "
+             "generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in check.steps) + " s); its "
+             "eigenvalues are compared with the multipliers of the Exudyn linearisation within the measurement's "
+             "error bar (Richardson step error + amplitude check + prediction refinement)."
+             + (f" Diverged: {d['reason']}." if d["diverged"] else "")),
+        table(["mode", "predicted", "measured", "absolute error", "error bar", "agrees"], rows),
+        text("Measured distance to the alternative predictions: "
+             + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."),
+        figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the unit circle."),
     ]
     return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
             "files": [fig, "validation.json"]}

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Optional, Sequence
 
 import numpy as np
 
@@ -50,6 +51,19 @@ class LinearizedPeriodicSystem:
         Relative central-difference step used.
     wall_time : float
         Seconds spent linearising.
+    B : ndarray, shape (N, n, d), optional
+        Drive input map of a model file's linearisation: column ``j`` maps a
+        torque of drive ``j`` into the equations (``M y'' + C y' + K y = B u``).
+        ``None`` for the hand-derived single link (hub = coordinate 0).
+    B_t : ndarray, shape (N, n, d), optional
+        Rate map of the driven coordinates: ``delta(driven)' = B^T y' + B_t^T y``
+        (``B^T y`` is the driven coordinate itself).  PD gains enter as
+        ``K += B kp B^T + B kd B_t^T``, ``C += B kd B^T``.
+    drive_names : tuple of str
+        Names of the drives (columns of ``B``).
+    basis, basis_t : ndarray, shape (N, n_ode2, n), optional
+        ``delta q = N(t) y`` and ``N'(t)``: the map back to Exudyn's ODE2
+        coordinates (a model file's linearisation); ``delta q' = N y' + N' y``.
 
     Notes
     -----
@@ -72,6 +86,11 @@ class LinearizedPeriodicSystem:
     elements: int = 0
     fd_step: float = math.nan
     wall_time: float = 0.0
+    B: Optional[np.ndarray] = None
+    B_t: Optional[np.ndarray] = None
+    drive_names: tuple = ()
+    basis: Optional[np.ndarray] = None
+    basis_t: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         for name in ("M", "C", "K"):
@@ -85,6 +104,30 @@ class LinearizedPeriodicSystem:
             raise ValueError(f"M, C, K must have equal shape, got {self.M.shape}, {self.C.shape}, {self.K.shape}")
         if not (math.isfinite(self.period) and self.period > 0):
             raise ValueError(f"period must be finite and > 0, got {self.period!r}")
+        if self.B is not None:
+            for name in ("B", "B_t"):
+                a = np.asarray(getattr(self, name), dtype=float)
+                if a.ndim != 3 or a.shape[:2] != self.M.shape[:2]:
+                    raise ValueError(f"{name} must have shape (samples, n, drives), got {a.shape}")
+                object.__setattr__(self, name, a)
+            if len(self.drive_names) != self.B.shape[2]:
+                raise ValueError(f"{self.B.shape[2]} drives but {len(self.drive_names)} drive names")
+
+    @property
+    def drives(self) -> int:
+        """Number of drives (columns of ``B``); 1 for the hand-derived hub."""
+        return 1 if self.B is None else int(self.B.shape[2])
+
+    def gains(self, values: "float | Sequence[float]", name: str) -> np.ndarray:
+        """One gain per drive from a scalar (all drives) or a sequence (checked >= 0, finite)."""
+        v = np.atleast_1d(np.asarray(values, dtype=float)).ravel()
+        if v.size == 1:
+            v = np.full(self.drives, float(v[0]))
+        if v.size != self.drives:
+            raise ValueError(f"{name}: one value per drive ({self.drives}) or one for all, got {v.size}")
+        if not (np.all(np.isfinite(v)) and np.all(v >= 0)):
+            raise ValueError(f"{name} must be finite and >= 0, got {values!r}")
+        return v
 
     @property
     def size(self) -> int:
@@ -113,8 +156,20 @@ class LinearizedPeriodicSystem:
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
 
-    def with_gains(self, kp: float, kd: float) -> "LinearizedPeriodicSystem":
-        """The same system with the PD gains replaced (constant terms on the hub, Eq. 32)."""
+    def with_gains(self, kp, kd) -> "LinearizedPeriodicSystem":
+        """The same system with the PD gains replaced.
+
+        Hand-derived single link: constant terms on the hub (Eq. 32).  Model-file
+        linearisation: ``kp``, ``kd`` are one value per drive (or one for all),
+        entering through ``B`` and ``B_t`` (see the attributes).
+        """
+        if self.B is not None:
+            kp_new, kd_new = self.gains(kp, "kp"), self.gains(kd, "kd")
+            dkp = kp_new - self.gains(self.kp, "kp")
+            dkd = kd_new - self.gains(self.kd, "kd")
+            K = self.K + np.einsum("kid,d,kjd->kij", self.B, dkp, self.B) + np.einsum("kid,d,kjd->kij", self.B, dkd, self.B_t)
+            C = self.C + np.einsum("kid,d,kjd->kij", self.B, dkd, self.B)
+            return replace(self, K=K, C=C, kp=tuple(float(x) for x in kp_new), kd=tuple(float(x) for x in kd_new))
         if not self.hub_free:
             raise ValueError("PD gains need the free hub coordinate (linearise with drive='free')")
         for name, v in (("kp", kp), ("kd", kd)):
@@ -132,8 +187,9 @@ class LinearizedPeriodicSystem:
             "period": self.period,
             "samples": self.samples,
             "size": self.size,
-            "kp": self.kp,
-            "kd": self.kd,
+            "kp": list(self.kp) if isinstance(self.kp, tuple) else self.kp,
+            "kd": list(self.kd) if isinstance(self.kd, tuple) else self.kd,
+            "drives": list(self.drive_names),
             "hub_free": self.hub_free,
             "reference": self.reference,
             "orbit_residual": self.orbit_residual,

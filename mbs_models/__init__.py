@@ -28,6 +28,12 @@ _LAZY = {
     "ExudynPlant": "mbs_models.exudyn_floquet",
     "direct_monodromy": "mbs_models.exudyn_floquet",
     "ExudynFloquetResult": "mbs_models.exudyn_floquet",
+    "Drive": "mbs_models.model_file",
+    "ModelDefinition": "mbs_models.model_file",
+    "ModelFileError": "mbs_models.model_file",
+    "load_model_file": "mbs_models.model_file",
+    "model_from_build": "mbs_models.model_file",
+    "builtin_model": "mbs_models.model_file",
 }
 
 

@@ -1,0 +1,314 @@
+"""One call from a model to labelled Floquet multipliers: orbit -> linearisation -> Floquet."""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Optional, Sequence
+
+import numpy as np
+import scipy.linalg
+
+from linearize.constrained import linearize_orbit
+from linearize.periodic_orbit import DEFAULT_SAMPLES, PeriodicOrbit, find_orbit
+from linearize.system import LinearizedPeriodicSystem
+
+__all__ = [
+    "DEFAULT_PROPAGATOR_STEPS",
+    "FrozenModes",
+    "frozen_modes",
+    "UNDAMPED_TOLERANCE",
+    "ModelFloquetResult",
+    "analyze",
+    "label_multipliers",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Sub-intervals of the exponential-midpoint (``magnus2``) product.
+DEFAULT_PROPAGATOR_STEPS = 512
+#: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
+UNDAMPED_TOLERANCE = 2e-3
+
+
+@dataclass(frozen=True)
+class ModelFloquetResult:
+    """Floquet analysis of a model file about its periodic orbit.
+
+    Attributes
+    ----------
+    floquet : stability.FloquetResult
+    modes : list of dict
+        Per multiplier (same order): ``modulus``, ``mode`` (label), ``group``
+        (Exudyn item holding most of the Floquet vector's energy), ``shares``
+        (energy fraction per item and per drive coordinate), ``frequency_hz``
+        (of the frozen-time mode it resembles most), ``mac``, ``undamped``.
+    dominant_multiplier : complex
+        Largest multiplier not on the unit circle (else the largest).
+    orbit : PeriodicOrbit
+    linearization : LinearizedPeriodicSystem
+    kp, kd : tuple of float
+        Gains per drive.
+    timings : dict
+        Seconds per stage.
+    """
+
+    floquet: Any
+    modes: list
+    dominant_multiplier: complex
+    orbit: PeriodicOrbit = field(repr=False)
+    linearization: LinearizedPeriodicSystem = field(repr=False)
+    kp: tuple = ()
+    kd: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def drives(self) -> tuple:
+        return self.orbit.drive_names
+
+    @property
+    def orbit_residual(self) -> float:
+        return float(self.orbit.residual)
+
+    def summary(self) -> dict:
+        d = self.dominant_multiplier
+        return {
+            "model": self.orbit.model.name,
+            "drives": list(self.drives),
+            "orbit_residual": self.orbit_residual,
+            "shooting_residual": float(self.orbit.shooting_residual),
+            "samples": self.orbit.samples,
+            "ode2": self.orbit.size,
+            "independent_coordinates": self.linearization.size,
+            "dominant_multiplier": [float(d.real), float(d.imag)],
+            "dominant_modulus": float(abs(d)),
+            "modes": self.modes,
+            "timings": dict(self.timings),
+        }
+
+
+@dataclass(frozen=True)
+class FrozenModes:
+    """Frozen-time structural modes at ``t = 0`` (drive gains removed), with labels.
+
+    Attributes
+    ----------
+    eigenvalues : ndarray, shape (r,)
+        ``omega_j^2`` of ``K_z(0) phi = omega^2 M_z(0) phi`` (symmetric parts), ascending ``|.|``.
+    shapes : ndarray, shape (r, r)
+        Columns ``phi_j``.
+    labels : list of str
+        ``drive <name>`` when the mode is mostly the driven coordinate, ``bending k`` /
+        ``axial k`` for modes of ANCF beams (by the tangential share of the beam-node
+        motion), else ``<Exudyn item> k``.
+    """
+
+    eigenvalues: np.ndarray
+    shapes: np.ndarray
+    labels: list
+
+
+def _drive_shares(lin: LinearizedPeriodicSystem, Mz: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Per drive, ``|c^T z|^2 / ((c^T M^-1 c) (z^H M z))`` in [0, 1] (Cauchy-Schwarz), ``c = B_z(0)``."""
+    if lin.B is None or lin.B.shape[2] == 0:
+        return np.zeros(0)
+    c = lin.B[0]
+    Minv_c = np.linalg.solve(Mz, c)
+    denom = np.einsum("id,id->d", c, Minv_c) * max(float(np.real(np.conj(z) @ Mz @ z)), 1e-300)
+    return np.abs(c.T @ z) ** 2 / np.maximum(denom, 1e-300)
+
+
+def frozen_modes(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> FrozenModes:
+    """Frozen-time modes of ``(K_z(0), M_z(0))`` without the PD gains, labelled."""
+    Mz = 0.5 * (lin.M[0] + lin.M[0].T)
+    K = lin.K[0].copy()
+    if lin.B is not None and lin.B.shape[2]:
+        kp = np.asarray(lin.kp, dtype=float)
+        kd = np.asarray(lin.kd, dtype=float)
+        K -= (lin.B[0] * kp) @ lin.B[0].T + (lin.B[0] * kd) @ lin.B_t[0].T
+    K = 0.5 * (K + K.T)
+    lam, Phi = scipy.linalg.eigh(K, Mz)
+    order = np.argsort(np.abs(lam), kind="stable")
+    lam, Phi = lam[order], Phi[:, order]
+    N0 = lin.basis[0]
+    labels_item = orbit.coordinate_labels
+    slope_nodes = _slope_nodes(orbit)
+    counts: dict = {}
+    labels = []
+    for j in range(Phi.shape[1]):
+        phi = Phi[:, j]
+        shares = _drive_shares(lin, Mz, phi)
+        if shares.size and float(np.max(shares)) > 0.5:
+            labels.append(f"drive {orbit.drive_names[int(np.argmax(shares))]}")
+            continue
+        dq = N0 @ phi
+        kind = None
+        if slope_nodes:
+            axial = transverse = 0.0
+            beam_energy = 0.0
+            for idx, ref in slope_nodes:
+                qn = orbit.q[0, idx] + ref
+                t_hat = qn[2:4] / max(float(np.hypot(*qn[2:4])), 1e-300)
+                for a, b in ((0, 2), (2, 4)):
+                    d = dq[idx[a:b]]
+                    axial += float(d @ t_hat) ** 2
+                    transverse += float(d[0] * t_hat[1] - d[1] * t_hat[0]) ** 2
+                beam_energy += float(dq[idx] @ dq[idx])
+            if beam_energy > 0.5 * float(dq @ dq):
+                kind = "axial" if axial > transverse else "bending"
+        if kind is None:
+            groups: dict = {}
+            for i, g in enumerate(labels_item):
+                groups[g] = groups.get(g, 0.0) + float(dq[i] ** 2)
+            kind = max(groups, key=groups.get) if groups else "mode"
+        counts[kind] = counts.get(kind, 0) + 1
+        labels.append(f"{kind} {counts[kind]}")
+    return FrozenModes(eigenvalues=lam, shapes=Phi, labels=labels)
+
+
+def _slope_nodes(orbit: PeriodicOrbit) -> list:
+    return list(orbit.slope_nodes)
+
+
+def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floquet_result: Any) -> list:
+    """Label each multiplier by where its Floquet vector lives (see :class:`ModelFloquetResult`).
+
+    The Floquet vector ``x = [z; z']`` at ``t = 0`` (eigenvector of the
+    monodromy) is mapped back to Exudyn's coordinates, ``dq = N(0) z``,
+    ``dq' = N(0) z' + N'(0) z``; ``shares`` are the fractions of
+    ``|dq'|_M^2 + |dq|^2_{|K|}``-like weights per Exudyn item (diagonal
+    weights ``M_ii`` and ``|K_ii|`` of the full-coordinate matrices) and per
+    drive coordinate; ``mode`` is the label of the frozen-time mode with the
+    largest modal energy ``|eta_j'|^2 + |omega_j^2| |eta_j|^2``.
+    """
+    fm = frozen_modes(lin, orbit)
+    r = lin.size
+    Phi = np.asarray(floquet_result.monodromy)
+    w, X = np.linalg.eig(Phi)
+    Vinv = np.linalg.inv(fm.shapes)
+    Mz = 0.5 * (lin.M[0] + lin.M[0].T)
+    N0, N0t = lin.basis[0], lin.basis_t[0]
+    tb = orbit.tangent
+    m_diag = np.abs(np.diag(tb.M[0]))
+    k_diag = np.abs(np.diag(tb.K[0]))
+    items = orbit.coordinate_labels
+    out = []
+    used: set = set()
+    for mu in floquet_result.multipliers:
+        dist = np.abs(w - mu)
+        if len(used) < w.size:
+            dist[list(used)] = np.inf
+        j = int(np.argmin(dist))
+        used.add(j)
+        x = X[:, j]
+        z, zt = x[:r], x[r:]
+        eta, eta_t = Vinv @ z, Vinv @ zt
+        energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
+        k = int(np.argmax(energy))
+        dq = N0 @ z
+        dqt = N0 @ zt + N0t @ z
+        weight = m_diag * np.abs(dqt) ** 2 + k_diag * np.abs(dq) ** 2
+        total = float(np.sum(weight)) or 1.0
+        shares: dict = {}
+        for i, g in enumerate(items):
+            shares[g] = shares.get(g, 0.0) + float(weight[i]) / total
+        group = max(shares, key=shares.get) if shares else ""
+        drive_sh = _drive_shares(lin, Mz, z)
+        for name, v in zip(orbit.drive_names, drive_sh):
+            shares[f"drive {name}"] = float(v)
+        mod = float(abs(mu))
+        mac = float(energy[k] / max(float(np.sum(energy)), 1e-300))
+        out.append({
+            "modulus": mod,
+            "mode": fm.labels[k],
+            "group": group,
+            "frequency_hz": float(math.sqrt(abs(fm.eigenvalues[k])) / (2 * math.pi)),
+            "mac": mac,
+            "shares": {g: round(v, 6) for g, v in shares.items()},
+            "undamped": bool(abs(mod - 1.0) < UNDAMPED_TOLERANCE),
+        })
+    return out
+
+
+def _dominant(floquet_result: Any, modes: list) -> complex:
+    for mu, m in zip(floquet_result.multipliers, modes):
+        if not m["undamped"]:
+            return complex(mu)
+    return complex(floquet_result.multipliers[0])
+
+
+def analyze(
+    model: Any,
+    omega: float,
+    *,
+    kp: "float | Sequence[float]" = 0.0,
+    kd: "float | Sequence[float]" = 0.0,
+    samples: int = DEFAULT_SAMPLES,
+    method: str = "magnus2",
+    n_steps: Optional[int] = DEFAULT_PROPAGATOR_STEPS,
+    orbit: Optional[PeriodicOrbit] = None,
+    verify_orbit: bool = True,
+    **options: Any,
+) -> ModelFloquetResult:
+    """Orbit, constraint-correct linearisation and labelled Floquet multipliers of a model.
+
+    Parameters
+    ----------
+    model : ModelDefinition, str, path or callable
+        Built-in name, model file path, :class:`~mbs_models.model_file.ModelDefinition`
+        or a ``build(mbs, omega)`` callable.
+    omega : float
+    kp, kd : float or sequence
+        PD gains per drive (or one for all).
+    samples : int
+        Collocation / linearisation samples per period.
+    method, n_steps :
+        :func:`stability.floquet` method and sub-intervals (``n_steps=None``: adaptive).
+        The default ``magnus2`` (exponential midpoint) keeps every factor an exact
+        matrix exponential, robust for the stiff, strongly damped modes of PD-controlled
+        flexible models; its step-doubling estimate watches the moduli.
+    orbit : PeriodicOrbit, optional
+        Reuse an orbit (must be for ``omega``).
+    verify_orbit : bool
+        Shooting check of the orbit in Exudyn.
+    **options
+        Keyword options of the model's ``build``.
+
+    Returns
+    -------
+    ModelFloquetResult
+
+    Raises
+    ------
+    mbs_models.model_file.ModelFileError
+        Bad model file.
+    linearize.periodic_orbit.OrbitConvergenceError
+        No periodic orbit.
+    """
+    from stability import floquet
+
+    timings: dict = {}
+    tic = time.perf_counter()
+    if orbit is None:
+        orbit = find_orbit(model, omega, samples=samples, verify=verify_orbit, **options)
+    elif abs(orbit.omega - float(omega)) > 1e-12 * float(omega):
+        raise ValueError(f"the given orbit is for omega = {orbit.omega}, not {omega}")
+    timings["orbit"] = time.perf_counter() - tic
+    tic = time.perf_counter()
+    lin = linearize_orbit(orbit, kp, kd)
+    timings["linearization"] = time.perf_counter() - tic
+    tic = time.perf_counter()
+    if method == "magnus2":
+        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+    else:
+        res = floquet(lin, method=method, n_steps=n_steps)
+    timings["floquet"] = time.perf_counter() - tic
+    tic = time.perf_counter()
+    modes = label_multipliers(lin, orbit, res)
+    timings["labels"] = time.perf_counter() - tic
+    dom = _dominant(res, modes)
+    logger.info("Floquet of %s at omega=%.4g: spectral radius %.6f, dominant |rho| %.6f", orbit.model.name, omega,
+                res.spectral_radius, abs(dom))
+    return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
+                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings)

@@ -1,0 +1,206 @@
+"""Constraint-correct linearisation of a model file along its periodic orbit.
+
+Maths
+-----
+About the orbit ``q0(t), lambda0(t), tau0(t)`` (:func:`linearize.periodic_orbit.find_orbit`)
+the drives are released and driven by feed-forward + PD,
+``tau = tau0(t) - kp B^T dq - kd B^T dq'`` (``B`` column ``d``: +1 at marker
+m1's coordinate, -1 at m0's).  With ``q = q0 + dq``, ``lambda = lambda0 + dlambda``::
+
+    M dq'' + C_f dq' + K_f dq + C_q^T dlambda = B u,     C_q dq = 0,
+
+    K_f = d/dq [M(q) q0'' - f(q, q0', t) + C_q(q, t)^T lambda0] + B kp B^T
+    C_f = -df/dq' + B kd B^T
+
+(every term: mass-matrix dependence, constraint-reaction stiffness, rheonomic
+constraints through ``C_q(q0(t), t)``; the feed-forward ``tau0(t)`` is a
+time-only load and drops out; the drive constraints are linear, so they have
+no reaction stiffness).
+
+Independent coordinates: ``dq = N(t) z`` with ``N(t)`` a smooth T-periodic
+orthonormal basis of ``null C_q(q0(t), t)``.  Premultiplying by ``N^T``
+removes ``dlambda`` (``N^T C_q^T = 0``)::
+
+    M_z = N^T M N
+    C_z = N^T (2 M N' + C_f N)
+    K_z = N^T (M N'' + C_f N' + K_f N)
+    B_z = N^T B,   (B_z)_t = N'^T B   (driven coordinate B^T dq = B_z^T z, rate B_z^T z' + (B_z)_t^T z)
+
+Construction of ``N`` at the Fourier samples (discrete parallel transport):
+``N_0`` = an orthonormal null basis ``Q_0`` at ``t_0``;
+``N_{k+1} = Q_{k+1} polar(Q_{k+1}^T N_k)`` (the orthonormal null basis at
+``t_{k+1}`` closest to ``N_k``, independent of the choice of ``Q_{k+1}``);
+after one lap ``N_K = N_0 H`` with ``H`` orthogonal (the holonomy).  With
+``G = log H`` (real, skew) the samples ``N_k expm(-G t_k / T)`` are
+T-periodic; the transport commutes with right multiplication by orthogonal
+matrices, so they are samples of a smooth periodic function, and ``N'``,
+``N''`` are their spectral derivatives.  ``det H = -1`` (a non-orientable
+tangent bundle along the orbit) has no real logarithm: it is reported as an
+error.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Sequence
+
+import numpy as np
+import scipy.linalg
+
+from linearize.fourier import differentiation_matrices
+from linearize.periodic_orbit import PeriodicOrbit
+from linearize.system import LinearizedPeriodicSystem
+
+__all__ = ["ConstraintBasisError", "RANK_TOLERANCE", "linearize_orbit", "null_space_basis"]
+
+logger = logging.getLogger(__name__)
+
+#: Singular values of ``C_q`` below this times the largest count as zero (rank).
+RANK_TOLERANCE = 1e-10
+
+
+class ConstraintBasisError(ValueError):
+    """No smooth periodic basis of the constraint tangent space exists or the rank changes."""
+
+
+def _null(Cq: np.ndarray, n: int) -> np.ndarray:
+    if Cq.shape[0] == 0:
+        return np.eye(n)
+    _, s, vh = np.linalg.svd(Cq)
+    rank = int(np.sum(s > RANK_TOLERANCE * max(s[0], 1e-300))) if s.size else 0
+    return vh[rank:].T
+
+
+def _polar(W: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(W)
+    return u @ vt
+
+
+def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Smooth periodic orthonormal null-space basis ``N`` and its derivatives at the samples.
+
+    Parameters
+    ----------
+    Cq : ndarray, shape (K, m, n)
+        Constraint Jacobians at the sample times.
+    times : ndarray, shape (K,)
+        ``k T / K``.
+    period : float
+
+    Returns
+    -------
+    N, N_t, N_tt : ndarray, shape (K, n, r)
+
+    Raises
+    ------
+    ConstraintBasisError
+        If the rank of ``C_q`` changes along the orbit or the holonomy is a
+        reflection.
+    """
+    Kn, _, n = Cq.shape
+    Qs = [_null(Cq[k], n) for k in range(Kn)]
+    r = Qs[0].shape[1]
+    if any(Q.shape[1] != r for Q in Qs):
+        ranks = sorted({n - Q.shape[1] for Q in Qs})
+        raise ConstraintBasisError(f"the rank of the constraint Jacobian changes along the orbit ({ranks}): "
+                                   f"a singular configuration or redundant constraints")
+    N = np.empty((Kn, n, r))
+    N[0] = Qs[0]
+    for k in range(Kn - 1):
+        N[k + 1] = Qs[k + 1] @ _polar(Qs[k + 1].T @ N[k])
+    H = _polar(Qs[0].T @ N[Kn - 1])  # N_K = Q_0 H and N_0 = Q_0
+    if r and np.linalg.det(H) < 0:
+        raise ConstraintBasisError("the constraint tangent space is not orientable along the orbit "
+                                   "(holonomy with det -1): no periodic basis")
+    if r:
+        G = scipy.linalg.logm(H)
+        G = np.real(G)
+        G = 0.5 * (G - G.T)
+        if not np.allclose(scipy.linalg.expm(G), H, atol=1e-10):
+            raise ConstraintBasisError("no real logarithm of the holonomy of the constraint tangent space")
+        for k in range(Kn):
+            N[k] = N[k] @ scipy.linalg.expm(-G * times[k] / period)
+    D1, D2 = differentiation_matrices(period, Kn)
+    N_t = np.einsum("kj,jab->kab", D1, N)
+    N_tt = np.einsum("kj,jab->kab", D2, N)
+    return N, N_t, N_tt
+
+
+def _gains(value: "float | Sequence[float]", d: int, name: str) -> np.ndarray:
+    v = np.atleast_1d(np.asarray(value, dtype=float)).ravel()
+    if v.size == 1:
+        v = np.full(d, float(v[0]))
+    if v.size != d:
+        raise ValueError(f"{name}: one value per drive ({d}) or one for all, got {v.size}")
+    if not (np.all(np.isfinite(v)) and np.all(v >= 0)):
+        raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    return v
+
+
+def linearize_orbit(
+    orbit: PeriodicOrbit,
+    kp: "float | Sequence[float]" = 0.0,
+    kd: "float | Sequence[float]" = 0.0,
+    *,
+    reaction_stiffness: bool = True,
+) -> LinearizedPeriodicSystem:
+    """Linearise a model about its periodic orbit in independent coordinates, drives released.
+
+    Parameters
+    ----------
+    orbit : PeriodicOrbit
+    kp, kd : float or sequence of float
+        PD gains, one per drive or one for all (>= 0).
+    reaction_stiffness : bool
+        Keep ``d(C_q^T lambda0)/dq`` (default).  ``False`` only exists to show
+        in a test what dropping it gets wrong.
+
+    Returns
+    -------
+    LinearizedPeriodicSystem
+        ``M, C, K`` (K, r, r), ``B, B_t`` (K, r, d), ``basis, basis_t`` (K, n, r).
+    """
+    tic = time.perf_counter()
+    tb = orbit.tangent
+    d = orbit.drive_vectors.shape[1]
+    kpv = _gains(kp, d, "kp") if d else np.zeros(0)
+    kdv = _gains(kd, d, "kd") if d else np.zeros(0)
+    N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period)
+    B = orbit.drive_vectors
+    Kf = tb.K if reaction_stiffness else tb.K_force
+    Kf = Kf + (B * kpv) @ B.T
+    Cf = tb.C + (B * kdv) @ B.T
+    M = tb.M
+    NT = np.transpose(N, (0, 2, 1))
+    Mz = NT @ M @ N
+    Cz = NT @ (2.0 * M @ N_t + Cf @ N)
+    Kz = NT @ (M @ N_tt + Cf @ N_t + Kf @ N)
+    Bz = NT @ B
+    Bz_t = np.transpose(N_t, (0, 2, 1)) @ B
+    lin = LinearizedPeriodicSystem(
+        period=orbit.period,
+        times=orbit.times,
+        M=0.5 * (Mz + np.transpose(Mz, (0, 2, 1))),
+        C=Cz,
+        K=Kz,
+        kp=tuple(float(x) for x in kpv),
+        kd=tuple(float(x) for x in kdv),
+        coordinates=tuple(f"z{i}" for i in range(N.shape[2])),
+        hub_free=False,
+        reference="periodic",
+        orbit_residual=orbit.residual,
+        elements=0,
+        wall_time=0.0,
+        B=Bz,
+        B_t=Bz_t,
+        drive_names=orbit.drive_names,
+        basis=N,
+        basis_t=N_t,
+    )
+    from dataclasses import replace
+
+    lin = replace(lin, wall_time=time.perf_counter() - tic)
+    logger.info("linearised %s: %d -> %d independent coordinates, %d drives (%.2f s)", orbit.model.name,
+                orbit.size, N.shape[2], d, lin.wall_time)
+    return lin

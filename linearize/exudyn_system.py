@@ -1,0 +1,173 @@
+"""The one adapter between the package and Exudyn's solver functions.
+
+Conventions (written once, here)
+--------------------------------
+Exudyn's constrained equations of motion are::
+
+    M(q) q'' = f(q, q', t) - C_q(q, t)^T lambda,      C(q, t) = 0
+
+with ``q`` the ODE2 coordinates (displacements from the nodes' reference
+coordinates), ``f`` Exudyn's ODE2 right-hand side (internal and applied forces,
+ODE2 connectors such as spring-dampers; no constraint reactions) and ``C`` the
+algebraic equations of its constraints (position level).  Linearised matrices
+are written on the left-hand side: ``K = -df/dq``, ``C = -df/dq'``.
+
+User functions see the time set by :meth:`ExudynSystem.set_state` (Exudyn's
+current configuration time).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from mbs_models.model_file import BuiltModel
+
+__all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE"]
+
+logger = logging.getLogger(__name__)
+
+#: Relative change of ``M`` under a configuration perturbation below which the
+#: mass matrix is treated as constant (round-off level of the assembly).
+MASS_CONSTANCY_TOLERANCE = 1e-13
+
+
+class ExudynSystem:
+    """Evaluate ``M(q)``, ``f(q, q', t)``, ``C(q, t)`` and ``C_q(q, t)`` of a built model.
+
+    Parameters
+    ----------
+    built : BuiltModel
+        Assembled model (:func:`mbs_models.model_file.build_model`).
+
+    Attributes
+    ----------
+    n : int
+        ODE2 coordinates.
+    m : int
+        Algebraic equations (constraints of the model file; the package's drive
+        constraints are not part of the system).
+    q_initial, v_initial : ndarray
+        The model file's initial ODE2 coordinates and rates (orbit guess at t = 0).
+    """
+
+    def __init__(self, built: BuiltModel) -> None:
+        import exudyn as exu
+
+        self._exu = exu
+        self.built = built
+        self.mbs = built.mbs
+        sd = self.mbs.systemData
+        self.n = int(sd.ODE2Size())
+        self.m = int(sd.AEsize())
+        ini = exu.ConfigurationType.Initial
+        self.q_initial = np.array(sd.GetODE2Coordinates(configuration=ini), dtype=float)
+        self.v_initial = np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float)
+        self._cur = exu.ConfigurationType.Current
+        self._solver = exu.MainSolverImplicitSecondOrder()
+        settings = exu.SimulationSettings()
+        settings.timeIntegration.verboseMode = 0
+        settings.linearSolver.solverType = exu.LinearSolverType.EigenDense
+        settings.solution.file.write = False
+        self._solver.InitializeSolver(self.mbs, settings)
+        self._zero_lambda = np.zeros(self.m)
+        self._mass_constant: bool | None = None
+        self._mass0: np.ndarray | None = None
+
+    # ----------------------------------------------------------------- state
+    def set_state(self, q: np.ndarray, v: np.ndarray, t: float) -> None:
+        """Write ``(q, q', t)`` into Exudyn's current configuration."""
+        sd = self.mbs.systemData
+        sd.SetODE2Coordinates(q, configuration=self._cur)
+        sd.SetODE2Coordinates_t(v, configuration=self._cur)
+        if self.m:
+            sd.SetAECoordinates(self._zero_lambda, configuration=self._cur)
+        sd.SetTime(float(t), self._cur)
+
+    # ----------------------------------------------------------------- evaluations
+    def rhs(self, q: np.ndarray, v: np.ndarray, t: float) -> np.ndarray:
+        """``f(q, q', t)``, shape ``(n,)``."""
+        self.set_state(q, v, t)
+        self._solver.ComputeODE2RHS(self.mbs)
+        return np.array(self._solver.GetSystemResidual(), dtype=float)[: self.n]
+
+    def _mass_raw(self, q: np.ndarray, t: float) -> np.ndarray:
+        self.set_state(q, np.zeros(self.n), t)
+        self._solver.ComputeMassMatrix(self.mbs)
+        return np.array(self._solver.GetSystemMassMatrix(), dtype=float)[: self.n, : self.n]
+
+    def mass(self, q: np.ndarray, t: float = 0.0) -> np.ndarray:
+        """``M(q)``, shape ``(n, n)`` (cached when the mass matrix is constant)."""
+        if self.mass_is_constant(q):
+            return self._mass0
+        return self._mass_raw(q, t)
+
+    def mass_is_constant(self, q: np.ndarray) -> bool:
+        """Whether ``M`` does not depend on ``q`` (tested once with a generic perturbation)."""
+        if self._mass_constant is None:
+            m0 = self._mass_raw(q, 0.0)
+            rng = np.random.default_rng(12345)
+            m1 = self._mass_raw(q + 0.1 * rng.standard_normal(self.n), 0.0)
+            scale = max(float(np.max(np.abs(m0))), 1e-300)
+            self._mass_constant = bool(np.max(np.abs(m1 - m0)) <= MASS_CONSTANCY_TOLERANCE * scale)
+            self._mass0 = m0
+            logger.debug("mass matrix %s", "constant" if self._mass_constant else "configuration dependent")
+        return self._mass_constant
+
+    def constraints(self, q: np.ndarray, t: float) -> np.ndarray:
+        """``C(q, t)``, shape ``(m,)``."""
+        if not self.m:
+            return np.zeros(0)
+        self.set_state(q, np.zeros(self.n), t)
+        self._solver.ComputeAlgebraicEquations(self.mbs, velocityLevel=False)
+        return np.array(self._solver.GetSystemResidual(), dtype=float)[self.n: self.n + self.m]
+
+    def constraint_jacobian(self, q: np.ndarray, t: float) -> np.ndarray:
+        """``C_q(q, t)``, shape ``(m, n)``."""
+        if not self.m:
+            return np.zeros((0, self.n))
+        self.set_state(q, np.zeros(self.n), t)
+        # ComputeJacobianODE2RHS zeroes the system Jacobian (factors 0: nothing added)
+        self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=0.0,
+                                            scalarFactor_ODE1=0.0)
+        self._solver.ComputeJacobianAE(self.mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0,
+                                       scalarFactor_ODE1=1.0, velocityLevel=False)
+        J = np.array(self._solver.GetSystemJacobian(), dtype=float)
+        return J[self.n: self.n + self.m, : self.n].copy()
+
+    # ----------------------------------------------------------------- labels
+    def coordinate_labels(self) -> list[str]:
+        """Per ODE2 coordinate, the name of its node's item (object name if one object
+        owns the node, else the node name), e.g. ``"hub"`` or ``"beam3"``."""
+        mbs = self.mbs
+        sd = mbs.systemData
+        labels = [""] * self.n
+        owner: dict = {}
+        for i in range(sd.NumberOfObjects()):
+            obj = mbs.GetObject(i)
+            for node in obj.get("nodeNumbers", [obj["nodeNumber"]] if "nodeNumber" in obj else []):
+                owner.setdefault(int(node), []).append(obj.get("name", f"object{i}"))
+        for j in range(sd.NumberOfNodes()):
+            ltg = list(sd.GetNodeLTGODE2(j))
+            if not ltg:
+                continue
+            names = owner.get(j, [])
+            label = names[0] if len(names) == 1 else mbs.GetNode(j).get("name", f"node{j}")
+            for i in ltg:
+                labels[int(i)] = label
+        return labels
+
+    def slope_nodes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """ANCF ``NodePoint2DSlope1`` nodes: ``(ODE2 indices (x, y, x', y'), reference coordinates)``."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            node = mbs.GetNode(j)
+            if node.get("nodeType") == "Point2DSlope1":
+                ltg = np.array(list(mbs.systemData.GetNodeLTGODE2(j)), dtype=int)
+                out.append((ltg, np.asarray(node["referenceCoordinates"], dtype=float)))
+        return out
+
+    def describe(self) -> dict[str, Any]:
+        return {"ode2": self.n, "constraints": self.m, "drives": [d.name for d in self.built.drives]}

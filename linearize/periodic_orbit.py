@@ -1,0 +1,588 @@
+"""Periodic orbit of a model file with its drives prescribed.
+
+Equations (Exudyn's convention, see :mod:`linearize.exudyn_system`)::
+
+    M(q) q'' - f(q, q', t) + C_q(q, t)^T lambda - B tau = 0     (n equations)
+    C(q, t) = 0                                                 (m, the model's constraints)
+    B^T q - r(t) = 0                                            (one per drive)
+
+``B`` has one column per drive (+1 at marker m1's coordinate, -1 at m0's),
+``r(t)`` are the drives' motions and ``tau`` the feed-forward torques (the
+reactions of the drive constraints; positive ``tau`` pushes the driven
+coordinate ``q[m1] - q[m0]`` up).
+
+Method
+------
+Trigonometric collocation: all ODE2 coordinates ``q``, multipliers ``lambda``
+and torques ``tau`` are unknown at ``K`` equispaced samples; rates and
+accelerations are spectral derivatives (``D1 q``, ``D2 q``).  Newton's method
+(damped, with a natural monotonicity test) solves the ``K (n + m + d)``
+equations at once, with the Jacobian blocks
+``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from central differences of
+Exudyn's functions (:func:`tangent_blocks`; ``K_k`` contains the mass-matrix
+dependence and the constraint-reaction stiffness).  The guess is one period of
+Exudyn's own integrator from the model file's initial state with the drives
+prescribed.  If Newton fails, natural continuation in ``omega`` from
+``omega/2`` (the model is rebuilt at each ``omega``).
+
+Check in Exudyn itself (:attr:`PeriodicOrbit.shooting_residual`): one period of
+Exudyn's generalised-alpha integrator (spectral radius 1, no numerical
+damping) from the orbit's state at ``t = 0`` with the drives prescribed by
+``CoordinateConstraint`` objects; the defect ``x(T) - x(0)`` is reported
+relative to the variation of the state along the orbit.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+import scipy.linalg
+
+from linearize.exudyn_system import ExudynSystem
+from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
+from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
+from mbs_models.model_file import BuiltModel, ModelDefinition, build_model, resolve_model
+
+__all__ = [
+    "DEFAULT_SAMPLES",
+    "DEFAULT_TOLERANCE",
+    "SHOOTING_STEPS_PER_SAMPLE",
+    "SHOOTING_TOLERANCE",
+    "OrbitConvergenceError",
+    "PeriodicOrbit",
+    "TangentBlocks",
+    "find_orbit",
+    "tangent_blocks",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Collocation samples per period (even).
+DEFAULT_SAMPLES = 32
+#: Newton stops when the relative residual (forces relative to the largest
+#: applied / inertia force, constraint and drive residuals relative to the
+#: largest coordinate, at least 1) is below this.  Attainable floor with stiff
+#: ANCF elements is ~1e-7 (EA/l_e ~ 2.5e8 N/m times round-off of 1 m coordinates
+#: against forces ~0.5 N).
+DEFAULT_TOLERANCE = 1e-6
+#: ... or when the Newton update is at round-off (this times the coordinate scale)
+#: and the residual within 1e3 of the tolerance.
+UPDATE_TOLERANCE = 1e-13
+DEFAULT_MAX_ITERATIONS = 30
+#: Newton gives up when after this many iterations the residual is above its start.
+STAGNATION_ITERATIONS = 8
+MAX_STEP_HALVINGS = 12
+#: Continuation in omega: start factor, first increment, smallest increment, solves.
+CONTINUATION_START = 0.5
+CONTINUATION_STEP = 0.1
+CONTINUATION_MIN_STEP = 1e-3
+CONTINUATION_MAX_SOLVES = 40
+#: Integrator steps per collocation sample for the guess and the shooting check.
+SHOOTING_STEPS_PER_SAMPLE = 16
+#: The shooting check passes when the one-period defect, relative to the
+#: variation of the state along the orbit, is below this.  Generalised-alpha
+#: (rho_inf = 1, trapezoidal) has a global error ~ (omega_max h)^2 / 12 for the
+#: fastest resolved motion; with 16 steps per sample of a 32-sample orbit the
+#: harmonics the orbit keeps (<= 16 omega) have omega h <= 2 pi / 32, i.e. an
+#: error <= 3e-3 of their amplitude; 1e-2 leaves a factor of 3.
+SHOOTING_TOLERANCE = 1e-2
+
+
+class OrbitConvergenceError(RuntimeError):
+    """Newton did not find the periodic orbit; the message says how far it got.
+
+    Attributes
+    ----------
+    residuals : list of float
+        Relative residual after each Newton iteration.
+    """
+
+    def __init__(self, message: str, residuals: list) -> None:
+        super().__init__(message)
+        self.residuals = list(residuals)
+
+
+@dataclass(frozen=True)
+class TangentBlocks:
+    """Central-difference linearisation of the unconstrained-drive equations at the samples.
+
+    For ``r(q, q', q'', lambda, t) = M(q) q'' - f(q, q', t) + C_q(q, t)^T lambda``:
+
+    Attributes
+    ----------
+    M : ndarray, shape (K, n, n)
+        ``M(q_k)``.
+    K_force : ndarray, shape (K, n, n)
+        ``d/dq [M(q) q_k'' - f(q, q_k', t_k)]`` (mass-matrix dependence included).
+    K_reaction : ndarray, shape (K, n, n)
+        ``d/dq [C_q(q, t_k)^T lambda_k]``, the constraint-reaction stiffness.
+    C : ndarray, shape (K, n, n)
+        ``-df/dq'``.
+    Cq : ndarray, shape (K, m, n)
+        ``C_q(q_k, t_k)``.
+    """
+
+    M: np.ndarray
+    K_force: np.ndarray
+    K_reaction: np.ndarray
+    C: np.ndarray
+    Cq: np.ndarray
+
+    @property
+    def K(self) -> np.ndarray:
+        """``K_force + K_reaction``."""
+        return self.K_force + self.K_reaction
+
+
+@dataclass(frozen=True)
+class PeriodicOrbit:
+    """A T-periodic motion of a model with its drives on their motions.
+
+    Attributes
+    ----------
+    model : ModelDefinition
+    omega, period : float
+    times : ndarray, shape (K,)
+        Sample times ``k T / K``.
+    q, q_t, q_tt : ndarray, shape (K, n)
+        Exudyn ODE2 coordinates and their spectral time derivatives.
+    lambdas : ndarray, shape (K, m)
+        Multipliers of the model's own constraints (``M q'' = f - C_q^T lambda + B tau``).
+    torques : ndarray, shape (K, d)
+        Feed-forward torque of each drive.
+    drive_names : tuple of str
+    drive_vectors : ndarray, shape (n, d)
+        ``B``.
+    residual : float
+        Relative collocation residual reached (see :data:`DEFAULT_TOLERANCE`).
+    tolerance : float
+        The tolerance it had to reach.
+    shooting_residual : float
+        Relative one-period defect of Exudyn's integrator from the orbit state
+        (NaN when not checked); must be below :data:`SHOOTING_TOLERANCE`.
+    iterations : int
+        Newton iterations (continuation included).
+    tangent : TangentBlocks
+        The linearisation at the converged samples (reused by
+        :func:`linearize.constrained.linearize_orbit`).
+    coordinate_labels : tuple of str
+        Exudyn item name per ODE2 coordinate.
+    slope_nodes : tuple
+        ANCF slope nodes ``(ODE2 indices, reference coordinates)`` (for mode labels).
+    wall_time : float
+    """
+
+    model: ModelDefinition = field(repr=False)
+    omega: float
+    period: float
+    times: np.ndarray = field(repr=False)
+    q: np.ndarray = field(repr=False)
+    q_t: np.ndarray = field(repr=False)
+    q_tt: np.ndarray = field(repr=False)
+    lambdas: np.ndarray = field(repr=False)
+    torques: np.ndarray = field(repr=False)
+    drive_names: tuple
+    drive_vectors: np.ndarray = field(repr=False)
+    residual: float
+    tolerance: float
+    shooting_residual: float
+    iterations: int
+    tangent: TangentBlocks = field(repr=False)
+    coordinate_labels: tuple = field(repr=False, default=())
+    slope_nodes: tuple = field(repr=False, default=())
+    wall_time: float = 0.0
+
+    @property
+    def samples(self) -> int:
+        return int(self.times.size)
+
+    @property
+    def size(self) -> int:
+        """ODE2 coordinates ``n``."""
+        return int(self.q.shape[1])
+
+    def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
+        return (trig_interpolate(self.q, self.period, t), trig_interpolate(self.q_t, self.period, t),
+                trig_interpolate(self.q_tt, self.period, t))
+
+    def torque(self, t: float | np.ndarray) -> np.ndarray:
+        """Feed-forward torques at ``t`` (shape ``(d,)`` or ``(m, d)``)."""
+        return trig_interpolate(self.torques, self.period, t)
+
+    def summary(self) -> dict:
+        return {
+            "model": self.model.name,
+            "omega": self.omega,
+            "samples": self.samples,
+            "ode2": self.size,
+            "constraints": int(self.lambdas.shape[1]),
+            "drives": list(self.drive_names),
+            "orbit_residual": float(self.residual),
+            "shooting_residual": float(self.shooting_residual),
+            "iterations": self.iterations,
+            "torque_max": [float(v) for v in np.max(np.abs(self.torques), axis=0)] if self.torques.size else [],
+        }
+
+
+# --------------------------------------------------------------------------- tangent
+def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np.ndarray, A: np.ndarray,
+                   L: np.ndarray, *, step: float = CENTRAL_DIFFERENCE_STEP) -> TangentBlocks:
+    """Central-difference linearisation at the samples (see :class:`TangentBlocks`).
+
+    The step of coordinate ``j`` is ``step * max(1, |q_j|)``
+    (:func:`linearize.finite_difference.fd_steps`, ``step = eps**(1/3)``).
+    """
+    Kn, n, m = times.size, system.n, system.m
+    Ms = np.empty((Kn, n, n))
+    Kf = np.empty((Kn, n, n))
+    Kr = np.zeros((Kn, n, n))
+    Cd = np.empty((Kn, n, n))
+    Cqs = np.empty((Kn, m, n))
+    const_mass = system.mass_is_constant(Q[0])
+    for k in range(Kn):
+        q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
+        Ms[k] = system.mass(q, t)
+        Cqs[k] = system.constraint_jacobian(q, t)
+        hq = fd_steps(q, step)
+        hv = fd_steps(v, step)
+        for j in range(n):
+            e = np.zeros(n)
+            e[j] = hq[j]
+            fp = -system.rhs(q + e, v, t)
+            fm = -system.rhs(q - e, v, t)
+            if not const_mass:
+                fp += system.mass(q + e, t) @ a
+                fm += system.mass(q - e, t) @ a
+            Kf[k, :, j] = (fp - fm) / (2 * hq[j])
+            if m:
+                Kr[k, :, j] = (system.constraint_jacobian(q + e, t).T @ lam
+                               - system.constraint_jacobian(q - e, t).T @ lam) / (2 * hq[j])
+            e[j] = hv[j]
+            Cd[k, :, j] = (system.rhs(q, v - e, t) - system.rhs(q, v + e, t)) / (2 * hv[j])
+    return TangentBlocks(M=Ms, K_force=Kf, K_reaction=Kr, C=Cd, Cq=Cqs)
+
+
+# --------------------------------------------------------------------------- collocation
+class _Collocation:
+    """Residual and Newton matrix of the collocation equations at one omega."""
+
+    def __init__(self, built: BuiltModel, samples: int) -> None:
+        self.built = built
+        self.system = ExudynSystem(built)
+        self.T = built.period
+        self.K = int(samples)
+        self.times = sample_times(self.T, self.K)
+        self.D1, self.D2 = differentiation_matrices(self.T, self.K)
+        self.B = built.drive_vectors()
+        self.n, self.m, self.d = self.system.n, self.system.m, len(built.drives)
+        self.s = self.n + self.m + self.d
+        self.R = np.array([[dr.evaluate(t)[0] for dr in built.drives] for t in self.times]).reshape(self.K, self.d)
+
+    def split(self, X: np.ndarray):
+        n, m = self.n, self.m
+        return X[:, :n], X[:, n:n + m], X[:, n + m:]
+
+    def residual(self, X: np.ndarray) -> tuple[np.ndarray, float]:
+        Q, L, U = self.split(X)
+        V, A = self.D1 @ Q, self.D2 @ Q
+        sys_ = self.system
+        out = np.empty((self.K, self.s))
+        fscale = 0.0
+        for k in range(self.K):
+            t = float(self.times[k])
+            f = sys_.rhs(Q[k], V[k], t)
+            Ma = sys_.mass(Q[k], t) @ A[k]
+            r = Ma - f - self.B @ U[k]
+            if self.m:
+                r += sys_.constraint_jacobian(Q[k], t).T @ L[k]
+                out[k, self.n:self.n + self.m] = sys_.constraints(Q[k], t)
+            out[k, :self.n] = r
+            out[k, self.n + self.m:] = self.B.T @ Q[k] - self.R[k]
+            fscale = max(fscale, float(np.max(np.abs(f))), float(np.max(np.abs(Ma))))
+        return out, fscale
+
+    def relative(self, out: np.ndarray, fscale: float, qscale: float) -> float:
+        force = float(np.max(np.abs(out[:, :self.n]))) / max(fscale, 1e-300)
+        geo = float(np.max(np.abs(out[:, self.n:]))) / qscale if self.m + self.d else 0.0
+        return max(force, geo)
+
+    def jacobian(self, X: np.ndarray) -> tuple[np.ndarray, TangentBlocks]:
+        Q, L, _ = self.split(X)
+        V, A = self.D1 @ Q, self.D2 @ Q
+        tb = tangent_blocks(self.system, self.times, Q, V, A, L)
+        Kn, n, m, s = self.K, self.n, self.m, self.s
+        J = np.zeros((Kn, s, Kn, s))
+        for k in range(Kn):
+            J[k, :n, k, :n] += tb.K[k]
+            J[k, :n, :, :n] += self.D1[k][None, :, None] * tb.C[k][:, None, :] + self.D2[k][None, :, None] * tb.M[k][:, None, :]
+            if m:
+                J[k, :n, k, n:n + m] = tb.Cq[k].T
+                J[k, n:n + m, k, :n] = tb.Cq[k]
+            J[k, :n, k, n + m:] = -self.B
+            J[k, n + m:, k, :n] = self.B.T
+        return J.reshape(Kn * s, Kn * s), tb
+
+
+def _solve(J: np.ndarray):
+    """Factorise the Newton matrix (dense LU; one place to swap in a sparse solver)."""
+    # column scaling equilibrates metres, radians and newtons
+    scale = np.max(np.abs(J), axis=0)
+    scale[scale == 0] = 1.0
+    lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
+    return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
+
+
+def _weights(col: _Collocation, X: np.ndarray, qscale: float) -> np.ndarray:
+    """Per-unknown weights of the Newton norm: coordinates by their scale, multipliers and
+    torques by the largest of their kind (so a correction of each kind counts alike)."""
+    n, m = col.n, col.m
+    w = np.empty(X.shape[1])
+    w[:n] = 1.0 / qscale
+    for sl in (slice(n, n + m), slice(n + m, None)):
+        if X[:, sl].size:
+            w[sl] = 1.0 / max(float(np.max(np.abs(X[:, sl]))), 1e-300)
+    return w
+
+
+def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
+    history: list = []
+    qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
+    solve = None
+    tb = None
+    for it in range(1, max_iterations + 1):
+        out, fscale = col.residual(X)
+        res = col.relative(out, fscale, qscale)
+        history.append(res)
+        logger.debug("orbit Newton %d: relative residual %.3e", it, res)
+        if not math.isfinite(res):
+            return X, history, False, tb
+        if res <= tol:
+            return X, history, True, tb
+        if it > STAGNATION_ITERATIONS and res > history[0]:
+            return X, history, False, tb
+        if solve is None or len(history) < 2 or history[-1] > 0.1 * history[-2]:
+            J, tb = col.jacobian(X)
+            solve = _solve(J)
+        dX = solve(-out.reshape(-1)).reshape(X.shape)
+        weights = _weights(col, X + dX, qscale)
+        step_norm = float(np.max(np.abs(dX) * weights))
+        lam = 1.0
+        trial = X
+        for _ in range(MAX_STEP_HALVINGS):
+            trial = X + lam * dX
+            out_t, _ = col.residual(trial)
+            if np.all(np.isfinite(out_t)):
+                simplified = solve(-out_t.reshape(-1)).reshape(X.shape)
+                # Deuflhard's natural monotonicity test in a scaled max norm
+                if float(np.max(np.abs(simplified) * weights)) <= (1.0 - 0.25 * lam) * step_norm:
+                    break
+            lam *= 0.5
+        X = trial
+        if float(np.max(np.abs(lam * dX) * weights)) <= UPDATE_TOLERANCE and res <= 1e3 * tol:
+            out, fscale = col.residual(X)
+            history.append(col.relative(out, fscale, qscale))
+            return X, history, True, tb
+    return X, history, False, tb
+
+
+# --------------------------------------------------------------------------- Exudyn runs
+def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, steps: int,
+              record_times: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
+    """One Exudyn generalised-alpha run (rho_inf = 1) of a model with prescribed drives."""
+    import exudyn as exu
+
+    mbs = built.mbs
+    sd = mbs.systemData
+    ini = exu.ConfigurationType.Initial
+    sd.SetODE2Coordinates(q0, configuration=ini)
+    sd.SetODE2Coordinates_t(v0, configuration=ini)
+    s = exu.SimulationSettings()
+    s.timeIntegration.startTime = 0.0
+    s.timeIntegration.endTime = float(t_end)
+    s.timeIntegration.numberOfSteps = int(steps)
+    s.timeIntegration.generalizedAlpha.spectralRadius = 1.0
+    s.timeIntegration.verboseMode = 0
+    s.timeIntegration.automaticStepSize = False
+    s.timeIntegration.newton.relativeTolerance = 1e-10
+    s.timeIntegration.newton.absoluteTolerance = 1e-12
+    s.solution.file.write = False
+    s.solution.file.writeInitialValues = False
+    s.show.statistics = False
+    s.show.computationTime = False
+    s.linearSolver.solverType = exu.LinearSolverType.EigenDense
+    rows: list = []
+    if record_times is not None:
+        h = t_end / steps
+        wanted = {int(round(t / h)) for t in record_times}
+        counter = {"i": 0}
+
+        def post(mbs_, t):
+            i = int(round(t / h))
+            if i in wanted and i not in {r[0] for r in rows}:
+                rows.append((i, np.array(mbs_.systemData.GetODE2Coordinates())))
+            return True
+
+        mbs.SetPostStepUserFunction(post)
+    try:
+        mbs.SolveDynamic(s)
+    finally:
+        if record_times is not None:
+            mbs.SetPostStepUserFunction(0)
+    qT = np.array(sd.GetODE2Coordinates())
+    vT = np.array(sd.GetODE2Coordinates_t())
+    rec = None
+    if record_times is not None:
+        h = t_end / steps
+        got = dict(rows)
+        rec = np.array([q0 if int(round(t / h)) == 0 else got.get(int(round(t / h)), qT) for t in record_times])
+    return qT, vT, rec
+
+
+def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
+    """One Exudyn period from the model file's initial state, drives prescribed, sampled."""
+    sysm = col.system
+    built_p = build_model(model, col.built.omega, prescribe_drives=True)
+    _, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
+                         record_times=col.times)
+    X = np.zeros((col.K, col.s))
+    X[:, :col.n] = Qs
+    return X
+
+
+def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int) -> float:
+    built_p = build_model(model, omega, prescribe_drives=True)
+    T = 2 * math.pi / omega
+    qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
+    x0 = np.concatenate([Q[0], V[0]])
+    xT = np.concatenate([qT, vT])
+    variation = max(float(np.max(np.abs(Q - Q[0]))), float(np.max(np.abs(V - V[0]))), 1e-300)
+    # coordinates and rates are compared in their own units: the defect relative to
+    # the largest excursion of either along the orbit
+    return float(np.max(np.abs(xT - x0)) / variation)
+
+
+# --------------------------------------------------------------------------- driver
+def find_orbit(
+    model: Any,
+    omega: float,
+    *,
+    samples: int = DEFAULT_SAMPLES,
+    tol: float = DEFAULT_TOLERANCE,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
+    verify: bool = True,
+    continuation: bool = True,
+    **options: Any,
+) -> PeriodicOrbit:
+    """The T-periodic orbit of ``model`` with its drives prescribed.
+
+    Parameters
+    ----------
+    model : ModelDefinition, str, path or callable
+        A model definition, a built-in name (``"single-link"``), a model file
+        path or a ``build(mbs, omega)`` callable.
+    omega : float
+        Angular frequency; ``T = 2 pi / omega``.
+    samples : int
+        Collocation samples per period (even, >= 4).
+    tol : float
+        Relative residual Newton must reach (never loosened).
+    max_iterations : int
+        Newton iterations (per continuation step).
+    verify : bool
+        Run the one-period shooting check in Exudyn.
+    continuation : bool
+        Continue in omega from omega/2 when Newton fails from the guess.
+    **options
+        Keyword options for ``build``.
+
+    Returns
+    -------
+    PeriodicOrbit
+
+    Raises
+    ------
+    OrbitConvergenceError
+        Newton did not reach ``tol`` (the message gives the residuals reached)
+        or the shooting check failed.
+    mbs_models.model_file.ModelFileError
+        On a bad model.
+    """
+    tic = time.perf_counter()
+    if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
+        raise ValueError(f"tol must be finite and > 0, got {tol!r}")
+    definition = resolve_model(model, **options)
+    built = build_model(definition, omega)
+    col = _Collocation(built, samples)
+    X = _guess(col, definition)
+    X, history, ok, tb = _newton(col, X, tol, max_iterations)
+    if not ok and continuation:
+        logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
+        X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X)
+        history += h2
+    if not ok:
+        raise OrbitConvergenceError(
+            f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
+            f"{history[-1]:.2e} after {len(history)} Newton iterations (best {min(history):.2e}, tolerance {tol:.1e})"
+            + (" even with continuation in omega" if continuation else "")
+            + "; try more samples, damping, or an omega away from resonances",
+            history,
+        )
+    Q, L, U = col.split(X)
+    Q, L, U = Q.copy(), L.copy(), U.copy()
+    V, A = col.D1 @ Q, col.D2 @ Q
+    out, fscale = col.residual(X)
+    residual = col.relative(out, fscale, max(1.0, float(np.max(np.abs(Q)))))
+    # linearisation at the converged samples (Newton's last matrix is at the previous iterate)
+    tb = tangent_blocks(col.system, col.times, Q, V, A, L)
+    shooting = math.nan
+    if verify:
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples)
+        if not shooting <= SHOOTING_TOLERANCE:
+            raise OrbitConvergenceError(
+                f"periodic orbit of {definition.name} at omega = {float(omega):.6g}: collocation residual "
+                f"{residual:.1e}, but one period in Exudyn from its state returns with a relative defect "
+                f"{shooting:.2e} > {SHOOTING_TOLERANCE:.0e}; try more samples",
+                history,
+            )
+    orbit = PeriodicOrbit(
+        model=definition, omega=float(omega), period=col.T, times=col.times, q=Q, q_t=V, q_tt=A, lambdas=L,
+        torques=U, drive_names=tuple(d.name for d in built.drives), drive_vectors=col.B, residual=residual,
+        tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
+        coordinate_labels=tuple(col.system.coordinate_labels()),
+        slope_nodes=tuple(col.system.slope_nodes()), wall_time=time.perf_counter() - tic,
+    )
+    logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
+                definition.name, omega, residual, len(history), shooting, orbit.wall_time)
+    return orbit
+
+
+def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
+                  X_fail: np.ndarray):
+    f, step, X, history = CONTINUATION_START, CONTINUATION_STEP, None, []
+    col = tb = None
+    for _ in range(CONTINUATION_MAX_SOLVES):
+        target = min(1.0, f)
+        col = _Collocation(build_model(definition, omega * target), samples)
+        guess = _guess(col, definition) if X is None else X.copy()
+        Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
+        history += hist
+        logger.debug("orbit continuation: omega factor %.4f %s", target, "converged" if ok else "failed")
+        if ok:
+            X = Xn
+            if target >= 1.0:
+                return X, history, True, col, tb
+            step *= 1.5
+            f = target + step
+        elif X is None:
+            f *= 0.5
+        else:
+            step *= 0.5
+            f -= step
+            if step < CONTINUATION_MIN_STEP:
+                break
+    return (X if X is not None else X_fail), history, False, col, tb
