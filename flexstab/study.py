@@ -286,7 +286,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
     figs = [c["figure_file"] for c in doc["cases"]]
     rows = []
     for c in doc["cases"]:
-        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else c["figure_file"],
+        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else (c["gains_source"] or "given gains"),
                      f"{c['omega_over_pi']:.4g}π", f"{c.get('kp', 0):g}", f"{c.get('kd', 0):g}",
                      f"{c['spectral_radius']:.6g}", f"{c['last_ratio']:.6g}", f"k = {c['periods_measured'] - 1}",
                      relative(c["last_ratio_relative_error"])])
