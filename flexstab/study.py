@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from flexstab.config import StudyConfig
-from flexstab.report import figure, fixed, percent, table, text, to_html, to_markdown
+from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
 __all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash"]
 
@@ -254,7 +254,7 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
     names = [Path(f).name for f in s["figures"]]
     blocks = [
         text(f"Reduced model, {len(g['kp'])} × {len(g['kd'])} gain grid, kp in [{g['kp'][0]:g}, {g['kp'][-1]:g}] "
-             f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} Omegas from "
+             f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} values of Ω from "
              f"{o['omega'][0] / math.pi:.3g}π to {o['omega'][-1] / math.pi:.3g}π rad/s."),
         figure(names[0], f"max|ρ| over the (kp, kd) plane at Ω = {_w(cfg.omega)}: blue = asymptotically stable "
                          f"(|ρ| < 1), red = unstable; the |ρ| = 1 boundary, the ρ_d = {cfg.target:g} contour and the "
@@ -286,10 +286,10 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
     figs = [c["figure_file"] for c in doc["cases"]]
     rows = []
     for c in doc["cases"]:
-        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else c["figure_file"],
+        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else (c["gains_source"] or "given gains"),
                      f"{c['omega_over_pi']:.4g}π", f"{c.get('kp', 0):g}", f"{c.get('kd', 0):g}",
                      f"{c['spectral_radius']:.6g}", f"{c['last_ratio']:.6g}", f"k = {c['periods_measured'] - 1}",
-                     percent(c["last_ratio_relative_error"], sign=True)])
+                     relative(c["last_ratio_relative_error"])])
     blocks = [
         text("Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25π, 0] "
              "(Eqs. 26/35), with the envelope ρ₁^(t/T) of the dominant multiplier. Measured growth per period "
@@ -352,7 +352,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
                 f"{tuned.kp:.4f}, {tuned.kd:.4f}", f"{tuned.spectral_radius:.5f} ({tuned.status})",
                 tuned.evaluations]]),
         text(f"At the reference gains the Exudyn and reduced models differ by "
-             f"{percent(row['reference_gains_dominant_exudyn'] / reduced - 1, sign=True)} in the dominant multiplier."),
+             f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
     ]
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
 
