@@ -64,6 +64,7 @@ from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_target
 
 __all__ = [
+    "DriveGainObjective",
     "GainObjective",
     "TaguchiIteration",
     "TaguchiResult",
@@ -114,6 +115,48 @@ class GainObjective:
         if callable(measure):  # the plant defines its own response (e.g. the Exudyn link)
             return float(measure(kp, kd))
         return floquet(self.plant.with_gains(kp, kd), **self.floquet_options).spectral_radius
+
+
+class DriveGainObjective:
+    """``(kp1, kd1, kp2, kd2, ...) -> max|rho|`` for a plant with one gain pair per drive.
+
+    Parameters
+    ----------
+    plant : object
+        Has ``with_gains(kp, kd)`` taking one value per drive (sequences) and
+        returning a periodic matrix for :func:`stability.floquet` (e.g. a
+        model-file :class:`~linearize.system.LinearizedPeriodicSystem`).
+        Picklable for process or Dask executors.
+    floquet_options : dict
+        Keyword arguments of :func:`stability.floquet`.
+    unit_circle_tolerance : float, optional
+        If given, the response is the largest modulus among the multipliers
+        off the unit circle (``| |rho| - 1 | >= tolerance``): the undamped
+        modes of an FE model without structural damping keep ``|rho| = 1``
+        whatever the gains, and the tuning targets the damped ones (as for the
+        single link's Exudyn plant).  ``None``: the spectral radius.
+    """
+
+    def __init__(self, plant: Any, floquet_options: Optional[dict] = None,
+                 unit_circle_tolerance: Optional[float] = None) -> None:
+        if not callable(getattr(plant, "with_gains", None)):
+            raise ValueError("plant must provide with_gains(kp, kd)")
+        self.plant = plant
+        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.unit_circle_tolerance = unit_circle_tolerance
+
+    def __call__(self, gains: Sequence[float]) -> float:
+        from stability import floquet
+
+        g = [float(v) for v in gains]
+        if len(g) % 2:
+            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
+        res = floquet(self.plant.with_gains(g[0::2], g[1::2]), **self.floquet_options)
+        if self.unit_circle_tolerance is None:
+            return float(res.spectral_radius)
+        moduli = np.abs(np.asarray(res.multipliers))
+        off = moduli[np.abs(moduli - 1.0) >= self.unit_circle_tolerance]
+        return float(np.max(off)) if off.size else float(np.max(moduli))
 
 
 def check_gain_range(value: Any, name: str) -> tuple[float, float]:
@@ -292,6 +335,12 @@ class TaguchiIteration:
     def kd_levels(self) -> tuple[float, ...]:
         return self.factor_levels[1]
 
+    def __repr__(self) -> str:  # the design, responses and ANOVA are in to_dict(); keep a REPL readable
+        ranges = ", ".join(f"{s}=({r[0]:.6g}, {r[1]:.6g})" for s, r in zip(self.names, self.ranges))
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.incumbent_gains))
+        return (f"TaguchiIteration(index={self.index}, ranges[{ranges}], runs={len(self.design)}, "
+                f"incumbent=({gains}, max|rho|={self.incumbent_response:.6g}))")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (``<name>_range``/``<name>_levels`` per factor)."""
         out: dict[str, Any] = {"index": self.index, "names": list(self.names)}
@@ -380,6 +429,13 @@ class TaguchiResult:
         if key not in self.names:
             raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
         return self.gains[self.names.index(key)]
+
+    def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.gains))
+        return (f"TaguchiResult({gains}, spectral_radius={self.spectral_radius:.6g}, "
+                f"target={self.target:g}, status={self.status!r}, evaluations={self.evaluations}, "
+                f"iterations=<{len(self.iterations)} TaguchiIteration>, array={self.array!r}, "
+                f"elapsed={self.elapsed:.3g} s)")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (``iterations`` is the history; one key per factor)."""

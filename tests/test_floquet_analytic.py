@@ -113,7 +113,8 @@ def _constant_P_bounds(A, T, cond_V, n_factors, noise_floor):
     phi = n_factors * cond_V**3 * noise_floor
     multiplier = cond_V * (phi + noise_floor)
     trace = T * n * (2 * n + 2 + math.log2(512)) * EPS * cond_V * np.abs(eigs).max()
-    liouville = float(np.sum(multiplier / rho)) + trace
+    with np.errstate(divide="ignore"):  # an underflowing multiplier: no Liouville bound (inf)
+        liouville = float(np.sum(multiplier / rho)) + trace
     return {"phi": phi, "multiplier": multiplier, "trace": trace, "liouville": liouville}
 
 
@@ -194,11 +195,12 @@ def test_constant_P_bounds_reject_wrong_answers(case):
 def test_constant_P_underflowing_stiff_multiplier_is_flagged():
     """With T = 1 the stiff multiplier exp(-3000) underflows: the result must flag it as noise."""
     eigs = np.array([-3000.0, -1.0, -0.1 + 5.0j, -0.1 - 5.0j])
-    A, _ = _real_matrix_with_eigenvalues(eigs, seed=5)
+    A, cond_V = _real_matrix_with_eigenvalues(eigs, seed=5)
     res = floquet(lambda t: A, period=1.0)
     expected = np.exp(eigs[1:] * 1.0)
     got, exp_ = _match(res.multipliers[:3], expected)
-    np.testing.assert_allclose(got, exp_, rtol=0, atol=1e-10)
+    bound = _constant_P_bounds(A, 1.0, cond_V, res.n_steps, res.noise_floor)
+    np.testing.assert_allclose(got, exp_, rtol=0, atol=bound["multiplier"])
     # the smallest modulus is rounding noise of the formed product: flagged
     assert res.moduli[-1] <= 100 * res.noise_floor
     assert res.reliable_digits[-1] == 0
@@ -214,9 +216,10 @@ def test_liouville_log_form_with_underflowing_factor_determinant():
     V = np.array([[1.0, 1.0], [1.0, 2.0]])
     A = V @ np.diag([-3000.0, -1.0]) @ np.linalg.inv(V)
     res = floquet(lambda t: A, period=1.0)
+    bound = _constant_P_bounds(A, 1.0, np.linalg.cond(V), res.n_steps, res.noise_floor)
     # the multipliers are right (exp(-1) and a flagged ~0) ...
-    assert res.multipliers[0] == pytest.approx(math.exp(-1.0), rel=1e-10)
-    assert res.trace_integral == pytest.approx(-3001.0, rel=1e-12)
+    assert abs(res.multipliers[0] - math.exp(-1.0)) <= bound["multiplier"]
+    assert abs(res.trace_integral + 3001.0) <= bound["trace"]
     # ... and det Phi = exp(-3001) exactly, so the log-form residual should be ~1e-12
     assert res.liouville_residual <= 1e-8
 
@@ -273,14 +276,21 @@ def test_periodic_similarity_transform(eigs, T, method):
     A, _ = _real_matrix_with_eigenvalues(eigs, seed=11)
     P = _Transformed(A, T)
     res = floquet(P, method=method)
-    # rtol=1e-10 (default) on the moduli; multipliers checked with 100x margin
+    # Discretisation: the actual error is within 10x the step-doubling estimate the result
+    # reports (asymptotic regime; measured ratio ~1 here, and test_convergence_order checks the
+    # 10x on an independent reference); the adaptive loop stops at estimate <= rtol = 1e-9, so
+    # this is never looser than 1e-8.  Rounding: N products, each ~ noise_floor = n eps ||Phi||.
     expected = np.exp(eigs * T)
     got, exp_ = _match(res.multipliers, expected)
-    np.testing.assert_allclose(got, exp_, rtol=0, atol=1e-8 * np.abs(expected).max())
+    tol = 10 * res.error_estimate * np.abs(expected).max() + res.n_steps * res.noise_floor
+    np.testing.assert_allclose(got, exp_, rtol=0, atol=tol)
     L0 = P.L_and_dL(0.0)[0]
     Phi = L0 @ expm(A * T) @ np.linalg.inv(L0)
-    np.testing.assert_allclose(res.monodromy, Phi, rtol=0, atol=1e-8 * np.linalg.norm(Phi))
-    # tr(L' L^-1) integrates to ln det L(T) - ln det L(0) = 0, so int tr P = T tr A
+    np.testing.assert_allclose(res.monodromy, Phi, rtol=0,
+                               atol=10 * res.error_estimate * np.linalg.norm(Phi) + res.n_steps * res.noise_floor)
+    # tr(L' L^-1) integrates to ln det L(T) - ln det L(0) = 0, so int tr P = T tr A.  The periodic
+    # trapezoidal rule is spectrally exact here (ln det L has Fourier coefficients ~ 0.16^k); left is
+    # the rounding of a 512-term sum, <= log2(512) eps T max|tr P| ~ 1e-13
     assert res.trace_integral == pytest.approx(T * float(np.trace(A)), abs=1e-10)
     assert res.multiplier_liouville_residual <= 1e-8
     assert res.error_estimate <= 1e-9  # the default rtol
@@ -329,8 +339,10 @@ def test_liouville_random_periodic_systems(system):
     # independent oracle: int_0^T tr P dt = T tr C0 (the harmonics integrate to 0)
     trace = T * float(np.trace(coef[0]))
     assert res.trace_integral == pytest.approx(trace, abs=1e-11 * max(1.0, abs(trace)))
-    # Liouville on the factors (log form) and on the multipliers themselves;
-    # rtol = 1e-10 on the moduli makes 1e-8 on their product a 25x margin for n = 4
+    # Liouville on the factors (log form) and on the multipliers themselves.  1e-8 is the
+    # package's acceptance bound, not a rounding bound: the moduli are within 10x their
+    # step-doubling estimate (<= 2.4e-10 on these examples) and sum ln|rho_i| = ln|det Phi| is
+    # insensitive to (near-)multiple multipliers; rounding adds ~ N n eps = 3e-14 (measured <= 1.4e-14)
     assert res.liouville_residual <= 1e-8
     if math.isnan(res.multiplier_liouville_residual):
         # only allowed when a multiplier is genuinely below the noise floor
@@ -566,6 +578,9 @@ def test_second_order_system_matches_hand_built_P():
     )
     res = floquet(sys)
     ref = floquet(lambda t: np.array([[0.0, 1.0], [-(3.0 + math.cos(2 * t)) / m, -c / m]]), period=math.pi)
-    np.testing.assert_allclose(res.multipliers, ref.multipliers, rtol=1e-12)
+    # the same P up to rounding of M^-1 K (m = 2: exact); equal to rounding when both adaptive runs stop
+    # at the same step count, else each within 10x its step-doubling estimate
+    tol = 1e-12 if res.n_steps == ref.n_steps else 10 * (res.error_estimate + ref.error_estimate)
+    np.testing.assert_allclose(res.multipliers, ref.multipliers, rtol=tol)
     # Liouville: det Phi = exp(-c/m T)
     assert np.prod(res.moduli) == pytest.approx(math.exp(-c / m * math.pi), rel=1e-9)

@@ -60,7 +60,12 @@ def test_reduced_noise_plant_builds_the_perturbed_model():
     m = plant({"tip_mass": 0.2, "omega_scale": 1.1, "youngs_modulus_scale": 0.95}).with_gains(20.0, 10.0)
     by_hand = ReducedModel(omega=4.4 * math.pi, kp=20.0, kd=10.0,
                            params=ManipulatorParameters(tip_mass=0.2, youngs_modulus=0.95 * 7.11e10))
-    assert floquet(m).spectral_radius == pytest.approx(floquet(by_hand).spectral_radius, rel=1e-12)
+    a, b = floquet(m), floquet(by_hand)
+    # the same model up to ~1 ulp of Omega (4 pi * 1.1 vs 4.4 pi): equal to rounding (~1e-14) when both
+    # adaptive runs stop at the same step count; a 1-ulp change can flip a step-doubling decision on
+    # another BLAS, and then each run is within 10x its estimate (<= rtol 1e-9)
+    tol = 1e-12 if a.n_steps == b.n_steps else 10 * (a.error_estimate + b.error_estimate)
+    assert a.spectral_radius == pytest.approx(b.spectral_radius, rel=tol)
 
 
 def test_omega_noise_acts_through_the_period():

@@ -119,3 +119,50 @@ def test_direct_optimisers_four_factors(method):
 def test_bad_multi_factor_config(kwargs, word):
     with pytest.raises(ValueError, match=word):
         TuningConfig(**kwargs)
+
+
+class _Oscillators:
+    """Two PD-controlled unit oscillators y_i'' + kd_i y_i' + (1 + kp_i) y_i = 0 and one undamped
+    (frequency 3): constant coefficients, so the multipliers are exp(lambda T) exactly."""
+
+    def __init__(self, kp=(0.0, 0.0), kd=(0.0, 0.0)):
+        self.kp, self.kd = tuple(kp), tuple(kd)
+
+    def with_gains(self, kp, kd):
+        return _Oscillators(kp, kd)
+
+    def matrices(self):
+        K = np.diag([1.0 + self.kp[0], 1.0 + self.kp[1], 9.0])
+        C = np.diag([self.kd[0], self.kd[1], 0.0])
+        return K, C
+
+    @property
+    def period(self):
+        return 2 * math.pi
+
+    def __call__(self, t):
+        K, C = self.matrices()
+        return np.block([[np.zeros((3, 3)), np.eye(3)], [-K, -C]])
+
+    def exact(self):
+        K, C = self.matrices()
+        lam = np.linalg.eigvals(np.block([[np.zeros((3, 3)), np.eye(3)], [-K, -C]]))
+        return np.abs(np.exp(lam * self.period))
+
+
+def test_drive_gain_objective_pairs_and_unit_circle():
+    from taguchi.tuning import DriveGainObjective
+
+    gains = (3.0, 0.4, 1.0, 0.1)  # (kp1, kd1, kp2, kd2)
+    plant = _Oscillators()
+    exact = _Oscillators((3.0, 1.0), (0.4, 0.1)).exact()
+    # magnus6 on constant coefficients is exact up to the matrix exponential: round-off only
+    opts = {"n_steps": 64, "error_estimate": False}
+    assert DriveGainObjective(plant, opts)(gains) == pytest.approx(1.0, abs=1e-9)  # the undamped oscillator
+    damped = np.max(exact[np.abs(exact - 1.0) > 1e-3])
+    assert DriveGainObjective(plant, opts, unit_circle_tolerance=2e-3)(gains) == pytest.approx(damped, rel=1e-9)
+    # the pairs are (kp, kd) per drive: swapping the drives' roles changes the answer
+    swapped = np.max(np.abs(np.exp(np.linalg.eigvals(np.array([[0, 1], [-(1 + 0.4), -3.0]])) * 2 * math.pi)))
+    assert abs(swapped - damped) > 1e-3
+    with pytest.raises(ValueError, match="pairs"):
+        DriveGainObjective(plant, opts)((1.0, 2.0, 3.0))

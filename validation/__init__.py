@@ -11,6 +11,9 @@ is loaded with them):
     Figures of the nonlinear runs.
 ``validation.study``
     The four-Omega linear-vs-nonlinear comparison.
+``validation.direct_monodromy``
+    :func:`~validation.direct_monodromy.direct_monodromy`, the monodromy of any
+    model file from finite differences of one-period Exudyn runs.
 ``validation.model_comparison``
     Reduced model, Exudyn linearisations and the direct Exudyn monodromy side by side.
 """

@@ -38,6 +38,7 @@ class ComparisonRow:
     exudyn_rigid: float
     exudyn_rigid_mode: str
     direct: float
+    direct_closed_loop_defect: float
     orbit_residual: float
     shooting_residual: float
     spectral_radius_exudyn: float
@@ -100,12 +101,12 @@ def compare_models(
             ex = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, orbit=orbit, n_steps=n_steps)
             t_lin = time.perf_counter() - tic + t_orbit
             exr = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, orbit=rigid, n_steps=n_steps)
-            d_mod, t_dir = math.nan, math.nan
+            d_mod, d_defect, t_dir = math.nan, math.nan, math.nan
             if direct:
                 tic = time.perf_counter()
                 d = direct_monodromy(orbit, kp=kp, kd=kd)
                 t_dir = time.perf_counter() - tic
-                d_mod = abs(d.dominant_multiplier)
+                d_mod, d_defect = abs(d.dominant_multiplier), d.closed_loop_defect
             rows.append(
                 ComparisonRow(
                     omega_over_pi=w,
@@ -117,6 +118,7 @@ def compare_models(
                     exudyn_rigid=abs(exr.dominant_multiplier),
                     exudyn_rigid_mode=exr.dominant_mode,
                     direct=d_mod,
+                    direct_closed_loop_defect=d_defect,
                     orbit_residual=orbit.residual,
                     shooting_residual=orbit.shooting_residual,
                     spectral_radius_exudyn=float(ex.floquet.spectral_radius),

@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, positive_float
+from flexstab.options import dump_json, add_model_options, positive_float, resolve_omega
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant"]
 
@@ -107,7 +107,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = load_config(args.config)
-    omega = args.omega
+    omega = resolve_omega(args, cfg)
     if args.max_evaluations < 1:
         raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
     tcfg = TuningConfig(

@@ -15,12 +15,14 @@ Bodies
   clamped to the hub by an ``ObjectJointGeneric`` on two ``MarkerNodeRigid``
   (position and slope angle).
 * **Elbow housing** -- a ``NodeRigidBody2D`` clamped (``ObjectJointGeneric``,
-  position and rotation, as the hub clamp) to the last node of link 1; it
-  carries the motor mass 0.2 kg as a point mass (``ObjectRigidBody2D`` with
-  zero inertia).
-* **Elbow rotor** -- a ``NodeRigidBody2D`` (inertia ``2e-5`` kg m^2, no mass of
-  its own: the motor mass sits on the housing) joined to the housing by a
-  revolute joint (``ObjectJointGeneric`` constraining the position only).
+  position and rotation, as the hub clamp) to the last node of link 1, with
+  zero inertia (the motor is a point mass).
+* **Elbow rotor** -- a ``NodeRigidBody2D`` (inertia ``2e-5`` kg m^2) joined to
+  the housing by a revolute joint (``ObjectJointGeneric`` constraining the
+  position only).  The motor mass 0.2 kg is split between housing and rotor
+  (:data:`ROTOR_MASS_SHARE`): the joint makes their centres coincide, so only
+  the sum is physical, and no translational coordinate is massless (a
+  singular mass matrix would trouble solvers that invert it).
 * **Link 2** -- ``l2 = 0.4`` m of the same cable, clamped to the rotor, with the
   tip mass ``m_E = 0.1`` kg (``ObjectMassPoint2D``) on its last node.
 * Joint damping ``alpha = 0.01`` N m s/rad at both joints
@@ -85,6 +87,10 @@ DEFAULT_ELEMENTS = 4
 
 #: The hub centre is held at O, so its mass never enters the dynamics; Exudyn needs one.
 HUB_PLACEHOLDER_MASS = 1.0
+
+#: Fraction of the motor mass carried by the rotor body (the rest by the housing);
+#: both sit at the elbow, so the split does not change the dynamics.
+ROTOR_MASS_SHARE = 0.5
 
 #: Names given to the nodes (the mode labels of the generic path read them).
 NODE_NAMES = ("hub", "link1", "elbow_housing", "elbow_rotor", "link2")
@@ -291,11 +297,13 @@ def build(
 
     # elbow: housing (motor mass) clamped to link 1's end, rotor on a revolute joint
     housing = rigid_node("elbow_housing", elbow_ref, elbow_pos, elbow_vel, q1, w1)
-    housing_body = mbs.AddObject(ObjectRigidBody2D(name="elbow_housing_body", mass=p.motor_mass, inertia=0.0,
+    housing_body = mbs.AddObject(ObjectRigidBody2D(name="elbow_housing_body", mass=(1 - ROTOR_MASS_SHARE) * p.motor_mass,
+                                                   inertia=0.0,
                                                    nodeNumber=housing))
     clamp(nodes1[-1], housing)
     rotor = rigid_node("elbow_rotor", elbow_ref, elbow_pos, elbow_vel, th2, w_abs2)
-    mbs.AddObject(ObjectRigidBody2D(name="elbow_rotor_body", mass=0.0, inertia=p.rotor_inertia, nodeNumber=rotor))
+    rotor_body = mbs.AddObject(ObjectRigidBody2D(name="elbow_rotor_body", mass=ROTOR_MASS_SHARE * p.motor_mass,
+                                                 inertia=p.rotor_inertia, nodeNumber=rotor))
     clamp(housing, rotor, rotation=False)
 
     nodes2, elems2 = beam("link2", elbow_ref, np.array([l1 + l2, 0.0]), th2, w_abs2, rigid_state_link2)
@@ -303,7 +311,7 @@ def build(
     tip = mbs.AddObject(ObjectMassPoint2D(name="tip_mass", mass=p.tip_mass, nodeNumber=nodes2[-1]))
 
     if p.gravity > 0.0:
-        for body in elems1 + elems2 + [housing_body, tip]:
+        for body in elems1 + elems2 + [housing_body, rotor_body, tip]:
             mb = mbs.AddMarker(MarkerBodyMass(bodyNumber=body))
             mbs.AddLoad(LoadMassProportional(markerNumber=mb, loadVector=[0.0, -p.gravity, 0.0]))
 
