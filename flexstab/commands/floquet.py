@@ -99,6 +99,8 @@ def _table(d: dict) -> str:
             label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
         lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
+    phase_est = d.get("phase_error_estimate")
+    phase = "n/a" if phase_est is None else f"{phase_est:.1e}"
     liou = d["liouville_residual"]
     if d["liouville_source"] == "unavailable":
         liouville = "n/a (multipliers below the rounding floor; this method keeps no propagators)"
@@ -107,7 +109,8 @@ def _table(d: dict) -> str:
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
-        f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (refinement, relative)",
+        f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
+        f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
     ]
     if d["model"] == "exudyn":
