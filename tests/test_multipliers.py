@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import replace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -173,7 +174,7 @@ def test_config_rejects_bad_values(kwargs):
 @pytest.fixture(scope="module")
 def orbit8():
     from mbs_models.exudyn_link import ExudynLinkConfig
-    from mbs_models.orbit import find_periodic_orbit
+    from mbs_models import find_periodic_orbit
     from mbs_models.parameters import ManipulatorParameters
 
     return find_periodic_orbit(ManipulatorParameters(), ExudynLinkConfig(elements=ELEMENTS, drive="free", omega=EIGHT_PI),
@@ -186,7 +187,8 @@ CFG = MultiplierCheckConfig(refinements=1)
 @pytest.mark.slow
 def test_complex_pair_agrees_in_modulus_and_phase():
     # issue 10: Omega = 2 pi, kp = 10, kd = 2: predicted -0.0453 +- 0.0292i
-    r = validate_link_multipliers(omega=2 * math.pi, kp=10.0, kd=2.0, elements=ELEMENTS, samples=SAMPLES, config=CFG)
+    r = validate_link_multipliers(omega=2 * math.pi, kp=10.0, kd=2.0, elements=ELEMENTS, samples=SAMPLES, config=CFG,
+                                  alternatives=("rigid",))
     assert not r.diverged and r.agrees
     p = r.prediction.multipliers
     assert p.size == 2 and abs(p[0] - (-0.0453 + 0.0292j)) < 2e-4 and p[1] == pytest.approx(np.conj(p[0]))
@@ -203,6 +205,8 @@ def test_complex_pair_agrees_in_modulus_and_phase():
 
 @pytest.mark.slow
 def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gains(orbit8, tmp_path):
+    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+
     ok = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                    orbit=orbit8)
     assert ok.agrees and not ok.diverged
@@ -213,29 +217,25 @@ def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gain
     half_gap = 0.5 * abs(rigid.multipliers[0] - ok.prediction.multipliers[0])
     assert ok.errors[0] < half_gap and not rigid.consistent
     assert "rigid" not in " ".join(ok.confirms) and "periodic orbit" in ok.confirms[0]
-    # the rigid reference as the prediction under test fails
+    # the rigid reference as the prediction under test: the check itself fails it
     bad_ref = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES,
-                                        config=CFG, orbit=orbit8, predict_reference="rigid", alternatives=())
-    assert not bad_ref.agrees
-    # gains perturbed by 5 % in the prediction fail too
-    bad_gain = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES,
-                                         config=CFG, orbit=orbit8, predicted_gains=(1.05 * KP8, 1.05 * KD8),
-                                         alternatives=())
-    assert not bad_gain.agrees
-    # both measured the same nonlinear system: the same multiplier within the bars
-    assert abs(bad_gain.measured[0] - dom) <= ok.errors[0] + bad_gain.errors[0]
+                                        config=replace(CFG, amplitude_check=False), orbit=orbit8,
+                                        predict_reference="rigid", alternatives=())
+    assert not bad_ref.agrees and abs(bad_ref.measured[0] - dom) <= ok.errors[0] + bad_ref.errors[0]
+    # the linearisation with the gains 5 % off (same orbit): excluded by the measurement's bar
+    wrong = exudyn_floquet(omega=EIGHT_PI, kp=1.05 * KP8, kd=1.05 * KD8, elements=ELEMENTS, samples=SAMPLES,
+                           orbit=orbit8, n_steps=4096).dominant_multiplier
+    assert abs(dom - wrong) > 10 * ok.errors[0]
     # figure: complex plane with the unit circle
     from validation.plots import plot_multiplier_plane
 
-    png = plot_multiplier_plane([ok, bad_gain], tmp_path / "plane.png")
+    png = plot_multiplier_plane([ok, bad_ref], tmp_path / "plane.png")
     assert png.stat().st_size > 20_000
 
 
 @pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_left(orbit8):
-    from dataclasses import replace
-
-    from mbs_models.exudyn_floquet import exudyn_floquet
+    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.exudyn_link import build_link_model
 
     ex = exudyn_floquet(omega=EIGHT_PI, elements=ELEMENTS, samples=SAMPLES, orbit=orbit8)
@@ -252,10 +252,10 @@ def test_uncontrolled_growth_until_linear_range_left(orbit8):
         return model.simulate(x[:n], x[n:], t0 + T, t_start=t0).final_state
 
     x0 = np.concatenate([orbit8.positions[0], orbit8.velocities[0]])
-    g = measure_growth(pm, x0, pred.right[:, 0], energy_norm(lin.M[0], lin.K[0]), periods=5, period=T, step=1e-3,
+    g = measure_growth(pm, x0, pred.right[:, 0], energy_norm(lin.M[0], lin.K[0]), periods=4, period=T, step=1e-3,
                        amplitude=0.3, predicted=rho)
     assert not g.diverged
-    assert g.linear_range_left_at is not None and 1 <= g.linear_periods < 5
+    assert g.linear_range_left_at is not None and 1 <= g.linear_periods < 4
     # inside the linear range the growth is the predicted multiplier (generalised-alpha h = 1e-3,
     # one period: step error ~1e-3 relative, see the controlled runs; nonlinearity < 1 %)
     assert g.measured_growth == pytest.approx(rho, rel=2e-2)
@@ -266,17 +266,17 @@ def test_uncontrolled_growth_until_linear_range_left(orbit8):
 def test_cli_json_and_figure(tmp_path, capsys):
     from flexstab.cli import main
 
-    rc = main(["validate", "--omega", "8pi", "--elements", "2", "--refinements", "0", "--compare", "1",
-               "--json", "--out", str(tmp_path)])
+    rc = main(["validate", "--omega", "2pi", "--elements", "2", "--samples", "8", "--step", "0.02",
+               "--refinements", "1", "--compare", "1", "--json", "--out", str(tmp_path)])
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     for key in ("predicted_multipliers", "measured_multipliers", "multipliers", "step_error", "amplitude_check",
                 "diverged", "agrees", "alternatives", "confirms", "gains_source", "drives"):
         assert key in d
-    assert (d["kp"], d["kd"]) == (KP8, KD8) and "Table 3" in d["gains_source"]
+    assert (d["kp"], d["kd"]) == (37.1617, 29.2410) and "Table 3" in d["gains_source"]
     assert len(d["measured_multipliers"]) == 1 and len(d["measured_multipliers"][0]) == 2
     assert (tmp_path / "validation.png").stat().st_size > 20_000
-    assert json.loads((tmp_path / "validation.json").read_text())["omega"] == pytest.approx(EIGHT_PI)
+    assert json.loads((tmp_path / "validation.json").read_text())["omega"] == pytest.approx(2 * math.pi)
 
 
 @pytest.mark.parametrize(

@@ -77,7 +77,7 @@ def compare_models(
         Called with a short text before each case.
     """
     from mbs_models.exudyn_floquet import direct_monodromy, exudyn_floquet
-    from mbs_models.orbit import find_periodic_orbit, rigid_reference
+    from mbs_models import find_periodic_orbit, rigid_reference
     from mbs_models.exudyn_link import ExudynLinkConfig
     from mbs_models.reduced import ReducedModel
     from stability import floquet
