@@ -81,6 +81,11 @@ class ExudynOmegaRadius:
         return float(abs(r.dominant_multiplier))
 
 
+#: Most points per chart axis (a 1001 x 1001 gain chart is already 1e6 Floquet evaluations,
+#: ~1 h on 2 cores; more points cannot be told apart on a figure).
+MAX_GRID_POINTS = 1001
+
+
 def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
     """``linspace(lo, hi, n)`` after validating the range (clear errors naming ``name``)."""
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -89,6 +94,9 @@ def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
         raise ValueError(f"{name} range is empty or inverted: [{lo}, {hi}]")
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ValueError(f"{name} needs at least 2 grid points, got {n!r}")
+    if n > MAX_GRID_POINTS:
+        raise ValueError(f"{name}: {n} grid points is more than the {MAX_GRID_POINTS} a chart can resolve "
+                         f"(a {n} x {n} gain chart would be {n * n:.3g} Floquet evaluations)")
     return np.linspace(lo, hi, int(n))
 
 
@@ -174,40 +182,82 @@ def omega_chart(
     return OmegaChart(omegas, r[0], r[1], float(kp), float(kd))
 
 
+def _label_every_segment(ax, cs, text: str, color: str) -> int:
+    """Write ``text`` at the middle of every drawn segment of the single-level contour ``cs``.
+
+    ``clabel`` drops labels on segments shorter than the label; a small closed |rho| = 1 island
+    would then stay unnamed.  Returns the number of labels written.
+    """
+    n = 0
+    segments = cs.allsegs[0] if cs.allsegs else []
+    for seg in segments:
+        if len(seg) < 2:
+            continue
+        x, y = seg[len(seg) // 2]
+        ax.text(x, y, text, color=color, fontsize=8, ha="center", va="center",
+                bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": color, "alpha": 0.85})
+        n += 1
+    return n
+
+
 def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequence[Sequence[float]]] = None,
                     label: str = "linearised manipulator") -> Path:
-    """Filled contours of log10 max|rho| with the rho = 1 and rho = rho_d lines and the Taguchi path."""
+    """log10 max|rho| on a diverging colour scale centred at |rho| = 1 (blue stable, red unstable).
+
+    The |rho| = 1 boundary is drawn in black and labelled on every segment, the rho_d contour
+    dashed, and the Taguchi path (incumbent after each iteration) in orange.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import TwoSlopeNorm
 
-    fig, ax = plt.subplots(figsize=(7, 5.5))
+    fig, ax = plt.subplots(figsize=(7.5, 5.8))
     KP, KD = np.meshgrid(chart.kp, chart.kd)
     L = np.log10(chart.radius)
-    cf_ = ax.contourf(KP, KD, L, levels=30, cmap="viridis")
-    fig.colorbar(cf_, ax=ax, label="log10 max|rho|")
-    cs = ax.contour(KP, KD, chart.radius, levels=[1.0], colors="red", linewidths=2)
-    ax.clabel(cs, fmt={1.0: "|rho| = 1"})
-    if chart.target is not None:
-        ct = ax.contour(KP, KD, chart.radius, levels=[chart.target], colors="white", linewidths=1.5, linestyles="--")
-        ax.clabel(ct, fmt={chart.target: f"rho_d = {chart.target:g}"})
+    data_lo, hi = float(np.nanmin(L)), float(np.nanmax(L))
+    # centre the colour scale at log10|rho| = 0; keep both halves even if the chart lies on one side.
+    # Resolve |rho| down to FLOOR (everything smaller is "very stable", the darkest blue), so that
+    # the range around rho_d is not washed out by a deep minimum of 1e-6.
+    floor = min(-2.0, math.log10(chart.target) - 1.0) if chart.target else -2.0
+    lo, hi = min(max(data_lo, floor), -1e-3), max(hi, 1e-3)
+    norm = TwoSlopeNorm(vmin=lo, vcenter=0.0, vmax=hi)
+    levels = np.unique(np.concatenate([np.linspace(lo, 0.0, 16), np.linspace(0.0, hi, 16)]))
+    cf_ = ax.contourf(KP, KD, L, levels=levels, cmap="RdBu_r", norm=norm,
+                      extend="min" if data_lo < lo else "neither")
+    cb = fig.colorbar(cf_, ax=ax)
+    # ticks at readable |rho| values (1, 3, 10, 30, ... and 0.3, 0.1, ...), labelled as |rho|, not its log
+    cands = [m * 10.0 ** e for e in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 1) for m in (1.0, 3.0)]
+    ticks = [math.log10(c) for c in cands if lo <= math.log10(c) <= hi]
+    cb.set_ticks(ticks)
+    cb.set_ticklabels([f"{10.0 ** t:.3g}" for t in ticks])
+    cb.set_label("max|ρ| (log scale; blue: < 1 stable, red: > 1 unstable)")
+    cb.ax.axhline(0.0, color="k", lw=2)
+    if np.nanmin(L) < 0 < np.nanmax(L):
+        cs = ax.contour(KP, KD, chart.radius, levels=[1.0], colors="k", linewidths=2)
+        _label_every_segment(ax, cs, "|ρ| = 1", "k")
+    if chart.target is not None and np.nanmin(chart.radius) < chart.target < np.nanmax(chart.radius):
+        ct = ax.contour(KP, KD, chart.radius, levels=[chart.target], colors="0.15", linewidths=1.3, linestyles="--")
+        _label_every_segment(ax, ct, f"ρ_d = {chart.target:g}", "0.15")
     if taguchi_path:
         p = np.asarray(taguchi_path, dtype=float)
-        ax.plot(p[:, 0], p[:, 1], "o-", color="orange", ms=4, lw=1.2, label="Taguchi incumbents")
+        ax.plot(p[:, 0], p[:, 1], "o-", color="orange", ms=4, lw=1.2, mec="k", mew=0.4, label="Taguchi incumbents")
         ax.plot(p[-1, 0], p[-1, 1], "*", color="orange", ms=14, mec="k", label="tuned gains")
-        ax.legend(loc="upper right")
-    ax.set_xlabel("kp (N m/rad)")
-    ax.set_ylabel("kd (N m s/rad)")
-    ax.set_title(f"max|rho|, {label}\nOmega = {chart.omega / math.pi:.3g} pi rad/s", fontsize=10)
+        ax.legend(loc="upper right", framealpha=0.9)
+    ax.set_xlabel("kp (N·m/rad)")
+    ax.set_ylabel("kd (N·m·s/rad)")
+    ax.set_title(f"max|ρ|, {label}\nΩ = {chart.omega / math.pi:.3g}π rad/s, {chart.kp.size} × {chart.kd.size} grid",
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
 
 
-def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model") -> Path:
-    """max|rho| against Omega (log scale), uncontrolled and controlled."""
+def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model",
+                     ylabel: str = "max|ρ| (spectral radius)") -> Path:
+    """The plotted multiplier (``ylabel``) against Omega (log scale), uncontrolled and controlled."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -216,11 +266,12 @@ def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised red
     fig, ax = plt.subplots(figsize=(7, 4.5))
     x = chart.omega / math.pi
     ax.semilogy(x, chart.radius_uncontrolled, "-", label="uncontrolled (kp = kd = 0)")
-    ax.semilogy(x, chart.radius_controlled, "-", label=f"kp = {chart.kp:g}, kd = {chart.kd:g}")
-    ax.axhline(1.0, color="red", lw=1, ls="--", label="|rho| = 1")
-    ax.set_xlabel("Omega / pi (rad/s)")
-    ax.set_ylabel("max|rho|")
-    ax.set_title(f"max|rho| against the frequency Omega of the fundamental motion\n{label}", fontsize=10)
+    ax.semilogy(x, chart.radius_controlled, "-",
+                label=f"kp = {chart.kp:.4g} N·m/rad, kd = {chart.kd:.4g} N·m·s/rad")
+    ax.axhline(1.0, color="red", lw=1, ls="--", label="|ρ| = 1")
+    ax.set_xlabel("Ω / π (Ω in rad/s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{ylabel} against the frequency Ω of the fundamental motion\n{label}", fontsize=10)
     ax.legend()
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()

@@ -13,6 +13,15 @@ Example (every key optional; missing ones take the paper's values)::
     kd_range = [0.0, 40.0]
     elements = 8             # ANCF elements of the Exudyn model
 
+    [robust]                 # robust design (tune --robust): noise factors of the outer array
+    tip_mass = [0.05, 0.2]   # payload range in kg (nominal: [manipulator] tip_mass)
+    omega_scale = [0.9, 1.1] # Omega x factor (nominal 1)
+    youngs_modulus_scale = [0.95, 1.05]
+    levels = 3               # levels per noise factor (outer array: L9 for three factors)
+    outer_array = "L9"       # optional; default the smallest array that fits
+    sn = "target"            # S/N over the outer runs: "target" (about rho_d) or "smaller"
+    grid = 7                 # points per noise factor of the worst-case check (7^3 = 343)
+
 Unknown sections or keys and invalid values raise ``ValueError`` naming them.
 """
 from __future__ import annotations
@@ -31,7 +40,88 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["StudyConfig", "load_config"]
+__all__ = ["RobustSettings", "StudyConfig", "load_config"]
+
+
+def _range(value: Any, name: str, positive: bool) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"[robust] {name} must be a pair [low, high], got {value!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi)) or (lo <= 0 if positive else lo < 0) or not lo < hi:
+        raise ValueError(f"[robust] {name} must be finite, {'> 0' if positive else '>= 0'} and low < high, "
+                         f"got {value!r}")
+    return (lo, hi)
+
+
+@dataclass(frozen=True)
+class RobustSettings:
+    """The ``[robust]`` section: noise ranges, outer array and S/N of the robust design.
+
+    Attributes
+    ----------
+    tip_mass : (float, float)
+        Payload range in kg; its nominal value is the manipulator's tip mass.
+    omega_scale, youngs_modulus_scale : (float, float)
+        Ranges of the factors on ``Omega`` and ``E`` (nominal 1).
+    levels : int
+        Levels per noise factor in the outer array.
+    outer_array : str, optional
+        Outer array name (default: the smallest that fits).
+    sn : {"target", "smaller"}
+        S/N ratio over the outer runs (see :mod:`taguchi.robust`).
+    grid : int
+        Points per noise factor of the fine worst-case grid.
+    max_iterations : int
+        Crossed-array experiments at most.
+    """
+
+    tip_mass: tuple[float, float] = (0.05, 0.2)
+    omega_scale: tuple[float, float] = (0.9, 1.1)
+    youngs_modulus_scale: tuple[float, float] = (0.95, 1.05)
+    levels: int = 3
+    outer_array: Optional[str] = None
+    sn: str = "target"
+    grid: int = 7
+    max_iterations: int = 12
+
+    def __post_init__(self) -> None:
+        from taguchi.robust import ROBUST_SN
+
+        object.__setattr__(self, "tip_mass", _range(self.tip_mass, "tip_mass", positive=False))
+        for name in ("omega_scale", "youngs_modulus_scale"):
+            object.__setattr__(self, name, _range(getattr(self, name), name, positive=True))
+        for name, low in (("levels", 2), ("grid", 2), ("max_iterations", 1)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise ValueError(f"[robust] {name} must be an integer >= {low}, got {v!r}")
+        if self.sn not in ROBUST_SN:
+            raise ValueError(f"[robust] sn must be one of {', '.join(ROBUST_SN)}, got {self.sn!r}")
+        if self.outer_array is not None and not isinstance(self.outer_array, str):
+            raise ValueError(f"[robust] outer_array must be an array name like \"L9\", got {self.outer_array!r}")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "RobustSettings":
+        """Build from the parsed ``[robust]`` table, rejecting unknown keys."""
+        allowed = {f.name for f in fields(cls)}
+        bad = sorted(set(data) - allowed)
+        if bad:
+            raise ValueError(f"unknown [robust] key(s) {', '.join(bad)}; allowed: {', '.join(sorted(allowed))}")
+        return cls(**dict(data))
+
+    def noise_factors(self, nominal_tip_mass: float) -> tuple:
+        """The :class:`taguchi.robust.NoiseFactor` triple (tip mass, Omega scale, E scale)."""
+        from taguchi.robust import NoiseFactor
+
+        lo, hi = self.tip_mass
+        if not lo <= nominal_tip_mass <= hi:
+            raise ValueError(f"[robust] tip_mass range [{lo}, {hi}] must contain the nominal tip mass "
+                             f"{nominal_tip_mass}")
+        return (
+            NoiseFactor("tip_mass", lo, hi, float(nominal_tip_mass), self.levels),
+            NoiseFactor("omega_scale", *self.omega_scale, 1.0, self.levels),
+            NoiseFactor("youngs_modulus_scale", *self.youngs_modulus_scale, 1.0, self.levels),
+        )
 
 
 @dataclass(frozen=True)
@@ -57,6 +147,7 @@ class StudyConfig:
     kp_range: tuple[float, float] = (0.0, 60.0)
     kd_range: tuple[float, float] = (0.0, 40.0)
     elements: int = 8
+    robust: RobustSettings = field(default_factory=RobustSettings)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.omega) and self.omega > 0):
@@ -75,15 +166,15 @@ class StudyConfig:
 
         if not isinstance(data, Mapping):
             raise ValueError("config must be a TOML document with [manipulator] and/or [study] tables")
-        for section in ("manipulator", "study"):
+        for section in ("manipulator", "study", "robust"):
             if section in data and not isinstance(data[section], Mapping):
                 raise ValueError(f"[{section}] must be a table of key = value pairs, got {type(data[section]).__name__}")
-        unknown = sorted(set(data) - {"manipulator", "study"})
+        unknown = sorted(set(data) - {"manipulator", "study", "robust"})
         if unknown:
-            raise ValueError(f"unknown config section(s) {', '.join(unknown)}; allowed: manipulator, study")
+            raise ValueError(f"unknown config section(s) {', '.join(unknown)}; allowed: manipulator, study, robust")
         manip = ManipulatorParameters.from_mapping(data.get("manipulator", {}))
         study = dict(data.get("study", {}))
-        allowed = {f.name for f in fields(cls)} - {"manipulator"}
+        allowed = {f.name for f in fields(cls)} - {"manipulator", "robust"}
         bad = sorted(set(study) - allowed)
         if bad:
             raise ValueError(f"unknown [study] key(s) {', '.join(bad)}; allowed: {', '.join(sorted(allowed))}")
@@ -94,7 +185,8 @@ class StudyConfig:
                 study["target"] = float(study["target"])
             except (TypeError, ValueError):
                 raise ValueError(f"target must be a number, got {study['target']!r}") from None
-        return cls(manipulator=manip, **study)
+        robust = RobustSettings.from_mapping(data.get("robust", {}))
+        return cls(manipulator=manip, robust=robust, **study)
 
     def with_overrides(self, **changes: Any) -> "StudyConfig":
         """A copy with the given fields replaced (``None`` values are ignored)."""

@@ -56,6 +56,8 @@ __all__ = [
     "point_key",
     "run_sweep",
     "validate_scheduler_address",
+    "exit_with_parent",
+    "PARENT_POLL_INTERVAL",
 ]
 
 logger = logging.getLogger(__name__)
@@ -284,7 +286,36 @@ def make_executor(
     if kind == "serial":
         return SerialExecutor()
     context = multiprocessing.get_context(mp_context) if mp_context is not None else None
-    return cf.ProcessPoolExecutor(max_workers=max_workers, mp_context=context)
+    return cf.ProcessPoolExecutor(max_workers=max_workers, mp_context=context,
+                                  initializer=exit_with_parent, initargs=(os.getpid(),))
+
+
+#: Seconds between two checks of the parent process by a pool worker (see :func:`exit_with_parent`).
+PARENT_POLL_INTERVAL: float = 0.5
+
+
+def exit_with_parent(parent_pid: int) -> None:
+    """Worker initializer: end this worker when the process that started the pool dies.
+
+    A pool's workers are normally stopped by their parent; a parent killed by SIGKILL cannot do it,
+    and the workers would go on computing a chart nobody reads.  A daemon thread checks every
+    :data:`PARENT_POLL_INTERVAL` s whether the parent is gone (the worker is then re-parented, so
+    ``os.getppid()`` changes) and ends the worker.  (Linux's ``prctl(PR_SET_PDEATHSIG)`` is not
+    used: it fires when the *thread* that started the worker ends, which for a pool need not be
+    the death of the process.)
+    """
+    import threading
+    import time
+
+    if os.getppid() != parent_pid:  # the parent died before this worker started
+        os._exit(1)
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_POLL_INTERVAL)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="flexstab-parent-watchdog", daemon=True).start()
 
 
 def _add_note(exc: BaseException, note: str) -> None:

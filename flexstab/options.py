@@ -5,8 +5,8 @@ import argparse
 import math
 import re
 
-__all__ = ["dump_json", "parse_omega", "omega_type", "add_model_options", "non_negative_float", "positive_float",
-           "gain_list", "is_model_file"]
+__all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
+           "positive_float", "gain_list", "is_model_file"]
 
 _PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -86,10 +86,16 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--omega",
         type=omega_type,
-        default=2 * math.pi,
+        default=None,
         metavar="W",
-        help="frequency of the fundamental motion, rad/s or like '2pi' (default 2pi)",
+        help="frequency of the fundamental motion, rad/s or like '2pi' (default: [study] omega of --config, else 2pi)",
     )
+
+
+def resolve_omega(args: argparse.Namespace, cfg) -> float:
+    """The one Omega rule of every command: ``--omega`` if given, else ``[study] omega`` of the config (2pi)."""
+    omega = getattr(args, "omega", None)
+    return float(omega) if omega is not None else float(cfg.omega)
 
 
 def dump_json(obj, fp) -> None:

@@ -8,16 +8,42 @@ report can be traced to a file:
 3. ``charts``  -- max|rho| over the gain plane (with the Taguchi path) and against Omega;
 4. ``transients`` -- linear transient responses (paper Figs. 2-9);
 5. ``exudyn``  -- the Exudyn ANCF model: periodic orbit, linearisation, Floquet
-   with the tuned gains, Taguchi tuning on the Exudyn linearisation;
+   at the reference gains, Taguchi tuning on the Exudyn linearisation;
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers.
+
+Which Omega
+-----------
+Every stage computes at the *study Omega* (``[study] omega``, default 2pi).
+For the paper's manipulator (every Table 1 value unchanged), the stages that
+reproduce printed results -- Table 2, Table 3 and Figs. 2-9 -- also compute
+at the paper's Omegas 2pi, 4pi, 6pi, 8pi (``quick``: only the case at the
+study Omega, or 2pi if the study Omega is none of them) and compare with the
+printed numbers.  For any other manipulator nothing is compared with the
+paper: the printed values describe the paper's link only.
+
+Reference gains (Exudyn stage, controlled transients): the printed Table 3
+gains for the paper's manipulator at a paper Omega, otherwise the gains that
+Taguchi tunes on the reduced model at the study Omega.
+
+Runs and resuming
+-----------------
+``manifest.json`` names the configuration (and its hash) that the folder's
+report describes.  Each finished stage writes ``<stage>.stage.json``: the
+hash of its inputs (configuration, quick mode, source code of the packages),
+the report blocks of its section and the SHA-256 of every file it wrote; its
+data JSON carries the same hashes under ``"study"``.  A rerun with unchanged
+inputs reuses the finished stages (the report says which), and the report is
+rendered only from stages whose records and files match the manifest, so it
+never mixes runs (:func:`render_report` raises otherwise).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.
 """
 from __future__ import annotations
 
-import html
+import datetime as _dt
+import hashlib
 import json
 import logging
 import math
@@ -28,10 +54,14 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from flexstab.config import StudyConfig
+from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
-__all__ = ["StudyOptions", "StudyResult", "run_study", "STAGES"]
+__all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash"]
 
 logger = logging.getLogger(__name__)
+
+#: Packages whose source code decides the numbers (hashed into every stage's inputs).
+_CODE_PACKAGES = ("mbs_models", "linearize", "stability", "taguchi", "validation", "flexstab")
 
 
 @dataclass(frozen=True)
@@ -41,15 +71,20 @@ class StudyOptions:
     Attributes
     ----------
     out : Path
-        Output folder (created).
+        Output folder (created); one study configuration per folder at a time.
     quick : bool
-        Fewer cases and coarser grids (the ``--quick`` mode, < 60 s).
+        Fewer cases and coarser grids (the ``--quick`` mode).
     stages : tuple of str
         Which stages to run (default all of :data:`STAGES`).
     progress : bool
-        Show tqdm progress bars.
+        Show tqdm progress bars (for a terminal).
     scheduler : str, optional
         Dask scheduler address for the chart sweep.
+    log : callable, optional
+        Called with one line of text when a stage starts, finishes, fails or is reused
+        (the CLI writes these lines to stderr when stderr is not a terminal).
+    resume : bool
+        Reuse finished stages whose inputs are unchanged (default True).
     """
 
     out: Path = Path("results")
@@ -57,6 +92,8 @@ class StudyOptions:
     stages: tuple[str, ...] = ()
     progress: bool = True
     scheduler: Optional[str] = None
+    log: Optional[Callable[[str], None]] = None
+    resume: bool = True
 
 
 @dataclass(frozen=True)
@@ -69,28 +106,142 @@ class StudyResult:
     stages: dict
     elapsed: float
 
+    def __repr__(self) -> str:
+        status = ", ".join(f"{k}: {v.get('status', '?')}" for k, v in self.stages.items())
+        return f"StudyResult(out={str(self.out)!r}, elapsed={self.elapsed:.1f} s, stages=[{status}])"
+
+
+# ----------------------------------------------------------------------------- inputs and hashes
+def _canonical(obj) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+
+
+def _sha(text: str, n: int = 16) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()[:n]
+
+
+def config_dict(cfg: StudyConfig) -> dict:
+    """The configuration as a JSON-ready dict (what the manifest records)."""
+    return {
+        "manipulator": cfg.manipulator.to_dict(),
+        "omega": cfg.omega,
+        "target": cfg.target,
+        "kp_range": list(cfg.kp_range),
+        "kd_range": list(cfg.kd_range),
+        "elements": cfg.elements,
+    }
+
+
+def config_hash(cfg: StudyConfig) -> str:
+    """Short SHA-256 of the configuration (manipulator and study settings)."""
+    return _sha(_canonical(config_dict(cfg)), 12)
+
+
+def _code_hash() -> str:
+    """SHA-256 of the source files of the packages on the data path (a code change invalidates stages)."""
+    import importlib.util
+
+    h = hashlib.sha256()
+    for name in _CODE_PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        for root in spec.submodule_search_locations:
+            for f in sorted(Path(root).rglob("*.py")):
+                h.update(str(f.relative_to(root)).encode())
+                h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _file_sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+# ----------------------------------------------------------------------------- which cases
+def _is_paper(cfg: StudyConfig) -> bool:
+    from flexstab.paper_tables import is_paper_manipulator
+
+    return is_paper_manipulator(cfg.manipulator)
+
+
+def _repro_omegas(cfg: StudyConfig, quick: bool) -> tuple[int, ...]:
+    """Paper Omegas (units of pi) reproduced for the paper's manipulator (see module docstring)."""
+    from flexstab.paper_tables import PAPER_OMEGAS_OVER_PI, paper_case
+
+    if not _is_paper(cfg):
+        return ()
+    if not quick:
+        return PAPER_OMEGAS_OVER_PI
+    k = paper_case(cfg.omega)
+    return (k if k is not None else 2,)
+
+
+def _w(omega: float) -> str:
+    k = omega / math.pi
+    return f"{k:.4g}π rad/s"
+
+
+def _pi(omega: float) -> str:
+    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
+    k = f"{omega / math.pi:.4g}"
+    return "π" if k == "1" else f"{k}π"
+
+
+def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
+    """Printed Table 3 gains (paper's manipulator at a paper Omega), else Taguchi on the reduced model."""
+    from flexstab.paper_tables import TABLE3_PRINTED, paper_case
+
+    k = paper_case(cfg.omega)
+    if _is_paper(cfg) and k is not None:
+        for kk, _, kp, kd, _ in TABLE3_PRINTED:
+            if kk == k:
+                return kp, kd, "paper Table 3 gains"
+    rec = _load_record(opts.out, "table3")
+    if rec is not None and rec.get("config_hash") == config_hash(cfg):
+        for r in json.loads((opts.out / rec["json"]).read_text())["rows"]:
+            if abs(r["omega"] - cfg.omega) <= 1e-9 * cfg.omega and abs(r["target"] - cfg.target) <= 1e-12:
+                return r["kp"], r["kd"], "Taguchi on the reduced model (table3.json)"
+    from mbs_models.reduced import ReducedModel
+    from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+    res = taguchi_tune(GainObjective(ReducedModel(cfg.omega, params=cfg.manipulator)),
+                       TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range))
+    return res.kp, res.kd, "Taguchi on the reduced model"
+
 
 # ----------------------------------------------------------------------------- stages
-def _omegas(cfg: StudyConfig, quick: bool) -> list[int]:
-    return [2] if quick else [2, 4, 6, 8]
-
-
 def _stage_table2(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    from flexstab.paper_tables import table2_markdown, table2_rows
+    from flexstab.paper_tables import paper_case, table2_blocks, table2_rows
 
-    rows = table2_rows(params=cfg.manipulator)
+    omegas = [k * math.pi for k in (2, 4, 6, 8)] if _is_paper(cfg) else []
+    if paper_case(cfg.omega) is None or not _is_paper(cfg):
+        omegas.append(cfg.omega)
+    rows = table2_rows(params=cfg.manipulator, omegas=omegas)
     (opts.out / "table2.json").write_text(json.dumps({"rows": rows}, indent=2))
-    (opts.out / "table2.md").write_text(table2_markdown(rows))
-    return {"json": "table2.json", "markdown": table2_markdown(rows), "figures": []}
+    title = ("Floquet multipliers without control (paper Table 2)" if _is_paper(cfg)
+             else f"Floquet multipliers without control at Ω = {_w(cfg.omega)}")
+    return {"json": "table2.json", "title": title, "blocks": table2_blocks(rows)}
 
 
 def _stage_table3(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    from flexstab.paper_tables import TABLE3_PRINTED, table3_markdown, table3_rows
+    from flexstab.paper_tables import TABLE3_PRINTED, paper_case, table3_blocks, table3_rows
 
-    cases = TABLE3_PRINTED[:1] if opts.quick else TABLE3_PRINTED
-    rows = table3_rows(cases, params=cfg.manipulator)
+    cases = [c for c in TABLE3_PRINTED if c[0] in _repro_omegas(cfg, opts.quick)]
+    k = paper_case(cfg.omega)
+    if not (_is_paper(cfg) and k is not None and any(c[0] == k and c[1] == cfg.target for c in cases)):
+        cases.append((cfg.omega / math.pi, cfg.target, None, None, None))
+    rows = table3_rows(cases, params=cfg.manipulator, kp_range=cfg.kp_range, kd_range=cfg.kd_range)
     (opts.out / "table3.json").write_text(json.dumps({"rows": rows}, indent=2))
-    return {"json": "table3.json", "markdown": table3_markdown(rows), "figures": [], "rows": rows}
+    title = ("PD gains by Taguchi tuning (paper Table 3)" if _is_paper(cfg)
+             else f"PD gains by Taguchi tuning at Ω = {_w(cfg.omega)}")
+    paper_rows = [r for r in rows if "printed_kp" in r]
+    other = [r for r in rows if "printed_kp" not in r]
+    blocks = table3_blocks(paper_rows) if paper_rows else []
+    if other:
+        if paper_rows:
+            blocks.append(text(f"At the study Ω = {_w(cfg.omega)} (ρ_d = {cfg.target:g}, no printed gains):"))
+        blocks += table3_blocks(other)
+    return {"json": "table3.json", "title": title, "blocks": blocks}
 
 
 def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
@@ -105,140 +256,172 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
         scheduler=opts.scheduler, workers=None, omega=cfg.omega, model="reduced", elements=None,
     )
     s = make_charts(args, progress=opts.progress, cfg=cfg)
-    name = [Path(f).name for f in s["figures"]]
-    md = (
-        f"max|rho| over the (kp, kd) plane at Omega = {cfg.omega / math.pi:.3g} pi with the |rho| = 1 and "
-        f"rho_d = {cfg.target:g} contours and the Taguchi path; and max|rho| against Omega, uncontrolled "
-        f"and with the tuned gains."
-    )
-    return {"json": Path(s["json"]).name, "markdown": md, "figures": name}
+    g, o = s["gain_chart"], s["omega_chart"]
+    names = [Path(f).name for f in s["figures"]]
+    blocks = [
+        text(f"Reduced model, {len(g['kp'])} × {len(g['kd'])} gain grid, kp in [{g['kp'][0]:g}, {g['kp'][-1]:g}] "
+             f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} values of Ω from "
+             f"{_pi(o['omega'][0])} to {_pi(o['omega'][-1])} rad/s."),
+        figure(names[0], f"max|ρ| over the (kp, kd) plane at Ω = {_w(cfg.omega)}: blue = asymptotically stable "
+                         f"(|ρ| < 1), red = unstable; the |ρ| = 1 boundary, the ρ_d = {cfg.target:g} contour and the "
+                         "Taguchi path (incumbent after each iteration) are drawn."),
+        figure(names[1], f"max|ρ| against Ω, uncontrolled and with the tuned gains kp = {o['kp']:.4g} N·m/rad, "
+                         f"kd = {o['kd']:.4g} N·m·s/rad."),
+    ]
+    return {"json": Path(s["json"]).name, "title": f"Stability charts at Ω = {_w(cfg.omega)}",
+            "blocks": blocks, "files": names + [Path(s["json"]).name]}
 
 
 def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    from flexstab.transients import make_transients
+    from flexstab.paper_tables import paper_case
+    from flexstab.transients import CASES, Case, make_transients, paper_case_pair
 
-    doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator)
+    cases: list = []
+    repro = _repro_omegas(cfg, opts.quick)
+    if repro:
+        cases = [c for c in CASES if c.omega_over_pi in repro]
+    k = paper_case(cfg.omega)
+    if not (_is_paper(cfg) and k is not None and k in repro):
+        kp, kd, source = _reference_gains(cfg, opts)
+        w = cfg.omega / math.pi
+        if _is_paper(cfg) and k is not None:
+            cases += list(paper_case_pair(k))
+        else:
+            cases += [Case(None, w, gains_source="no control"), Case(None, w, kp, kd, gains_source=source)]
+    doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator, cases=cases)
     figs = [c["figure_file"] for c in doc["cases"]]
-    lines = [
-        "Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25 pi, 0]",
-        "(Eqs. 26/35), with the envelope rho1^(t/T) of the dominant multiplier. Measured growth per period:",
-        "",
-        "| figure | kp | kd | rho1 | last measured ratio | relative error |",
-        "|---|---|---|---|---|---|",
-    ]
+    rows = []
     for c in doc["cases"]:
-        lines.append(f"| {c['figure_file']} | {c.get('kp', 0):g} | {c.get('kd', 0):g} | {c['spectral_radius']:.6g} | "
-                     f"{c['last_ratio']:.6g} | {c['last_ratio_relative_error']:+.2%} |")
-    return {"json": "transients.json", "markdown": "\n".join(lines), "figures": figs}
+        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else (c["gains_source"] or "given gains"),
+                     f"{c['omega_over_pi']:.4g}π", f"{c.get('kp', 0):g}", f"{c.get('kd', 0):g}",
+                     f"{c['spectral_radius']:.6g}", f"{c['last_ratio']:.6g}", f"k = {c['periods_measured'] - 1}",
+                     relative(c["last_ratio_relative_error"])])
+    blocks = [
+        text("Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25π, 0] "
+             "(Eqs. 26/35), with the envelope ρ₁^(t/T) of the dominant multiplier. Measured growth per period "
+             "‖x((k+1)T)‖/‖x(kT)‖ at the last integrated period k (it tends to |ρ₁| like |ρ₂/ρ₁|^k):"),
+        table(["case", "Ω", "kp (N·m/rad)", "kd (N·m·s/rad)", "|ρ₁|", "measured ratio", "at",
+               "relative difference"], rows),
+    ]
+    blocks += [figure(f, "") for f in figs]
+    paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
+    title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
+             else f"Transient responses at Ω = {_w(cfg.omega)}")
+    return {"json": "transients.json", "title": title, "blocks": blocks, "files": figs + ["transients.json"]}
 
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """Exudyn model: orbit, linearisation, Floquet at the printed and tuned gains; Taguchi on it."""
+    """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
     from flexstab.executor import make_executor
-    from flexstab.paper_tables import TABLE3_PRINTED
     from mbs_models.exudyn_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
-    cases = TABLE3_PRINTED[:1] if opts.quick else TABLE3_PRINTED
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
-    rows = []
+    omega = cfg.omega
+    kp_r, kd_r, source = _reference_gains(cfg, opts)
     with make_executor("process" if not opts.quick else "serial", max_workers=2) as ex:
-        for k, rho_d, kp_p, kd_p, _ in cases:
-            omega = k * math.pi
-            ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_p, kd=kd_p, elements=elements)
-            plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0))
-            uncontrolled = plant.spectral_measure(0.0, 0.0)
-            tcfg = TuningConfig(target=rho_d, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
-                                max_evaluations=100 if opts.quick else 300)
-            tuned = taguchi_tune(GainObjective(plant), tcfg, executor=ex)
-            reduced = floquet(ReducedModel(omega, kp_p, kd_p, cfg.manipulator)).spectral_radius
-            rows.append({
-                "omega": omega, "omega_over_pi": k, "elements": elements, "target": rho_d,
-                "orbit_residual": float(ef.orbit.residual),
-                "uncontrolled_dominant": uncontrolled,
-                "printed_kp": kp_p, "printed_kd": kd_p,
-                "printed_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),
-                "printed_gains_dominant_mode": ef.dominant_mode,
-                "printed_gains_dominant_reduced": reduced,
-                "spectral_radius_all_modes": float(ef.floquet.spectral_radius),
-                "undamped_multipliers": int(ef.undamped_count),
-                "tuned_kp": tuned.kp, "tuned_kd": tuned.kd, "tuned_dominant": tuned.spectral_radius,
-                "tuning_status": tuned.status, "tuning_evaluations": tuned.evaluations,
-                "tuning_time_s": tuned.elapsed,
-            })
-    (opts.out / "exudyn.json").write_text(json.dumps({"rows": rows}, indent=2))
-    md = [
-        f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic",
-        "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`). 'dominant' = largest",
-        "multiplier of the modes the paper's model has (hub, first bending); the axial and higher bending",
-        "modes are undamped (no structural damping, as in the paper) and sit on the unit circle.",
-        "",
-        "| Omega | uncontrolled dominant | printed gains: Exudyn | reduced | all-modes max|rho| | Taguchi on Exudyn kp, kd | reached | evals |",
-        "|---|---|---|---|---|---|---|---|",
+        ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
+        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0))
+        uncontrolled = plant.spectral_measure(0.0, 0.0)
+        tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
+                            max_evaluations=100 if opts.quick else 300)
+        tuned = taguchi_tune(GainObjective(plant), tcfg, executor=ex)
+    reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
+    row = {
+        "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
+        "orbit_residual": float(ef.orbit.residual),
+        "uncontrolled_dominant": uncontrolled,
+        "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
+        "reference_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),
+        "reference_gains_dominant_mode": ef.dominant_mode,
+        "reference_gains_dominant_reduced": reduced,
+        "spectral_radius_all_modes": float(ef.floquet.spectral_radius),
+        "undamped_multipliers": int(ef.undamped_count),
+        "tuned_kp": tuned.kp, "tuned_kd": tuned.kd, "tuned_dominant": tuned.spectral_radius,
+        "tuning_status": tuned.status, "tuning_evaluations": tuned.evaluations,
+        "tuning_time_s": tuned.elapsed,
+    }
+    (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
+    blocks = [
+        text(f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic "
+             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`). 'dominant' = largest "
+             "multiplier of the modes the reduced model has (hub, first bending); the axial and higher bending "
+             "modes are undamped (no structural damping) and sit on the unit circle. Reference gains: "
+             f"{source}."),
+        table(["Ω", "uncontrolled: dominant |ρ|", "reference kp, kd", "reference gains: Exudyn dominant |ρ|",
+               "reference gains: reduced max|ρ|", "all modes max|ρ|", "Taguchi on Exudyn: kp, kd",
+               "Taguchi on Exudyn: dominant |ρ|", "evals"],
+              [[f"{row['omega_over_pi']:.4g}π", f"{uncontrolled:.5f}", f"{kp_r:.4f}, {kd_r:.4f}",
+                f"{row['reference_gains_dominant_exudyn']:.5f} ({row['reference_gains_dominant_mode']})",
+                f"{reduced:.5f}", f"{row['spectral_radius_all_modes']:.6f}",
+                f"{tuned.kp:.4f}, {tuned.kd:.4f}", f"{tuned.spectral_radius:.5f} ({tuned.status})",
+                tuned.evaluations]]),
+        text(f"At the reference gains the Exudyn and reduced models differ by "
+             f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
     ]
-    for r in rows:
-        md.append(
-            f"| {r['omega_over_pi']}pi | {r['uncontrolled_dominant']:.5f} | {r['printed_gains_dominant_exudyn']:.5f} "
-            f"({r['printed_gains_dominant_mode']}) | {r['printed_gains_dominant_reduced']:.5f} | "
-            f"{r['spectral_radius_all_modes']:.6f} | {r['tuned_kp']:.4f}, {r['tuned_kd']:.4f} | "
-            f"{r['tuned_dominant']:.5f} ({r['tuning_status']}) | {r['tuning_evaluations']} |"
-        )
-    return {"json": "exudyn.json", "markdown": "\n".join(md), "figures": [], "rows": rows}
+    return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
+
+
+def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
+    rec = _load_record(opts.out, "exudyn")
+    if rec is not None and rec.get("config_hash") == config_hash(cfg) and rec.get("quick") == opts.quick:
+        r = json.loads((opts.out / rec["json"]).read_text())["rows"][0]
+        return r["tuned_kp"], r["tuned_kd"], "Taguchi on Exudyn (exudyn.json)"
+    return _reference_gains(cfg, opts)
 
 
 def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """Nonlinear Exudyn simulations of the tuned closed loops against the predicted multipliers.
+    """Multipliers measured from nonlinear Exudyn runs of the tuned closed loop at the study Omega.
 
-    Gains: the Taguchi gains tuned on the Exudyn model (read from ``exudyn.json`` written by the
-    ``exudyn`` stage, so the numbers are traceable), else the paper's printed Table 3 gains.
+    Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
+    else the reference gains (see the module docstring).  Measurement:
+    :func:`validation.multipliers.validate_link_multipliers` (issue 10): the one-period map of the
+    nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
+    linearisation within the measurement's own error bar.
     """
-    from flexstab.paper_tables import TABLE3_PRINTED
-    from mbs_models.validation import validate_closed_loop
+    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+    from validation.plots import plot_multiplier_plane
 
-    src = opts.out / "exudyn.json"
-    if src.exists():
-        gains = [(r["omega_over_pi"], r["tuned_kp"], r["tuned_kd"], "Taguchi on Exudyn (exudyn.json)")
-                 for r in json.loads(src.read_text())["rows"]]
-    else:
-        cases = TABLE3_PRINTED[:1] if opts.quick else TABLE3_PRINTED
-        gains = [(k, kp, kd, "paper Table 3") for k, _, kp, kd, _ in cases]
-    elements = min(cfg.elements, 4) if opts.quick else cfg.elements
-    from mbs_models.validation_plots import plot_validation_figure
+    kp, kd, source = _validation_gains(cfg, opts)
+    elements = 2 if opts.quick else min(cfg.elements, 4)
+    check = MultiplierCheckConfig(refinements=1 if opts.quick else 2)
+    v = validate_link_multipliers(cfg.manipulator, cfg.omega, kp, kd, elements=elements, config=check)
+    d = v.to_dict()
+    d.update({"omega_over_pi": cfg.omega / math.pi, "gains_source": source})
+    (opts.out / "validation.json").write_text(json.dumps({"rows": [d]}, indent=2, default=float))
+    fig = "validation_multipliers.png"
+    plot_multiplier_plane([v], opts.out / fig,
+                          titles=[f"Ω = {cfg.omega / math.pi:.4g}π: kp = {kp:.4g}, kd = {kd:.4g}"],
+                          suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
 
+    def z(c):
+        return "–" if c is None else f"{c[0]:+.6f}{c[1]:+.6f}i"
+
+    def e(x):
+        return "n/a" if x is None else f"{x:.2e}"
+
+    alts = {("rigid reference" if "rigid" in a["name"] else "reduced model"): a["distance"] for a in d["alternatives"]}
     rows = []
-    results = []
-    for k, kp, kd, source in gains:
-        v = validate_closed_loop(cfg.manipulator, k * math.pi, kp, kd, elements=elements,
-                                 periods=3 if opts.quick else 5)
-        results.append(v)
-        d = v.to_dict()
-        d.update({"omega_over_pi": k, "gains_source": source})
-        for key in ("times", "hub_error", "tip_error", "drift"):
-            d.pop(key, None)
-        rows.append(d)
-    (opts.out / "validation.json").write_text(json.dumps({"rows": rows}, indent=2, default=float))
-    fig = "validation_tuned_gains.png"
-    plot_validation_figure(results, opts.out / fig,
-                           titles=[f"Omega = {g[0]} pi: kp = {g[1]:.4g}, kd = {g[2]:.4g}" for g in gains],
-                           suptitle="Nonlinear vs linearised Exudyn (tuned gains)")
-    md = [
-        f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD, started from the periodic",
-        "orbit with the hub velocity raised by 0.25 pi rad/s (Eqs. 26/35); the perturbation is the",
-        "difference from the unperturbed closed loop, sampled once per period. Measured per-period ratio",
-        "against the dominant multiplier predicted by the Exudyn linearisation and by the reduced model.",
-        "",
-        "| Omega | kp | kd | gains | measured ratio | predicted (Exudyn) | predicted (reduced) | rel. error (Exudyn) | diverged |",
-        "|---|---|---|---|---|---|---|---|---|",
+    for m in d["multipliers"]:
+        rows.append([m["mode"], z(m["predicted"]), z(m.get("measured")), e(m.get("abs_error")),
+                     e(m.get("error_bar")), "yes" if m.get("agrees") else "no"])
+    blocks = [
+        text(f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: {source}). The "
+             "one-period map of the nonlinear closed loop is measured on the subspace of the compared multipliers "
+             "(central differences of runs from the periodic orbit perturbed along the predicted Floquet vectors, "
+             "generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in check.steps) + " s); its "
+             "eigenvalues are compared with the multipliers of the Exudyn linearisation within the measurement's "
+             "error bar (Richardson step error + amplitude check + prediction refinement)."
+             + (f" Diverged: {d['reason']}." if d["diverged"] else "")),
+        table(["mode", "predicted", "measured", "absolute error", "error bar", "agrees"], rows),
+        text("Measured distance to the alternative predictions: "
+             + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."),
+        figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the unit circle."),
     ]
-    for r in rows:
-        md.append(
-            f"| {r['omega_over_pi']}pi | {r['kp']:.4f} | {r['kd']:.4f} | {r['gains_source']} | "
-            f"{r['measured_ratio_per_period']:.4f} | {r['predicted_multiplier_exudyn']:.4f} | "
-            f"{r['predicted_multiplier_reduced']:.4f} | {r['relative_error_exudyn']:.2%} | {r['diverged']} |"
-        )
-    return {"json": "validation.json", "markdown": "\n".join(md), "figures": [fig]}
+    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
+            "files": [fig, "validation.json"]}
 
 
 #: Registry of the study's stages, in order.
@@ -251,90 +434,144 @@ STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
     "validation": _stage_validation,
 }
 
+#: Section titles (a stage's own title may name the Omega or the paper's table).
+STAGE_TITLES: dict[str, str] = {
+    "table2": "Floquet multipliers without control",
+    "table3": "PD gains by Taguchi tuning",
+    "charts": "Stability charts",
+    "transients": "Transient responses",
+    "exudyn": "Exudyn ANCF model",
+    "validation": "Nonlinear validation",
+}
+
+
+# ----------------------------------------------------------------------------- records
+def _record_path(out: Path, name: str) -> Path:
+    return out / f"{name}.stage.json"
+
+
+def _load_record(out: Path, name: str) -> Optional[dict]:
+    p = _record_path(out, name)
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def _stage_files(r: dict) -> list[str]:
+    files = list(r.get("files") or [])
+    files += [b["file"] for b in r.get("blocks", []) if b["kind"] == "figure"]
+    if r.get("json"):
+        files.append(r["json"])
+    return sorted(set(files))
+
+
+def _record_valid(out: Path, rec: Optional[dict], inputs_hash: str) -> bool:
+    """The record is for these inputs and every file it names is still the one it wrote."""
+    if rec is None or rec.get("inputs_hash") != inputs_hash or "error" in rec:
+        return False
+    for f, sha in rec.get("files", {}).items():
+        p = out / f
+        if not p.exists() or _file_sha(p) != sha:
+            return False
+    return True
+
+
+def _stamp_json(path: Path, stamp: dict) -> None:
+    """Add ``"study": stamp`` (config and inputs hashes) to a stage's data JSON."""
+    doc = json.loads(path.read_text())
+    if isinstance(doc, dict):
+        doc["study"] = stamp
+        path.write_text(json.dumps(doc, indent=2, default=str))
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+
 
 # ----------------------------------------------------------------------------- report
-def _write_report(cfg: StudyConfig, opts: StudyOptions, results: dict, elapsed: float) -> tuple[Path, Path]:
-    md = [
-        "# flexstab study report",
-        "",
-        f"Manipulator: {', '.join(f'{k} = {v:g}' for k, v in cfg.manipulator.to_dict().items())}.",
-        f"Fundamental motion q_a(t) = pi/2 + pi/2 sin(Omega t); Omega = {cfg.omega / math.pi:.4g} pi rad/s for the",
-        f"charts, target rho_d = {cfg.target:g}. Mode: {'quick' if opts.quick else 'full'}; wall time {elapsed:.1f} s.",
-        "Every number below comes from the JSON file named under its section (same folder).",
-        "",
-    ]
-    for name, r in results.items():
-        md.append(f"## {name}")
-        md.append("")
-        if "error" in r:
-            md.append(f"**Stage failed:** `{r['error']}`")
-            md.append("")
+def _manipulator_line(cfg: StudyConfig) -> str:
+    from flexstab.paper_tables import is_paper_manipulator
+
+    m = cfg.manipulator.to_dict()
+    units = {"length": "m", "area": "m²", "density": "kg/m³", "second_moment": "m⁴", "youngs_modulus": "Pa",
+             "hub_inertia": "kg·m²", "tip_mass": "kg", "joint_damping": "N·m·s/rad", "gravity": "m/s²"}
+    parts = [f"{k.replace('_', ' ')} = {v:g} {units.get(k, '')}".rstrip() for k, v in m.items()]
+    who = ("the paper's manipulator (Table 1)" if is_paper_manipulator(cfg.manipulator)
+           else "a user-defined manipulator (not the Table 1 link of the paper, so nothing below is compared with the paper)")
+    return f"Manipulator: {who}; " + ", ".join(parts) + "."
+
+
+def render_report(out: Path) -> tuple[Path, Path]:
+    """Write ``report.md`` and ``report.html`` from ``manifest.json`` and the stage records in ``out``.
+
+    Raises
+    ------
+    RuntimeError
+        If a stage record belongs to another configuration than the manifest, or a file it names
+        has changed since the stage wrote it (the report would mix runs).
+    """
+    out = Path(out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    chash = manifest["config_hash"]
+    cfg_doc = manifest["config"]
+    from mbs_models.parameters import ManipulatorParameters
+
+    cfg = StudyConfig(manipulator=ManipulatorParameters(**cfg_doc["manipulator"]), omega=cfg_doc["omega"],
+                      target=cfg_doc["target"], kp_range=tuple(cfg_doc["kp_range"]),
+                      kd_range=tuple(cfg_doc["kd_range"]), elements=cfg_doc["elements"])
+    sections = []
+    reused = []
+    for name, entry in manifest["stages"].items():
+        rec = _load_record(out, name)
+        title = (rec or {}).get("title") or STAGE_TITLES.get(name, name)
+        if entry.get("status") == "failed":
+            sections.append((title, [text(f"**Stage failed:** `{entry.get('error', 'unknown error')}`")]))
             continue
-        md.append(f"Data: `{r['json']}` ({r['elapsed']:.1f} s)")
-        md.append("")
-        body = r["markdown"].strip().splitlines()
-        if body and body[0].startswith("# "):
-            body = body[2:]  # the stage's own title duplicates the section heading
-        md.extend(body)
-        md.append("")
-        for f in r.get("figures", []):
-            md.append(f"![{f}]({f})")
-            md.append("")
-    text = "\n".join(md) + "\n"
-    md_path = opts.out / "report.md"
-    md_path.write_text(text)
-    html_path = opts.out / "report.html"
-    html_path.write_text(_markdown_to_html(text))
+        if rec is None:
+            raise RuntimeError(f"{out}: stage {name!r} is in the manifest but its record {name}.stage.json is missing")
+        if rec.get("config_hash") != chash or rec.get("inputs_hash") != entry.get("inputs_hash"):
+            raise RuntimeError(f"{out}: stage {name!r} was computed for another configuration or input "
+                               f"({rec.get('config_hash')} != {chash}); the report would mix runs")
+        for f, sha in rec["files"].items():
+            p = out / f
+            if not p.exists() or _file_sha(p) != sha:
+                raise RuntimeError(f"{out}: {f} changed after stage {name!r} wrote it; the report would mix runs")
+        head = f"Data: `{rec['json']}`; {rec['elapsed']:.1f} s"
+        if entry.get("status") == "reused":
+            head += f"; reused from the run finished at {rec['finished_at']} (inputs unchanged)"
+            reused.append(title)
+        sections.append((title, [text(head)] + rec["blocks"]))
+    quick = manifest["quick"]
+    omega = cfg.omega
+    preamble = [
+        text(_manipulator_line(cfg)),
+        text(f"Fundamental motion q_a(t) = π/2 + (π/2) sin(Ωt); study Ω = {omega / math.pi:.4g}π rad/s "
+             f"(T = {2 * math.pi / omega:.4g} s), target ρ_d = {cfg.target:g}. Mode: {'quick' if quick else 'full'}. "
+             f"Configuration hash `{chash}`; every number below comes from the JSON file named under its "
+             "section (same folder), which carries the same hash."),
+        text(f"Started {manifest['started_at']}, finished {manifest.get('finished_at', '?')}; wall time "
+             f"{manifest.get('elapsed', float('nan')):.1f} s."
+             + (f" Reused from an earlier run with the same inputs: {', '.join(reused)}." if reused else "")),
+    ]
+    title = "flexstab study report"
+    md_path, html_path = out / "report.md", out / "report.html"
+    md_path.write_text(to_markdown(title, preamble, sections))
+    html_path.write_text(to_html(title, preamble, sections))
     return md_path, html_path
 
 
-def _markdown_to_html(text: str) -> str:
-    """A small converter for the report's subset of Markdown (headings, tables, images, paragraphs)."""
-    out = ["<!DOCTYPE html><html><head><meta charset='utf-8'><title>flexstab study report</title>",
-           "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
-           "td,th{border:1px solid #999;padding:2px 6px;font-size:90%}img{max-width:100%}</style></head><body>"]
-    lines = text.splitlines()
-    i = 0
-    para: list[str] = []
-
-    def flush():
-        if para:
-            out.append("<p>" + html.escape(" ".join(para)) + "</p>")
-            para.clear()
-
-    while i < len(lines):
-        line = lines[i]
-        if line.startswith("#"):
-            flush()
-            level = len(line) - len(line.lstrip("#"))
-            out.append(f"<h{level}>{html.escape(line[level:].strip())}</h{level}>")
-        elif line.startswith("!["):
-            flush()
-            src = line[line.index("(") + 1 : line.rindex(")")]
-            out.append(f"<p><img src='{html.escape(src)}' alt='{html.escape(src)}'></p>")
-        elif line.startswith("|"):
-            flush()
-            rows = []
-            while i < len(lines) and lines[i].startswith("|"):
-                rows.append(lines[i])
-                i += 1
-            out.append("<table>")
-            for j, row in enumerate(rows):
-                if j == 1 and set(row.replace("|", "").strip()) <= set("-: "):
-                    continue
-                cells = [c.strip() for c in row.strip().strip("|").split("|")]
-                tag = "th" if j == 0 else "td"
-                out.append("<tr>" + "".join(f"<{tag}>{html.escape(c)}</{tag}>" for c in cells) + "</tr>")
-            out.append("</table>")
-            continue
-        elif not line.strip():
-            flush()
-        else:
-            para.append(line)
-        i += 1
-    flush()
-    out.append("</body></html>")
-    return "\n".join(out)
+# ----------------------------------------------------------------------------- driver
+def _prepare_out(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".write_test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ValueError(f"output folder {str(out)!r} cannot be written: {exc.strerror}") from None
 
 
 def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOptions()) -> StudyResult:
@@ -350,38 +587,91 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     unknown = [s for s in stages if s not in STAGES]
     if unknown:
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")
-    try:
-        opts.out.mkdir(parents=True, exist_ok=True)
-        probe = opts.out / ".write_test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ValueError(f"output folder {str(opts.out)!r} cannot be written: {exc.strerror}") from None
+    out = Path(opts.out)
+    _prepare_out(out)
+    say = opts.log or (lambda line: None)
+    chash = config_hash(cfg)
+    code = _code_hash()
+    old = None
+    if (out / "manifest.json").exists():
+        try:
+            old = json.loads((out / "manifest.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            old = None
+    if old is not None and old.get("config_hash") != chash:
+        say(f"study: {out} held a study of another configuration ({old.get('config_hash')}); "
+            "its report is replaced and none of its stages is reused")
+    for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
+        (out / f).unlink(missing_ok=True)
+    manifest = {"config": config_dict(cfg), "config_hash": chash, "code_hash": code, "quick": opts.quick,
+                "started_at": _now(), "status": "running", "stages": {}}
+
+    def write_manifest() -> None:
+        (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
+
+    write_manifest()
     results: dict[str, dict] = {}
     bar = None
     if opts.progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=len(stages), desc="study", unit="stage")
-    for name in stages:
+    for i, name in enumerate(stages, 1):
+        inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
+        if name == "validation":  # reads the gains tuned by the exudyn stage
+            inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
+        ihash = _sha(_canonical(inputs))
+        tag = f"study: [{i}/{len(stages)}] {name}"
         if bar is not None:
             bar.set_postfix_str(name)
-        ts = time.perf_counter()
-        try:
-            r = STAGES[name](cfg, opts)
-        except Exception as exc:  # a failed stage is reported, the study goes on
-            logger.error("stage %s failed: %s", name, exc)
-            logger.debug("%s", traceback.format_exc())
-            r = {"error": f"{type(exc).__name__}: {exc}"}
-        r["elapsed"] = time.perf_counter() - ts
-        results[name] = r
+        rec = _load_record(out, name)
+        if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:
+            say(f"{tag} reused (inputs unchanged since {rec['finished_at']})")
+            results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"]}
+            manifest["stages"][name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
+        else:
+            _record_path(out, name).unlink(missing_ok=True)
+            say(f"{tag} started")
+            ts = time.perf_counter()
+            try:
+                r = STAGES[name](cfg, opts)
+            except Exception as exc:  # a failed stage is reported, the study goes on
+                el = time.perf_counter() - ts
+                logger.error("stage %s failed: %s", name, exc)
+                logger.debug("%s", traceback.format_exc())
+                err = f"{type(exc).__name__}: {exc}"
+                say(f"{tag} failed after {el:.1f} s: {err}")
+                results[name] = {"status": "failed", "error": err, "elapsed": el}
+                manifest["stages"][name] = {"status": "failed", "error": err, "inputs_hash": ihash, "elapsed": el}
+            else:
+                el = time.perf_counter() - ts
+                stamp = {"config_hash": chash, "inputs_hash": ihash, "stage": name}
+                _stamp_json(out / r["json"], stamp)
+                files = {f: _file_sha(out / f) for f in _stage_files(r)}
+                record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
+                          "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
+                          "blocks": r["blocks"], "files": files, "elapsed": el, "finished_at": _now()}
+                _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
+                say(f"{tag} finished in {el:.1f} s")
+                results[name] = {"status": "computed", "json": r["json"], "elapsed": el}
+                manifest["stages"][name] = {"status": "computed", "inputs_hash": ihash, "elapsed": el}
+        write_manifest()
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
     elapsed = time.perf_counter() - t0
-    md, ht = _write_report(cfg, opts, results, elapsed)
-    summary = {k: {kk: vv for kk, vv in v.items() if kk != "markdown"} for k, v in results.items()}
-    (opts.out / "study.json").write_text(json.dumps({"elapsed": elapsed, "quick": opts.quick, "stages": summary},
-                                                    indent=2, default=str))
-    return StudyResult(opts.out, md, ht, results, elapsed)
+    manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed})
+    write_manifest()
+    md, ht = render_report(out)
+    (out / "study.json").write_text(json.dumps({"elapsed": elapsed, "quick": opts.quick, "config_hash": chash,
+                                                "stages": results}, indent=2, default=str))
+    return StudyResult(out, md, ht, results, elapsed)
+
+
+def _validation_gains_for_hash(cfg: StudyConfig, opts: StudyOptions) -> tuple:
+    """The source of the validation gains (for the stage's input hash) without computing any."""
+    rec = _load_record(opts.out, "exudyn")
+    if rec is not None and rec.get("config_hash") == config_hash(cfg) and rec.get("quick") == opts.quick:
+        return ("exudyn", rec["inputs_hash"])
+    return ("reference",)

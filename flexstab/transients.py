@@ -75,12 +75,18 @@ TABLE3 = {  # Omega/pi: (kp, kd, rho_d)
 
 @dataclass(frozen=True)
 class Case:
-    """One figure of the paper."""
+    """One transient case: a figure of the paper (``figure`` set) or a case of the user's study.
 
-    figure: int
-    omega_over_pi: int
+    ``printed`` is the paper's printed |rho1| of the case (Table 2 or 3), ``None`` when the case
+    is not one of the paper's (another Omega, other gains or another manipulator).
+    """
+
+    figure: Optional[int]
+    omega_over_pi: float
     kp: float = 0.0
     kd: float = 0.0
+    printed: Optional[float] = None
+    gains_source: str = ""
 
     @property
     def controlled(self) -> bool:
@@ -89,16 +95,25 @@ class Case:
     @property
     def name(self) -> str:
         kind = "controlled" if self.controlled else "uncontrolled"
-        return f"fig{self.figure}_{kind}_omega{self.omega_over_pi}pi"
+        w = f"{self.omega_over_pi:.6g}".replace(".", "p")
+        if self.figure is not None:
+            return f"fig{self.figure}_{kind}_omega{w}pi"
+        gains = f"_kp{self.kp:.6g}_kd{self.kd:.6g}".replace(".", "p") if self.controlled else ""
+        return f"transient_{kind}_omega{w}pi{gains}"
 
     @property
-    def printed_rho1(self) -> float:
-        return TABLE3[self.omega_over_pi][2] if self.controlled else TABLE2_RHO1[self.omega_over_pi]
+    def printed_rho1(self) -> Optional[float]:
+        return self.printed
 
 
-CASES = tuple(Case(k // 2 + 1, k) for k in (2, 4, 6, 8)) + tuple(
-    Case(k // 2 + 5, k, TABLE3[k][0], TABLE3[k][1]) for k in (2, 4, 6, 8)
-)
+def paper_case_pair(k: int) -> tuple[Case, Case]:
+    """Figs. ``k/2 + 1`` (no control) and ``k/2 + 5`` (printed Table 3 gains) of the paper, Omega = k pi."""
+    kp, kd, rho_d = TABLE3[k]
+    return (Case(k // 2 + 1, k, printed=TABLE2_RHO1[k], gains_source="no control (Table 2)"),
+            Case(k // 2 + 5, k, kp, kd, printed=rho_d, gains_source="paper Table 3 gains"))
+
+
+CASES = tuple(paper_case_pair(k)[0] for k in (2, 4, 6, 8)) + tuple(paper_case_pair(k)[1] for k in (2, 4, 6, 8))
 QUICK_FIGURES = (5, 9)
 
 
@@ -161,11 +176,14 @@ def run_case(case: Case, settings: Settings, with_forcing: bool,
             "kp": case.kp,
             "constants": model.mode.source,
             "kd": case.kd,
+            "gains_source": case.gains_source,
             "dominant_multiplier": [rho1.real, rho1.imag],
             "spectral_radius": float(fl.spectral_radius),
             "printed_spectral_radius": case.printed_rho1,
             "moduli": [float(m) for m in moduli],
             "subdominant_over_dominant": float(moduli[1] / moduli[0]),
+            "subdominant_reliable": bool(fl.reliable_digits[1] > 0),
+            "noise_floor": float(fl.noise_floor),
             "periods_plotted": n_plot,
             "periods_measured": n_meas,
             "ratios_state_norm": [float(r) for r in growth.ratios],
@@ -190,6 +208,13 @@ def run_case(case: Case, settings: Settings, with_forcing: bool,
     }
 
 
+def _ratio_text(s: dict) -> str:
+    """|rho2/rho1|, or an upper bound when rho2 is below the rounding floor of the product (not a result)."""
+    if s["subdominant_reliable"]:
+        return f"|ρ₂/ρ₁| = {s['subdominant_over_dominant']:.3g}"
+    return f"|ρ₂/ρ₁| < {max(s['noise_floor'] / s['spectral_radius'], 1e-16):.0e} (ρ₂ below the rounding floor)"
+
+
 def _caption(case: Case, res: dict, with_forcing: bool) -> str:
     s = res["summary"]
     eq = "Eq. 33" if case.controlled else "Eq. 25"
@@ -200,14 +225,26 @@ def _caption(case: Case, res: dict, with_forcing: bool) -> str:
                 f"grey: homogeneous ({eq}). Envelope of the homogeneous response; {tail}.")
     else:
         what = f"Homogeneous response ({eq}: h_L omitted) of the linearised reduced model ({s['constants']} constants)."
+    printed = "" if case.printed_rho1 is None else f"; printed {case.printed_rho1}"
+    n_plot, n_meas = s["periods_plotted"], s["periods_measured"]
+    window = (f"the last plotted period" if n_meas == n_plot
+              else f"period {n_meas} of {n_meas} integrated (the first {n_plot} are plotted)")
+    k_text = (f"k = {n_meas - 1} (last plotted period)" if n_meas == n_plot
+              else f"k = {n_meas - 1} (integrated beyond the {n_plot} plotted periods)")
     return (
         f"{what} x(0) = [0, 0, π/4, 0] (Eq. {35 if case.controlled else 26}).\n"
-        f"Dashed: ±C·ρ₁^(t/T), ρ₁ = {s['dominant_multiplier'][0]:.6g} (dominant Floquet multiplier; printed {case.printed_rho1}); "
-        f"C = max |y|·ρ₁^(−t/T) over the last of {s['periods_measured']} integrated periods.\n"
-        f"Measured ‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at k = {s['periods_measured'] - 1} "
-        f"({s['last_ratio_relative_error']:+.2%} vs ρ₁), least-squares fit over k ≥ {s['fit_from_period']}: {s['fitted_ratio']:.6g}; "
-        f"|ρ₂/ρ₁| = {s['subdominant_over_dominant']:.3g}."
+        f"Dashed: ±C·ρ₁^(t/T), ρ₁ = {s['dominant_multiplier'][0]:.6g} (dominant Floquet multiplier{printed}); "
+        f"C = max |y|·ρ₁^(−t/T) over {window}.\n"
+        f"Measured ‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at {k_text}, "
+        f"{_signed_percent(s['last_ratio_relative_error'])} vs ρ₁; least-squares fit over k ≥ {s['fit_from_period']}: "
+        f"{s['fitted_ratio']:.6g}; {_ratio_text(s)}."
     )
+
+
+def _signed_percent(x: float) -> str:
+    from flexstab.report import relative
+
+    return relative(x)
 
 
 def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
@@ -260,11 +297,12 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
         else:
             ax.legend(loc="best", fontsize=8, framealpha=0.9)
             axl.legend(loc="best", fontsize=8, framealpha=0.9)
-    control = (f"PD control kp = {case.kp:.4f} N·m/rad, kd = {case.kd:.4f} N·m·s/rad (Table 3)"
-               if case.controlled else "no control (Table 2)")
+    control = (f"PD control kp = {case.kp:.4f} N·m/rad, kd = {case.kd:.4f} N·m·s/rad ({case.gains_source or 'given'})"
+               if case.controlled else "no control")
+    title = f"Fig. {case.figure}: transient" if case.figure is not None else "Transient"
     kind = "with h_L" if with_forcing else "homogeneous"
     fig.suptitle(
-        f"Fig. {case.figure}: transient vibration ({kind}), Ω = {case.omega_over_pi}π rad/s "
+        f"{title} vibration ({kind}), Ω = {case.omega_over_pi:.4g}π rad/s "
         f"(T = {T:.4g} s), {control}",
         fontsize=12,
     )
@@ -282,8 +320,11 @@ def make_transients(
     figures: Optional[Iterable[int]] = None,
     settings: Optional[Settings] = None,
     params: Optional[ManipulatorParameters] = None,
+    cases: Optional[Iterable[Case]] = None,
 ) -> dict:
     """Compute and plot the transient figures; write ``transients.json`` (or ``transients_forced.json``).
+
+    ``cases`` replaces the paper's Figs. 2-9 (:data:`CASES`, selected by ``figures``) with the given cases.
 
     Returns
     -------
@@ -296,9 +337,8 @@ def make_transients(
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     t0 = time.perf_counter()
-    for case in CASES:
-        if case.figure not in figures:
-            continue
+    selected = tuple(cases) if cases is not None else tuple(c for c in CASES if c.figure in figures)
+    for case in selected:
         res = run_case(case, settings, with_forcing, params)
         plot_case(res, out / res["summary"]["figure_file"], with_forcing)
         rows.append(res["summary"])

@@ -43,6 +43,7 @@ from typing import Any, Optional
 import numpy as np
 import scipy.linalg
 
+from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
@@ -54,6 +55,7 @@ __all__ = [
     "SHOOTING_STEPS_PER_SAMPLE",
     "SHOOTING_TOLERANCE",
     "OrbitConvergenceError",
+    "SOLVERS",
     "PeriodicOrbit",
     "TangentBlocks",
     "find_orbit",
@@ -378,10 +380,19 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
 
 
 # --------------------------------------------------------------------------- collocation
+#: Newton-matrix strategies of :func:`find_orbit`.
+SOLVERS = ("auto", "dense", "structured")
+
+
+def _central_difference(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
+    """``d/ds fun(x + s e)`` at 0 by a central difference (the rule of :func:`tangent_blocks`)."""
+    return (fun(x + h * e) - fun(x - h * e)) / (2 * h)
+
+
 class _Collocation:
     """Residual and Newton matrix of the collocation equations at one omega."""
 
-    def __init__(self, built: BuiltModel, samples: int) -> None:
+    def __init__(self, built: BuiltModel, samples: int, solver: str = "auto") -> None:
         self.built = built
         self.system = ExudynSystem(built)
         self.T = built.period
@@ -393,6 +404,36 @@ class _Collocation:
         self.s = self.n + self.m + self.d
         self.exudyn_jacobian: Optional[bool] = None  # decided (checked) at the first tangent
         self.R = np.array([[dr.evaluate(t)[0] for dr in built.drives] for t in self.times]).reshape(self.K, self.d)
+        if solver not in SOLVERS:
+            raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
+        if solver == "auto":
+            solver = "structured" if self.K * self.s > structured.STRUCTURED_THRESHOLD else "dense"
+        self.solver = solver
+        self.pattern = structured.coupling_pattern(self.system) if solver == "structured" else None
+
+    def tangent(self, X: np.ndarray) -> TangentBlocks:
+        """Per-sample blocks at ``X``: dense differences, or column-compressed ones
+        (:mod:`linearize.collocation_solver`) with the same rule and steps."""
+        Q, L, _ = self.split(X)
+        V, A = self.D1 @ Q, self.D2 @ Q
+        if self.pattern is None:
+            tb = tangent_blocks(self.system, self.times, Q, V, A, L, use_exudyn_jacobian=self.exudyn_jacobian,
+                                accurate=False)
+            self.exudyn_jacobian = tb.exudyn_jacobian
+            return tb
+        sb = structured.compressed_blocks(self.system, self.times, Q, V, A, L, self.pattern,
+                                          derivative=_central_difference,
+                                          steps=lambda x: fd_steps(x, CENTRAL_DIFFERENCE_STEP))
+        return TangentBlocks(M=sb.M, K_force=sb.K_force, K_reaction=sb.K_reaction, C=sb.C, Cq=sb.Cq)
+
+    def newton_solver(self, X: np.ndarray):
+        """``(solve, tangent)``: the factorised Newton matrix at ``X`` and its blocks."""
+        if self.pattern is None:
+            J, tb = self.jacobian(X)
+            return _solve(J), tb
+        tb = self.tangent(X)
+        J = structured.sparse_newton_matrix(tb.M, tb.K, tb.C, tb.Cq, self.B, self.D1, self.D2)
+        return structured.sparse_solver(J), tb
 
     def split(self, X: np.ndarray):
         n, m = self.n, self.m
@@ -512,8 +553,7 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
         if it > EARLY_GIVE_UP_ITERATIONS and res > EARLY_GIVE_UP_FACTOR * history[0]:
             return X, history, False, tb  # no progress from this guess: continuation will do better
         if solve is None or len(history) < 2 or history[-1] > 0.5 * history[-2]:
-            J, tb = col.jacobian(X)
-            solve = _solve(J)
+            solve, tb = col.newton_solver(X)
         dX = solve(-out.reshape(-1)).reshape(X.shape)
         weights = _weights(col, X + dX, qscale)
         step_norm = float(np.max(np.abs(dX) * weights))
@@ -633,6 +673,7 @@ def find_orbit(
     max_iterations: int = DEFAULT_MAX_ITERATIONS,
     verify: bool = True,
     continuation: bool = True,
+    solver: str = "auto",
     **options: Any,
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
@@ -654,6 +695,11 @@ def find_orbit(
         Run the one-period shooting check in Exudyn.
     continuation : bool
         Continue in omega from omega/2 when Newton fails from the guess.
+    solver : {"auto", "dense", "structured"}
+        Newton matrix: dense differences and LU, or column-compressed differences
+        and a sparse LU (:mod:`linearize.collocation_solver`); ``"auto"`` takes the
+        structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
+        unknowns.  Both solve the same equations to the same tolerance.
     **options
         Keyword options for ``build``.
 
@@ -674,12 +720,12 @@ def find_orbit(
         raise ValueError(f"tol must be finite and > 0, got {tol!r}")
     definition = resolve_model(model, **options)
     built = build_model(definition, omega)
-    col = _Collocation(built, samples)
+    col = _Collocation(built, samples, solver)
     X = _guess(col, definition)
     X, history, ok, tb = _newton(col, X, tol, max_iterations)
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
-        X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X)
+        X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)
         history += h2
     if not ok:
         raise OrbitConvergenceError(
@@ -695,6 +741,8 @@ def find_orbit(
     out, fscale = col.residual(X)
     residual = col.relative(out, fscale, max(1.0, float(np.max(np.abs(Q)))))
     # linearisation at the converged samples (Newton's last matrix is at the previous iterate)
+    # the linearisation is always the accurate one (Exudyn's checked Jacobians, Richardson reaction
+    # stiffness); the structured solver's compressed blocks serve Newton only
     tb = tangent_blocks(col.system, col.times, Q, V, A, L, use_exudyn_jacobian=col.exudyn_jacobian)
     shooting = math.nan
     if verify:
@@ -719,12 +767,12 @@ def find_orbit(
 
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
-                  X_fail: np.ndarray):
+                  X_fail: np.ndarray, solver: str = "auto"):
     f, step, X, history = CONTINUATION_START, CONTINUATION_STEP, None, []
     col = tb = None
     for _ in range(CONTINUATION_MAX_SOLVES):
         target = min(1.0, f)
-        col = _Collocation(build_model(definition, omega * target), samples)
+        col = _Collocation(build_model(definition, omega * target), samples, solver)
         guess = _guess(col, definition) if X is None else X.copy()
         Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
         history += hist

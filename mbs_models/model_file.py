@@ -66,6 +66,7 @@ logger = logging.getLogger(__name__)
 #: Built-in model files (name -> module file in ``mbs_models/builtin/``).
 BUILTIN_MODELS = {
     "single-link": "single_link.py",
+    "two-link": "two_link.py",
 }
 
 #: A drive's motion must satisfy ``|motion(t + T) - motion(t)| <=`` this times

@@ -192,6 +192,10 @@ class FundamentalMotion:
         return -self.amplitude * self.omega**2 * np.sin(self.omega * np.asarray(t, dtype=float))
 
 
+#: Mean and amplitude of the paper's fundamental motion (what :attr:`ReducedModel.motion` uses).
+_DEFAULT_MOTION = FundamentalMotion(1.0)
+
+
 @dataclass(frozen=True)
 class ReducedModel:
     """The paper's linearised one-mode manipulator with an optional PD controller.
@@ -256,6 +260,7 @@ class ReducedModel:
         if not np.all(np.isfinite(M)) or np.linalg.cond(M) * SINGULAR_MASS_RCOND > 1.0:
             raise ValueError(f"mass matrix M_L is singular or not finite: {M.tolist()}")
         object.__setattr__(self, "_Minv", np.linalg.inv(M))
+        object.__setattr__(self, "_affine", self._affine_parts())
 
     # ---------------------------------------------------------------- basics
     @property
@@ -337,15 +342,43 @@ class ReducedModel:
         return h
 
     # ---------------------------------------------------------------- first order
+    def _affine_parts(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(P_c, P_s, P_w)`` with ``P(t) = P_c + sin(q_a^R) P_s + (dq_a^R/dt)^2 P_w``.
+
+        ``K(t)`` of Eq. (23) is affine in ``sin q_a^R(t)`` and ``(dq_a^R/dt)^2``
+        and ``M``, ``C`` are constant, so ``P`` is affine in the same two
+        functions; the three constant matrices come from
+        :func:`~stability.periodic.first_order_matrix` (the one place ``P`` is
+        built), evaluated at ``(sin, qdot^2) = (0, 0), (1, 0), (0, 1)``.
+        """
+        p, mc, Minv = self.params, self.mode, self._Minv  # type: ignore[attr-defined]
+        M, C, Z = self._M, self.damping(0.0), np.zeros((2, 2))  # type: ignore[attr-defined]
+        mEg = p.tip_mass * p.gravity
+        K0 = np.array([[self.kp, 0.0], [0.0, p.bending_stiffness * mc.k11_star]])
+        k11s = -p.length * mEg - p.link_mass * p.gravity * p.length / 2.0
+        k12s = -mEg * mc.X1 - p.mass_per_length * p.gravity * mc.C1
+        Ks = np.array([[k11s, k12s], [k12s, 0.0]])
+        Kw = np.array([[0.0, 0.0], [0.0, -p.tip_mass * mc.X1**2 - p.mass_per_length * mc.m11]])
+        Pc = first_order_matrix(M, C, K0, mass_inverse=Minv)
+        Pz = first_order_matrix(M, Z, Z, mass_inverse=Minv)
+        Ps = first_order_matrix(M, Z, Ks, mass_inverse=Minv) - Pz
+        Pw = first_order_matrix(M, Z, Kw, mass_inverse=Minv) - Pz
+        return Pc, Ps, Pw
+
     def evaluate(self, times) -> np.ndarray:
-        """``P(t)`` of Eq. (33) stacked over ``times``: shape ``(m, 4, 4)``."""
+        """``P(t)`` of Eq. (33) stacked over ``times``: shape ``(m, 4, 4)``.
+
+        Evaluated as ``P_c + sin(q_a^R) P_s + (dq_a^R/dt)^2 P_w`` (see
+        :meth:`_affine_parts`; identical to ``first_order_matrix(mass,
+        damping, stiffness)`` up to rounding, and ~10x cheaper).
+        """
         times = np.atleast_1d(np.asarray(times, dtype=float))
-        return first_order_matrix(
-            self.mass(times),
-            self.damping(times),
-            self.stiffness(times),
-            mass_inverse=self._Minv,  # type: ignore[attr-defined]
-        )
+        Pc, Ps, Pw = self._affine  # type: ignore[attr-defined]
+        motion = _DEFAULT_MOTION  # q_a^R = mean + amplitude sin(omega t), the paper's pi/2 + pi/2 sin
+        wt = self.omega * times
+        s = np.sin(motion.mean + motion.amplitude * np.sin(wt))
+        w = (motion.amplitude * self.omega * np.cos(wt)) ** 2
+        return Pc + s[..., None, None] * Ps + w[..., None, None] * Pw
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]

@@ -1,13 +1,18 @@
 #!/usr/bin/env python3
-"""Nonlinear Exudyn closed loop against the linear prediction, four Omega cases.
+"""Floquet multipliers measured from nonlinear Exudyn runs against the predictions (issue 10).
 
-Writes ``linear_vs_nonlinear.json``, ``linear_vs_nonlinear.md`` and one PNG
-per Omega (``linear_vs_nonlinear_omega{2,4,6,8}pi.png``) to ``results/``
-(or ``--out``): uncontrolled (paper perturbation and a small one), the
-paper's Table 3 gains and our Taguchi gains; hub-angle error and tip
-deflection of the nonlinear run with the linearised-Exudyn response and the
-``C |rho|^(t/T)`` envelope overlaid.  ``--quick``: 2 elements, 3 periods,
-Omega = 2pi only (tests).
+Cases (:data:`validation.study.MULTIPLIER_CASES`): the complex pair at
+Omega = 2pi (kp = 10, kd = 2), the paper's Table 3 gains at the four Omegas,
+two deliberately wrong predictions at 8pi (gains +5 %, rigid reference) that
+must fail, and the uncontrolled loop at 2pi with its growth run.  Writes
+``multipliers_measured.json``, ``multipliers_measured.md`` and the figures
+``multipliers_table3.png`` / ``multipliers_checks.png`` (complex plane, unit
+circle, zoom on the dominant multiplier) to ``results/`` (or ``--out``).
+
+``--transients`` also writes the older time-series comparison (hub-angle
+error of the nonlinear runs against the linear response,
+``linear_vs_nonlinear*``).  ``--quick``: 2 elements, h and h/2, the 8pi
+cases only.
 """
 from __future__ import annotations
 
@@ -23,28 +28,74 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 def main(argv=None) -> int:
     from tqdm import tqdm
 
-    from mbs_models.validation_plots import plot_validation_figure
-    from mbs_models.validation_study import CASES, compare_linear_nonlinear, comparison_markdown
+    from validation.multipliers import MultiplierCheckConfig
+    from validation.plots import plot_multiplier_plane
+    from validation.study import MULTIPLIER_CASES, multiplier_markdown, multiplier_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results", help="output folder (default results/)")
-    ap.add_argument("--elements", type=int, default=8, help="ANCF elements (default 8)")
-    ap.add_argument("--periods", type=int, default=5, help="periods per run (default 5)")
-    ap.add_argument("--quick", action="store_true", help="2 elements, 3 periods, Omega = 2pi only")
+    ap.add_argument("--elements", type=int, default=4, help="ANCF elements (default 4)")
+    ap.add_argument("--refinements", type=int, default=2, help="step halvings (default 2: h, h/2, h/4)")
+    ap.add_argument("--step", type=float, default=1e-3, help="coarsest step (default 1e-3 s)")
+    ap.add_argument("--quick", action="store_true", help="2 elements, h and h/2, the 8pi cases only")
+    ap.add_argument("--transients", action="store_true", help="also the time-series comparison (slow)")
     args = ap.parse_args(argv)
-    kwargs = dict(elements=args.elements, periods=args.periods, omegas=(2, 4, 6, 8))
+    elements, refinements = args.elements, args.refinements
+    cases = MULTIPLIER_CASES
     if args.quick:
-        kwargs.update(elements=2, periods=3, omegas=(2,), samples=16)
+        elements, refinements = 2, 1
+        cases = [c for c in MULTIPLIER_CASES if c[1] == 8]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     tic = time.perf_counter()
-    n = len(kwargs["omegas"]) * len(CASES)
-    with tqdm(total=n, desc="linear vs nonlinear", disable=None) as bar:
+    config = MultiplierCheckConfig(step=args.step, refinements=refinements)
+    with tqdm(total=len(cases), desc="multipliers", disable=None) as bar:
         def step(label: str) -> None:
             bar.set_postfix_str(label)
             bar.update(1)
 
-        rows = compare_linear_nonlinear(progress=step, **kwargs)
+        rows = multiplier_study(cases=cases, elements=elements, config=config, progress=step)
+    figures = []
+    t3 = [r for r in rows if r.name == "Table 3"]
+    if t3:
+        path = out / "multipliers_table3.png"
+        plot_multiplier_plane([r.result for r in t3], path,
+                              titles=[f"Ω = {r.omega_over_pi}π, Table 3: kp = {r.result.info['kp']:.5g}, "
+                                      f"kd = {r.result.info['kd']:.5g}" for r in t3],
+                              suptitle=f"Measured (nonlinear Exudyn, {elements} elements) vs predicted multipliers")
+        figures.append(str(path))
+    rest = [r for r in rows if r.name != "Table 3"]
+    if rest:
+        path = out / "multipliers_checks.png"
+        plot_multiplier_plane([r.result for r in rest], path,
+                              titles=[f"Ω = {r.omega_over_pi}π, {r.name}" for r in rest],
+                              suptitle="Complex pair, deliberately wrong predictions, uncontrolled loop")
+        figures.append(str(path))
+    data = {
+        "elements": elements,
+        "steps": list(config.steps),
+        "wall_time": time.perf_counter() - tic,
+        "figures": [Path(f).name for f in figures],
+        "rows": [r.to_dict() for r in rows],
+    }
+    (out / "multipliers_measured.json").write_text(json.dumps(data, indent=2))
+    md = multiplier_markdown(rows, elements=elements, figures=figures)
+    (out / "multipliers_measured.md").write_text(md)
+    print(md)
+    if args.transients:
+        _transients(out, elements=8 if not args.quick else 2, quick=args.quick)
+    return 0
+
+
+def _transients(out: Path, *, elements: int, quick: bool) -> None:
+    """The time-series comparison (nonlinear hub-angle error vs the linear response)."""
+    from validation.plots import plot_validation_figure
+    from validation.study import CASES, compare_linear_nonlinear, comparison_markdown
+
+    kwargs = dict(elements=elements, periods=5, omegas=(2, 4, 6, 8))
+    if quick:
+        kwargs.update(periods=3, omegas=(2,), samples=16)
+    rows = compare_linear_nonlinear(**kwargs)
     figures = []
     for k in kwargs["omegas"]:
         sel = [r for r in rows if r.omega_over_pi == k]
@@ -53,21 +104,14 @@ def main(argv=None) -> int:
             [r.result for r in sel], path,
             titles=[f"{r.case}: kp = {r.result.kp:.4g}, kd = {r.result.kd:.4g}, δ = {r.result.perturbation:.3g} rad/s"
                     for r in sel],
-            suptitle=f"Ω = {k}π: nonlinear Exudyn ({kwargs['elements']} elements) vs linearised Exudyn",
+            suptitle=f"Ω = {k}π: nonlinear Exudyn ({elements} elements) vs linearised Exudyn",
         )
         figures.append(str(path))
-    data = {
-        "elements": kwargs["elements"],
-        "periods": kwargs["periods"],
-        "wall_time": time.perf_counter() - tic,
-        "figures": [Path(f).name for f in figures],
-        "rows": [r.to_dict() for r in rows],
-    }
-    (out / "linear_vs_nonlinear.json").write_text(json.dumps(data, indent=2))
-    md = comparison_markdown(rows, elements=kwargs["elements"], periods=kwargs["periods"], figures=figures)
-    (out / "linear_vs_nonlinear.md").write_text(md)
-    print(md)
-    return 0
+    (out / "linear_vs_nonlinear.json").write_text(json.dumps(
+        {"elements": elements, "periods": kwargs["periods"], "cases": list(CASES),
+         "rows": [r.to_dict() for r in rows]}, indent=2))
+    (out / "linear_vs_nonlinear.md").write_text(
+        comparison_markdown(rows, elements=elements, periods=kwargs["periods"], figures=figures))
 
 
 if __name__ == "__main__":

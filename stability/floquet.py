@@ -5,8 +5,11 @@ Public entry point: :func:`floquet`.  Methods live in the registry
 
 ``"magnus6"`` (default)
     6th-order Magnus exponential propagator on ``N`` equal sub-intervals,
-    vectorised, with step doubling until the Richardson error estimate of the
-    multiplier moduli is below ``rtol``.  Exact for constant ``P`` and
+    vectorised.  Adaptive: the first ``N`` from the size of the commutator
+    terms, a pilot pair ``N, 2N``, then one refinement pass sized by the error
+    model ``err ~ C N^-6`` until the Richardson error estimate of the moduli
+    (or, with ``accuracy="multipliers"``, of the complex multipliers) is
+    below ``rtol``.  Exact for constant ``P`` and
     unconditionally stable for stiff, strongly damped systems (each
     sub-interval propagator is a matrix exponential).
 ``"magnus4"``
@@ -42,13 +45,24 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_factors, ordered_product
+from stability.expm import expm_soa, expm_stack, mm_soa
+from stability.magnus import (
+    MAGNUS2,
+    MAGNUS4,
+    MAGNUS6,
+    MagnusScheme,
+    magnus_exponents,
+    magnus_exponents_soa,
+    ordered_product,
+    ordered_product_soa,
+)
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
 from stability.serialization import json_ready
 
 __all__ = [
     "FloquetResult",
+    "FloquetError",
     "floquet",
     "METHODS",
     "DEFAULT_METHOD",
@@ -64,13 +78,6 @@ VERDICT_UNSTABLE = "unstable"
 VERDICT_CRITICAL = "critical"
 
 DEFAULT_METHOD = "magnus6"
-#: Smallest first number of sub-intervals tried by the adaptive factor methods.
-INITIAL_STEPS = 16
-#: The first number of sub-intervals is the power of two just below
-#: ``T * max|Im lambda(P)| / PHASE_PER_STEP``: no scheme resolves an
-#: oscillation with much more than ~2 rad of phase per step, so coarser
-#: solves are wasted work.
-PHASE_PER_STEP = 2.0
 #: Upper limit on sub-intervals before the adaptive methods give up refining.
 MAX_STEPS = 2**15
 #: Moduli below this fraction of the spectral radius are not used for the
@@ -113,7 +120,10 @@ class FloquetResult:
         accumulated from the propagators (``"propagators"``: ``sum tr
         Omega_k`` for Magnus, which checks the quadrature of ``tr P`` only).
     liouville_source : str
-        ``"multipliers"`` or ``"propagators"`` (see above).
+        ``"multipliers"`` or ``"propagators"`` (see above), or
+        ``"unavailable"`` (NaN residual) for the ``"paper"`` method when
+        some multiplier is below the noise floor: it keeps no propagators,
+        and ``det`` of the formed matrix is then rounding noise.
     multiplier_liouville_residual : float
         The same identity checked on the returned multipliers,
         ``|expm1(sum ln|rho_i| - int tr P)|``; NaN when some multiplier is
@@ -122,18 +132,18 @@ class FloquetResult:
         ``int_0^T tr P dt`` (closed form when the model supplies it,
         otherwise the periodic trapezoidal rule on ``TRACE_POINTS`` points).
     error_estimate : float
-        Richardson estimate of the largest relative error of the moduli
-        ``>= ESTIMATE_FLOOR * spectral_radius`` (step doubling); NaN when not
-        computed.
+        Richardson estimate of the largest relative error, over the
+        multipliers with moduli ``>= ESTIMATE_FLOOR * spectral_radius``, of
+        what ``accuracy`` names: the moduli (default) or the multipliers
+        (moduli and phases); NaN when not computed.
     noise_floor : float
         ``n eps ||Phi||``: absolute level below which moduli read from the
         formed monodromy matrix are rounding noise (a lower bound: non-normal
         monodromy matrices amplify it by the eigenvalue condition number).
     reliable_digits : ndarray, shape (n,)
-        Per multiplier, the number of significant digits on which the last
-        two refinements agree (``-log10`` of the relative change of the
-        modulus, capped at 16), further capped by the noise floor; 0 means
-        the value is noise.
+        Per multiplier, ``-log10`` of its own refinement error estimate
+        (the Richardson estimate of the last pair of solves, capped at 16),
+        further capped by the noise floor; 0 means the value is noise.
     method : str
     n_steps : int
         Sub-intervals of the final propagation (factor methods) or accepted
@@ -143,6 +153,14 @@ class FloquetResult:
     period : float
     elapsed : float
         Wall time in seconds.
+    accuracy : str
+        What ``error_estimate`` and ``reliable_digits`` certify: ``"moduli"``
+        (the stability verdict needs only these) or ``"multipliers"``.
+    phase_error_estimate : float
+        Richardson estimate of the largest phase error (radians, = relative
+        error of the multiplier's direction) from the same refinement; it is
+        reported whatever ``accuracy`` is, but the refinement drives it below
+        ``rtol`` only with ``accuracy="multipliers"``.  NaN when not computed.
     """
 
     multipliers: np.ndarray
@@ -163,6 +181,8 @@ class FloquetResult:
     n_evaluations: int
     period: float
     elapsed: float = 0.0
+    accuracy: str = "moduli"
+    phase_error_estimate: float = math.nan
 
     @property
     def moduli(self) -> np.ndarray:
@@ -203,6 +223,8 @@ class FloquetResult:
             "n_steps": int(self.n_steps),
             "n_evaluations": int(self.n_evaluations),
             "elapsed": float(self.elapsed),
+            "accuracy": self.accuracy,
+            "phase_error_estimate": float(self.phase_error_estimate),
         })
 
 
@@ -213,10 +235,21 @@ class _Spectrum:
     log_moduli: np.ndarray
 
 
+def _eigvals(Phi: np.ndarray) -> np.ndarray:
+    """Eigenvalues of a real square matrix (LAPACK ``dgeev`` directly: 4x faster than
+    ``np.linalg.eigvals`` for the 4x4 monodromy matrix; the same routine)."""
+    from scipy.linalg.lapack import dgeev
+
+    if Phi.dtype == np.float64 and Phi.ndim == 2:
+        wr, wi, _, _, info = dgeev(Phi, compute_vl=0, compute_vr=0)
+        if info == 0:
+            return wr + 1j * wi
+    return np.linalg.eigvals(Phi).astype(complex)
+
+
 def _spectrum(Phi: np.ndarray) -> _Spectrum:
-    vals = np.linalg.eigvals(Phi).astype(complex)
-    with np.errstate(divide="ignore"):
-        logs = np.log(np.abs(vals))
+    vals = _eigvals(Phi)
+    logs = np.log(np.abs(vals))  # -inf for an exact zero (callers run under np.errstate)
     # descending modulus; within a conjugate pair the positive imaginary part first
     order = np.lexsort((-vals.imag, -logs))
     return _Spectrum(vals[order], logs[order])
@@ -228,17 +261,21 @@ def _multiplier_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
     The larger of the relative change of the modulus and the change of the
     phase (radians), so that the phases of complex pairs are watched too.
     """
-    with np.errstate(invalid="ignore"):
-        dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
-        dphase = np.abs(np.angle(a.values * np.conj(b.values)))
-        d = np.maximum(dmod, dphase)
+    dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+    dphase = np.abs(np.angle(a.values * np.conj(b.values)))
+    d = np.maximum(dmod, dphase)
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def _phase_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
+    """Change of each multiplier's phase (radians) between two refinements (sorted alike)."""
+    d = np.abs(np.angle(a.values * np.conj(b.values)))
     return np.where(np.isfinite(d), d, np.inf)
 
 
 def _select_changes(a: _Spectrum, b: _Spectrum, accuracy: str) -> np.ndarray:
     if accuracy == "moduli":
-        with np.errstate(invalid="ignore"):
-            d = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+        d = np.abs(np.expm1(a.log_moduli - b.log_moduli))
         return np.where(np.isfinite(d), d, np.inf)
     return _multiplier_changes(a, b)
 
@@ -246,7 +283,7 @@ def _select_changes(a: _Spectrum, b: _Spectrum, accuracy: str) -> np.ndarray:
 def _estimate(changes: np.ndarray, fine: _Spectrum, factor: float) -> float:
     """Richardson estimate over moduli above ``ESTIMATE_FLOOR`` of the largest."""
     keep = fine.log_moduli >= fine.log_moduli[0] + math.log(ESTIMATE_FLOOR)
-    return float(np.max(changes[keep])) / factor
+    return float(changes[keep].max()) / factor
 
 
 def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> float:
@@ -266,17 +303,6 @@ def _verdict(rho: float, tol: float) -> str:
     return VERDICT_CRITICAL
 
 
-def _initial_steps(wrapped: PeriodicMatrixFunction, period: float, max_steps: int) -> int:
-    """First sub-interval count of the adaptive loop (see :data:`PHASE_PER_STEP`)."""
-    P = wrapped.evaluate(np.arange(4) * (period / 4))
-    omega = float(np.max(np.abs(np.linalg.eigvals(P).imag)))
-    target = period * omega / PHASE_PER_STEP
-    N = INITIAL_STEPS
-    while 2 * N <= target and 4 * N <= max_steps:
-        N *= 2
-    return N
-
-
 def _log_abs_det(matrices: np.ndarray) -> float:
     sign, logdet = np.linalg.slogdet(matrices)
     if np.any(sign == 0):
@@ -285,8 +311,16 @@ def _log_abs_det(matrices: np.ndarray) -> float:
 
 
 # --------------------------------------------------------------------------- methods
-class _MagnusOverflow(ValueError):
-    """A Magnus exponent overflowed (too large ``h ||P||`` for the commutator terms)."""
+class FloquetError(ArithmeticError):
+    """The monodromy matrix cannot be computed to the requested standard (one clear line says why)."""
+
+
+class _Unresolved(Exception):
+    """A propagation whose sub-intervals do not resolve ``P`` (or that overflowed)."""
+
+    def __init__(self, message: str, *, genuine_overflow: bool = False) -> None:
+        super().__init__(message)
+        self.genuine_overflow = genuine_overflow
 
 
 @dataclass(frozen=True)
@@ -297,8 +331,225 @@ class _Propagation:
     n_steps: int
     n_evaluations: int
     error_estimate: float
-    changes: Optional[np.ndarray]  # relative change per modulus at the last refinement
+    changes: Optional[np.ndarray]  # per-multiplier relative error estimate of the result
     factors: Optional[np.ndarray] = None  # sub-interval propagators of the final solve, if kept
+    phase_error_estimate: float = math.nan  # largest phase change estimate (radians), reported
+
+
+@dataclass(frozen=True)
+class _Solve:
+    n_steps: int
+    monodromy: np.ndarray
+    spectrum: _Spectrum
+    log_abs_det: float
+    factors: Optional[np.ndarray]
+
+
+#: First sub-interval count of the adaptive factor methods.  Magnus schemes
+#: integrate frozen oscillations exactly, so the count is chosen from the
+#: accuracy actually reached (a pilot pair ``N, 2N`` and the error model
+#: ``err ~ C N^-p``), not from the fastest oscillation of ``P``.
+INITIAL_STEPS = 16
+#: The refinement aims at ``SAFETY * rtol`` so that the certified estimate of
+#: the refined solve lands below ``rtol`` in one pass.
+SAFETY = 0.25
+#: Largest growth of the sub-interval count in one refinement pass (the
+#: Richardson estimate with ratio ``r`` divides by ``r^p - 1``; a bounded
+#: ratio keeps it from resting on the asymptotic model alone).
+MAX_REFINE_RATIO = 4.0
+#: A refinement pass is trusted only if the pair it forms measures the
+#: coarser solve's error within this factor of what the previous pair
+#: predicted for it (the observed order agrees with the scheme's).
+CONSISTENCY = 4.0
+#: A sub-interval is *unresolved* when the commutator part of its Magnus
+#: exponent, ``||Omega_k - h Pbar_k||_1``, exceeds this: it then changes the
+#: propagator by up to ``e^10``, i.e. it is no correction any more and the
+#: truncated series means nothing (it overflows for coarse steps and stiff P).
+COMMUTATOR_LIMIT = 10.0
+#: The adaptive refinement starts where the commutator part is about this
+#: (the truncated series is then a small correction; see :func:`_start_steps`).
+START_COMMUTATOR = 0.1
+#: Memory allowed for the stacks of ``(N, n, n)`` work arrays of one solve.
+MEMORY_LIMIT = 1.5e9
+#: Number of ``(N, n, n)``-sized work arrays alive at once in a solve (P at the
+#: Gauss points, exponents, commutators, Pade terms).
+WORK_ARRAYS = 12
+#: ``T * ||P||`` (balanced) beyond which the period is too long for double precision:
+#: ``ln rho = T lambda`` carries an absolute rounding error ``eps T |lambda|``,
+#: so at 1e12 not even the first digits of the phases are left (and moduli
+#: like ``exp(T lambda)`` overflow long before).
+PERIOD_SCALE_LIMIT = 1e12
+
+
+def _quadrature_mean(scheme: MagnusScheme, Pg: np.ndarray) -> np.ndarray:
+    """Gauss-Legendre mean of ``P`` over each sub-interval (the 2nd-order part of ``Omega_k / h``)."""
+    if scheme.order == 2:
+        return Pg[:, 0]
+    if scheme.order == 4:
+        return 0.5 * (Pg[:, 0] + Pg[:, 1])
+    return (5.0 * Pg[:, 0] + 8.0 * Pg[:, 1] + 5.0 * Pg[:, 2]) / 18.0
+
+
+#: Sub-intervals probed for the commutator test before a full solve (cheap
+#: rejection of step counts far too coarse for a stiff, fast ``P``) ...
+PROBE_INTERVALS = 8
+#: ... when the full solve is large (``N n^2`` above this).
+PROBE_WORK = 65536
+#: Systems up to this size use matrix-major stacks ``(n, n, N)`` and Taylor
+#: exponentials (:func:`_magnus_solve_small`): for tiny matrices the batched
+#: BLAS calls and LAPACK solves of the ``(N, n, n)`` layout cost more than the
+#: arithmetic.
+SMALL_N = 8
+
+
+def _commutator_limit(scheme: MagnusScheme, Om: np.ndarray, Pg: np.ndarray, h: float, N: int) -> None:
+    """Raise :class:`_Unresolved` if the commutator part of an exponent exceeds :data:`COMMUTATOR_LIMIT`."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        corr = float(np.abs(Om - h * _quadrature_mean(scheme, Pg)).sum(axis=1).max())
+    if not corr <= COMMUTATOR_LIMIT:  # also catches NaN
+        raise _Unresolved(
+            f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
+            f"with {N} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
+        )
+
+
+def _check_commutators(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, intervals: np.ndarray,
+                       h: float, N: int) -> None:
+    """:func:`_commutator_limit` on the given sub-intervals only."""
+    nodes = np.asarray(scheme.nodes)
+    n = wrapped.n
+    times = (intervals[:, None] + nodes[None, :]) * h
+    Pg = wrapped.evaluate(times.ravel()).reshape(len(intervals), len(nodes), n, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Om = magnus_exponents(scheme, Pg, h)
+    _commutator_limit(scheme, Om, Pg, h, N)
+
+
+def _memory_check(scheme: MagnusScheme, N: int, n: int) -> None:
+    """Raise :class:`_Unresolved` if ``N`` sub-intervals of ``n x n`` need more than :data:`MEMORY_LIMIT`."""
+    need = WORK_ARRAYS * len(scheme.nodes) * N * n * n * 8.0
+    if need > MEMORY_LIMIT:
+        raise _Unresolved(
+            f"{scheme.name} would need {N} sub-intervals of {n}x{n} matrices "
+            f"(~{need / 1e9:.1f} GB of work arrays, limit {MEMORY_LIMIT / 1e9:.1f} GB)",
+            genuine_overflow=False,
+        )
+
+
+def _magnus_solve(
+    scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, keep_factors: bool,
+    strict: bool = True,
+) -> _Solve:
+    """One propagation with ``N`` sub-intervals; raises :class:`_Unresolved` if it means nothing.
+
+    ``strict=False`` (a step count fixed by the caller) skips the
+    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.
+    """
+    n = wrapped.n
+    _memory_check(scheme, N, n)
+    h = period / N
+    nodes = np.asarray(scheme.nodes)
+    if strict and scheme.order > 2 and N * n * n > PROBE_WORK:
+        # cheap probe on a few sub-intervals spread over the period before the full stack
+        probe = np.unique(np.linspace(0, N - 1, PROBE_INTERVALS).astype(int))
+        _check_commutators(scheme, wrapped, probe, h, N)
+    times = (np.arange(N)[:, None] + nodes[None, :]) * h
+    if n <= SMALL_N:
+        return _magnus_solves_small(scheme, wrapped, period, [N], keep_factors, strict)[0]
+    Pg = wrapped.evaluate(times.ravel()).reshape(N, len(nodes), n, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Om = magnus_exponents(scheme, Pg, h)
+        if strict and scheme.order > 2:
+            _commutator_limit(scheme, Om, Pg, h, N)
+        E = expm_stack(Om)
+        if not np.isfinite(E).all():
+            raise _Unresolved(
+                f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
+                f"(h*||P|| up to {float(np.abs(Om).sum(axis=1).max()):.3g})",
+                genuine_overflow=True,
+            )
+        Phi = ordered_product(E)
+        if not np.isfinite(Phi).all():
+            raise _Unresolved(
+                f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
+                f"within one period)",
+                genuine_overflow=True,
+            )
+    log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
+    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
+
+
+def _magnus_solves_small(
+    scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, Ns: list[int], keep_factors: bool,
+    strict: bool,
+) -> list[_Solve]:
+    """:func:`_magnus_solve` for ``n <= SMALL_N``, for several step counts in one batch.
+
+    Matrix-major stacks ``(n, n, sum(Ns))``: one evaluation of ``P``, one
+    exponent and one exponential pass for all the solves (the step length is
+    a vector along the stack), then one product per solve.  The exponentials
+    are the degree-16 Taylor polynomial with scaling and squaring
+    (:func:`~stability.expm.expm_soa`, no linear solves).
+    """
+    q = len(scheme.nodes)
+    n = wrapped.n
+    nodes = np.asarray(scheme.nodes)
+    hs = [period / N for N in Ns]
+    times = np.concatenate([((np.arange(N)[:, None] + nodes[None, :]) * h).ravel() for N, h in zip(Ns, hs)])
+    Ntot = sum(Ns)
+    P = wrapped.evaluate(times)
+    Pg = np.ascontiguousarray(P.reshape(Ntot, q, n, n).transpose(1, 2, 3, 0))  # (q, n, n, Ntot)
+    h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
+    label = "/".join(str(N) for N in Ns)
+    with np.errstate(over="ignore", invalid="ignore"):
+        Om = magnus_exponents_soa(scheme, Pg, h)
+        if strict and scheme.order > 2:
+            if scheme.order == 4:
+                mean = 0.5 * (Pg[0] + Pg[1])
+            else:
+                mean = (5.0 * Pg[0] + 8.0 * Pg[1] + 5.0 * Pg[2]) / 18.0
+            corr = float(np.abs(Om - h * mean).sum(axis=0).max())
+            if not corr <= COMMUTATOR_LIMIT:
+                raise _Unresolved(
+                    f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
+                    f"with {label} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
+                )
+        E = expm_soa(Om)
+        if len(Ns) == 2 and Ns[1] == 2 * Ns[0]:
+            # the pilot pair: one level of the fine product brings it to N factors, then both
+            # products reduce together (half the batched products)
+            N = Ns[0]
+            fine = E[:, :, N:]
+            both = np.stack([E[:, :, :N], mm_soa(fine[:, :, 1::2], fine[:, :, 0::2])], axis=3)
+            products = ordered_product_soa(both.reshape(n, n, 2 * N), blocks=2)
+        else:
+            products = None
+        out = []
+        start = 0
+        for i, N in enumerate(Ns):
+            block = slice(start, start + N)
+            start += N
+            # a non-finite factor makes the product non-finite
+            Phi = products[:, :, i] if products is not None else ordered_product_soa(E[:, :, block])
+            if not np.isfinite(Phi).all():
+                raise _Unresolved(
+                    f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
+                    f"grow beyond 1e308 within one period, h*||P|| up to "
+                    f"{float(np.abs(Om[:, :, block]).sum(axis=0).max()):.3g})",
+                    genuine_overflow=True,
+                )
+            log_det = float(np.trace(np.sum(Om[:, :, block], axis=2)))
+            factors = np.ascontiguousarray(E[:, :, block].transpose(2, 0, 1)) if keep_factors else None
+            out.append(_Solve(N, Phi, _spectrum(Phi), log_det, factors))
+    return out
+
+
+def _matrix_change(fine: np.ndarray, coarse: np.ndarray) -> float:
+    """Normwise relative change of the (balanced) monodromy matrix between two solves."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale_ = float(np.max(np.abs(fine))) or 1.0  # keep the norms in range
+        value = float(np.linalg.norm((fine - coarse) / scale_) / np.linalg.norm(fine / scale_))
+    return value if math.isfinite(value) else math.inf
 
 
 def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
@@ -311,84 +562,173 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         error_estimate: bool,
         max_steps: int,
         reference: Optional[ReferenceOptions] = None,
-        accuracy: str = "multipliers",
+        accuracy: str = "moduli",
         keep_factors: bool = False,
     ) -> _Propagation:
         q = len(scheme.nodes)
-        richardson = 2.0**scheme.order - 1.0
+        p = scheme.order
+        evaluations = 0
+        phase_estimate = [math.nan]  # of the last pair (reported, certified only with accuracy="multipliers")
 
-        def solve(N: int) -> tuple[float, np.ndarray, _Spectrum]:
-            with np.errstate(over="ignore", invalid="ignore"):
-                E, log_det = magnus_factors(scheme, wrapped.evaluate, period, N, return_log_det=True)
-            if not np.all(np.isfinite(E)):
-                h_norm = float(np.max(np.abs(np.linalg.eigvals(wrapped.evaluate(np.array([0.0]))[0])))) * period / N
-                raise _MagnusOverflow(
-                    f"{scheme.name}: the Magnus exponent overflowed with {N} sub-intervals "
-                    f"(h*|lambda(P)| = {h_norm:.3g}); the commutator terms of high-order Magnus "
-                    f"schemes grow like (h ||P||)^2 -- use method='magnus2' or more steps"
-                )
-            Phi = ordered_product(E)
-            kept[N] = E if keep_factors else None
-            return log_det, Phi, _spectrum(Phi)
+        def solve(N: int, strict: bool = True) -> _Solve:
+            nonlocal evaluations
+            evaluations += q * N
+            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict)
 
-        kept: dict[int, Optional[np.ndarray]] = {}
+        def solve_pair(N: int) -> tuple[_Solve, _Solve]:
+            """Solves with ``N`` and ``2 N`` sub-intervals (one batch for small systems)."""
+            nonlocal evaluations
+            if wrapped.n > SMALL_N:
+                return solve(N), solve(2 * N)
+            _memory_check(scheme, 3 * N, wrapped.n)
+            evaluations += 3 * q * N
+            coarse, fine = _magnus_solves_small(scheme, wrapped, period, [N, 2 * N], keep_factors, True)
+            return coarse, fine
 
-        changes = None
-        est = math.nan
+        def pair_estimate(fine: _Solve, coarse: _Solve) -> tuple[np.ndarray, float, float]:
+            """Per-multiplier Richardson estimates of the fine solve's error, their max over
+            the moduli >= ESTIMATE_FLOOR of the largest, and the matrix estimate.
+
+            Maths: with ``err(N) ~ C N^-p`` and ``r = N_f / N_c``, the change between the
+            two solves is ``err(N_f) (r^p - 1)``.
+            """
+            factor = (fine.n_steps / coarse.n_steps) ** p - 1.0
+            estimates = _select_changes(fine.spectrum, coarse.spectrum, accuracy) / factor
+            phase_estimate[0] = _estimate(_phase_changes(fine.spectrum, coarse.spectrum), fine.spectrum, factor)
+            est = _estimate(estimates, fine.spectrum, 1.0)
+            # the matrix estimate matters only when the eigenvalue estimate misses rtol
+            matrix_est = 0.0 if est <= rtol else _matrix_change(fine.monodromy, coarse.monodromy) / factor
+            return estimates, est, matrix_est
+
         if n_steps is not None:
-            N = n_steps
-            log_det, Phi, spec = solve(N)
-            evaluations = q * N
-            if error_estimate and N >= 2:
-                coarse = solve(N // 2)[2]
-                evaluations += q * (N // 2)
-                changes = _select_changes(spec, coarse, accuracy)
-                est = _estimate(changes, spec, richardson)
-        else:
-            N = _initial_steps(wrapped, period, max_steps)
-            evaluations = 0
-            while True:  # a too coarse start can overflow the commutator terms: refine first
+            try:
+                fine = solve(n_steps, strict=False)
+            except _Unresolved as exc:
+                raise FloquetError(f"{exc}; use more steps (n_steps) or method='magnus2'") from None
+            changes, est = None, math.nan
+            if error_estimate and n_steps >= 2:
                 try:
-                    log_det, Phi, spec = solve(N)
-                    evaluations += q * N
-                    break
-                except _MagnusOverflow:
-                    evaluations += q * N
-                    if 4 * N > max_steps:
-                        raise
-                    N *= 2
-            while True:
-                log_det2, Phi2, spec2 = solve(2 * N)
-                evaluations += q * 2 * N
-                changes = _select_changes(spec2, spec, accuracy)
-                est = _estimate(changes, spec2, richardson)
-                # normwise change of the (balanced) monodromy matrix: near a multiple
-                # multiplier (a stability boundary) the eigenvalues move like the square
-                # root of the matrix error and never meet rtol, although Phi has converged;
-                # then the remaining eigenvalue error is conditioning, not discretisation,
-                # and ``error_estimate`` (which stays large) widens the critical band.
-                with np.errstate(over="ignore", invalid="ignore"):
-                    scale_ = float(np.max(np.abs(Phi2))) or 1.0  # keep the norms in range
-                    matrix_est = float(
-                        np.linalg.norm((Phi2 - Phi) / scale_) / np.linalg.norm(Phi2 / scale_)
-                    ) / richardson
-                if not math.isfinite(matrix_est):
-                    matrix_est = math.inf
-                log_det, Phi, spec, N = log_det2, Phi2, spec2, 2 * N
-                if est <= rtol or matrix_est <= 0.1 * rtol:
-                    break
-                if 2 * N > max_steps:
-                    warnings.warn(
-                        f"{scheme.name}: error estimate {est:.2e} > rtol {rtol:.1e} at the step "
-                        f"limit of {N} sub-intervals; the result is less accurate than requested",
-                        RuntimeWarning,
-                        stacklevel=4,
-                    )
-                    break
-        return _Propagation(Phi, spec, log_det, N, evaluations, est, changes, kept.get(N))
+                    changes, est, _ = pair_estimate(fine, solve(n_steps // 2, strict=False))
+                except _Unresolved:
+                    est = math.inf  # the half-step solve is meaningless: no certificate
+        else:
+            fine, changes, est = _adaptive(solve, solve_pair, pair_estimate, rtol, max_steps, scheme,
+                                           lambda: _start_steps(scheme, wrapped, period, max_steps))
+        return _Propagation(fine.monodromy, fine.spectrum, fine.log_abs_det, fine.n_steps, evaluations,
+                            est, changes, fine.factors, phase_estimate[0])
 
     run.__name__ = f"_run_{scheme.name}"
     return run
+
+
+def _first_resolved(solve, N: int, max_steps: int, scheme: MagnusScheme) -> _Solve:
+    """The first solve at ``N, 2N, 4N, ...`` whose sub-intervals resolve ``P``."""
+    last: Optional[_Unresolved] = None
+    while N <= max_steps:
+        try:
+            return solve(N)
+        except _Unresolved as exc:
+            if "GB of work arrays" in str(exc):
+                reason = f"{last}; refining further {exc}" if last is not None else str(exc)
+                break
+            last = exc
+            reason = f"{exc}; no step count up to {max_steps} resolves it"
+            N *= 2
+    hint = " (the commutator terms of high-order Magnus schemes grow with h||P||: use method='magnus2' " \
+           "for stiff, fast systems)" if scheme.order > 2 else ""
+    if last is not None and last.genuine_overflow:
+        hint = " (solutions grow beyond double precision within one period)"
+    raise FloquetError(reason + hint)
+
+
+def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, max_steps: int) -> int:
+    """First sub-interval count: where the commutator part of the exponents is about :data:`START_COMMUTATOR`.
+
+    Measured at ``INITIAL_STEPS`` on up to :data:`PROBE_INTERVALS` sub-intervals
+    and scaled with ``N^-(p-1)`` (the commutator terms of a ``p``-th order
+    scheme are ``O(h^(p-1))`` relative to ``h ||P||`` once the steps resolve
+    ``P``); a power of two times ``INITIAL_STEPS``.  Costs a few evaluations of
+    ``P`` and spares the refinement the solves that are far too coarse.
+    """
+    N = INITIAL_STEPS
+    if scheme.order <= 2:
+        return N
+    intervals = np.arange(0, N, max(1, N // PROBE_INTERVALS))
+    nodes = np.asarray(scheme.nodes)
+    n = wrapped.n
+    h = period / N
+    Pg = wrapped.evaluate(((intervals[:, None] + nodes[None, :]) * h).ravel()).reshape(
+        len(intervals), len(nodes), n, n)
+    with np.errstate(over="ignore", invalid="ignore"):
+        corr = float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
+                                   axis=1)))
+    if not math.isfinite(corr):
+        return N
+    while corr > START_COMMUTATOR and 2 * N <= max_steps:
+        N *= 2
+        corr /= 2.0 ** (scheme.order - 1)
+    return N
+
+
+def _adaptive(solve, solve_pair, pair_estimate, rtol: float, max_steps: int, scheme: MagnusScheme,
+              start_steps: Callable[[], int]):
+    """Refinement from a pilot pair with the error model ``err ~ C N^-p``.
+
+    1. Pilot: the first resolved solve at ``INITIAL_STEPS * 2^j``, then twice as
+       many sub-intervals (classical step doubling).
+    2. If the Richardson estimate ``e_b`` of the finer solve exceeds ``rtol``,
+       the next count is ``N_b (e_b / (SAFETY rtol))^(1/p)`` (at most
+       ``MAX_REFINE_RATIO N_b``): one pass usually suffices.
+    3. The new pair ``(N_b, N_c)`` gives the certified estimate
+       ``|change| / ((N_c/N_b)^p - 1)``; it is accepted only if the change also
+       measures ``N_b``'s error within ``CONSISTENCY`` of what the previous pair
+       predicted (the observed order agrees with ``p``); otherwise refine again.
+    """
+    p = scheme.order
+    N0 = start_steps()
+    fine: Optional[_Solve] = None
+    if 2 * N0 <= max_steps:
+        try:
+            coarse, fine = solve_pair(N0)
+        except _Unresolved:
+            fine = None  # refine one solve at a time below
+    if fine is None:
+        coarse = _first_resolved(solve, N0, max_steps, scheme)
+    N_next = 2 * coarse.n_steps
+    predicted_coarse_error = math.inf  # what the previous pair said about `coarse`
+    while True:
+        if fine is None:
+            if N_next > max_steps:
+                N_next = max_steps
+            try:
+                fine = solve(N_next)
+            except _Unresolved:
+                coarse = _first_resolved(solve, 2 * N_next, max_steps, scheme)
+                N_next, predicted_coarse_error = 2 * coarse.n_steps, math.inf
+                continue
+        changes, est, matrix_est = pair_estimate(fine, coarse)
+        ratio = fine.n_steps / coarse.n_steps
+        # the change measures the coarse solve's error: |rho_c - rho_f| = e_c (1 - ratio^-p)
+        measured_coarse_error = est * (ratio**p - 1.0) / (1.0 - ratio**-p) if math.isfinite(est) else math.inf
+        consistent = ratio <= 2.0 + 1e-12 or measured_coarse_error <= CONSISTENCY * predicted_coarse_error
+        if consistent and (est <= rtol or matrix_est <= 0.1 * rtol):
+            return fine, changes, est
+        if fine.n_steps >= max_steps:
+            warnings.warn(
+                f"{scheme.name}: error estimate {est:.2e} > rtol {rtol:.1e} at the step "
+                f"limit of {fine.n_steps} sub-intervals; the result is less accurate than requested",
+                RuntimeWarning,
+                stacklevel=5,
+            )
+            return fine, changes, est
+        if consistent and math.isfinite(est) and est > 0:
+            grow = (est / (SAFETY * rtol)) ** (1.0 / p)
+            grow = min(max(grow, 1.25), MAX_REFINE_RATIO)
+        else:
+            grow = 2.0  # not (yet) in the asymptotic regime: classical doubling
+        N_next = int(math.ceil(fine.n_steps * grow))
+        predicted_coarse_error = est if math.isfinite(est) else math.inf
+        coarse, fine = fine, None
 
 
 def _paper_method(
@@ -400,7 +740,7 @@ def _paper_method(
     error_estimate: bool,
     max_steps: int,
     reference: Optional[ReferenceOptions] = None,
-    accuracy: str = "multipliers",
+    accuracy: str = "moduli",
     keep_factors: bool = False,
 ) -> _Propagation:
     opts = reference or ReferenceOptions()
@@ -414,9 +754,14 @@ def _paper_method(
         loose = ReferenceOptions(opts.integrator, rtol=opts.rtol * 100, atol=opts.atol * 100)
         Phi2, nfev2 = paper_monodromy(wrapped, period, loose)
         evaluations += nfev2
-        changes = _select_changes(spec, _spectrum(Phi2), accuracy)
+        spec2 = _spectrum(Phi2)
+        changes = _select_changes(spec, spec2, accuracy)
         est = _estimate(changes, spec, 1.0)
-    return _Propagation(Phi, spec, _log_abs_det(Phi[None]), nfev, evaluations, est, changes)
+        phase_est = _estimate(_phase_changes(spec, spec2), spec, 1.0)
+    else:
+        phase_est = math.nan
+    return _Propagation(Phi, spec, _log_abs_det(Phi[None]), nfev, evaluations, est, changes,
+                        phase_error_estimate=phase_est)
 
 
 #: Registry of Floquet methods (name -> implementation).
@@ -449,23 +794,43 @@ class _Balanced:
         return self.evaluate(np.array([t]))[0]
 
 
-def _balancing_scale(wrapped: PeriodicMatrixFunction, period: float) -> Optional[np.ndarray]:
-    """Diagonal scaling from LAPACK's balancing of ``mean |P(t)|``; ``None`` if not worth it."""
-    from scipy.linalg import matrix_balance
+def _samples(wrapped: PeriodicMatrixFunction, period: float) -> np.ndarray:
+    """``P`` at :data:`BALANCE_SAMPLES` equally spaced times (balancing and the scale check)."""
+    return wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))
 
-    if wrapped.n < 2:
+
+def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
+    """Diagonal scaling from LAPACK's balancing (``dgebal``) of ``mean |P(t)|``; ``None`` if not worth it."""
+    from scipy.linalg.lapack import dgebal
+
+    if samples.shape[-1] < 2:
         return None
-    A = np.mean(np.abs(wrapped.evaluate(np.arange(BALANCE_SAMPLES) * (period / BALANCE_SAMPLES))), axis=0)
+    A = np.mean(np.abs(samples), axis=0)
     if np.count_nonzero(A - np.diag(np.diag(A))) == 0:
         return None  # diagonal (or zero): nothing to balance
-    with warnings.catch_warnings():
-        # scipy casts LAPACK's (unused, permute=False) permutation output to int,
-        # which warns for matrices near the underflow threshold
-        warnings.simplefilter("ignore", RuntimeWarning)
-        _, (scale, _perm) = matrix_balance(A, permute=False, separate=True)
-    if not np.all(np.isfinite(scale)) or np.all(scale == 1.0):
+    *_, scale, info = dgebal(A, scale=1, permute=0)
+    if info != 0 or not np.isfinite(scale).all() or np.all(scale == 1.0):
         return None
     return np.asarray(scale, dtype=float)
+
+
+def _check_period_scale(samples: np.ndarray, period: float, scale: Optional[np.ndarray]) -> float:
+    """Reject periods too long for double precision (see :data:`PERIOD_SCALE_LIMIT`); return ``T max||P||``.
+
+    ``||P||`` is the 1-norm of the balanced samples (``D^-1 P D``), within a small
+    factor of the spectral radius for the balanced matrices met here.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        balanced = samples if scale is None else samples * (scale[None, :] / scale[:, None])
+        scale_ = period * float(np.abs(balanced).sum(axis=1).max())
+    if not scale_ <= PERIOD_SCALE_LIMIT:
+        raise ValueError(
+            f"the period T = {period:.3g} s is too long for the time scales of P(t) "
+            f"(T * ||P|| = {scale_:.3g} > {PERIOD_SCALE_LIMIT:.0e}): multipliers like "
+            f"exp(T lambda) and their phases are beyond double precision -- is the frequency "
+            f"(omega = 2 pi / T = {2 * math.pi / period:.3g} rad/s) too small?"
+        )
+    return scale_
 
 
 #: QR sweeps over one period for ``small_multipliers="qr"`` (each sweep is one period
@@ -540,7 +905,7 @@ def floquet(
     max_steps: int = MAX_STEPS,
     reference: Optional[ReferenceOptions] = None,
     balance: bool = True,
-    accuracy: str = "multipliers",
+    accuracy: str = "moduli",
     small_multipliers: str = "flag",
 ) -> FloquetResult:
     """Floquet multipliers and stability verdict of ``x' = P(t) x``.
@@ -559,11 +924,11 @@ def floquet(
         A key of :data:`METHODS` (``"magnus6"``, ``"magnus4"``, ``"paper"``).
     n_steps : int, optional
         Fixed number of sub-intervals for the Magnus methods.  Default:
-        adaptive step doubling from ``INITIAL_STEPS`` until the Richardson
+        adaptive refinement (see the module notes) until the Richardson
         estimate is ``<= rtol``.
     rtol : float
-        Target relative accuracy of the multipliers (adaptive mode); the
-        default 1e-9 is ten times below the 1e-8 the package promises.
+        Target relative accuracy (adaptive mode) of what ``accuracy`` names;
+        the default 1e-9 is ten times below the 1e-8 the package promises.
     stability_tol : float
         Half-width of the band around ``|rho| = 1`` called critical.
     error_estimate : bool
@@ -574,11 +939,14 @@ def floquet(
     reference : ReferenceOptions, optional
         Integrator and tolerances of the ``"paper"`` method (default Radau,
         ``rtol=1e-11``); ignored by the other methods.
-    accuracy : {"multipliers", "moduli"}
-        What the refinement estimate watches: moduli and phases of the
-        multipliers (default), or the moduli only -- for models with
-        undamped high-frequency modes (the Exudyn link's axial modes) whose
-        phases are irrelevant to stability and never converge cheaply.
+    accuracy : {"moduli", "multipliers"}
+        What the refinement certifies to ``rtol``: the moduli (default: the
+        stability verdict depends on nothing else), or the multipliers, i.e.
+        moduli and phases.  A phase is ``T`` times an oscillation frequency
+        modulo ``2 pi``, so at ``Omega = 2 pi`` (107 elastic oscillations per
+        period) its absolute error is ~700 times the frequency's relative
+        error and needs 3-4 times the sub-intervals of the moduli.  The phase
+        error estimate is reported either way (``phase_error_estimate``).
     small_multipliers : {"flag", "qr"}
         Multipliers below the noise floor of the formed product are
         ``"flag"``-ged with ``reliable_digits = 0`` (default, free), or their
@@ -649,42 +1017,64 @@ def floquet(
         raise ValueError(f"stability_tol must be finite and >= 0, got {stability_tol!r}")
     wrapped = PeriodicMatrixFunction(P, period)
     T = wrapped.period
-    scale = _balancing_scale(wrapped, T) if balance else None
+    samples = _samples(wrapped, T)
+    scale = _balancing_scale(samples) if balance else None
+    time_scale = _check_period_scale(samples, T, scale)
     target = wrapped if scale is None else _Balanced(wrapped, scale)
-    prop = METHODS[method](
-        target,
-        T,
-        n_steps=None if n_steps is None else int(n_steps),
-        rtol=rtol,
-        error_estimate=error_estimate,
-        max_steps=max_steps,
-        reference=reference,
-        accuracy=accuracy,
-        keep_factors=small_multipliers == "qr",
-    )
+    # overflow, 0 * inf, log 0 and underflow are all detected and handled explicitly below
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+        return _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference,
+                             accuracy, small_multipliers, wrapped, T, scale, target, time_scale, t0)
+
+
+def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference, accuracy,
+                  small_multipliers, wrapped, T, scale, target, time_scale, t0) -> FloquetResult:
+    """The evaluation part of :func:`floquet` (arguments validated, ``P`` wrapped and balanced)."""
+    try:
+        prop = METHODS[method](
+            target,
+            T,
+            n_steps=None if n_steps is None else int(n_steps),
+            rtol=rtol,
+            error_estimate=error_estimate,
+            max_steps=max_steps,
+            reference=reference,
+            accuracy=accuracy,
+            keep_factors=small_multipliers == "qr",
+        )
+    except FloquetError as exc:
+        finest = time_scale / (n_steps or max_steps)
+        if finest > COMMUTATOR_LIMIT:
+            raise FloquetError(
+                f"{exc}; even {n_steps or max_steps} sub-intervals span h*||P|| = {finest:.3g} "
+                f"each: the period T = {T:.3g} s is too long for the time scales of P (omega too small?)"
+            ) from None
+        raise
     spec = prop.spectrum
     rho = float(math.exp(spec.log_moduli[0]))
     trace = _trace_integral(P, wrapped, T)
     n = spec.values.size
-    noise = float(n * np.finfo(float).eps * np.linalg.norm(prop.monodromy, 2))
-    with np.errstate(divide="ignore"):
-        noise_digits = np.clip(np.log10(np.exp(spec.log_moduli) / noise), 0.0, 16.0)
-        if prop.changes is not None:
-            refine_digits = np.clip(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0, 16.0)
-        else:
-            refine_digits = np.full(n, 16.0)
+    noise = float(n * np.finfo(float).eps * np.linalg.svd(prop.monodromy, compute_uv=False)[0])  # ||Phi||_2
+    moduli = np.exp(spec.log_moduli)
+    noise_digits = np.clip(np.log10(moduli / noise), 0.0, 16.0)
+    if prop.changes is not None:
+        refine_digits = np.clip(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0, 16.0)
+    else:
+        refine_digits = np.full(n, 16.0)
     digits = np.minimum(noise_digits, refine_digits)
-    reliable_all = bool(np.all(np.exp(spec.log_moduli) > 100.0 * noise))
+    reliable_all = bool((moduli > 100.0 * noise).all())
     if small_multipliers == "qr" and prop.factors is not None and not reliable_all:
         spec, digits = _qr_small_multipliers(spec, digits, prop.factors, noise)
         reliable_all = bool(np.all(digits > 0))
-    multiplier_liouville = (
-        _liouville(float(np.sum(spec.log_moduli)), trace) if reliable_all else math.nan
-    )
+    multiplier_liouville = _liouville(float(spec.log_moduli.sum()), trace) if reliable_all else math.nan
     if reliable_all:
         liouville, liouville_source = multiplier_liouville, "multipliers"
-    else:
+    elif math.isfinite(prop.log_abs_det) and method != "paper":
         liouville, liouville_source = _liouville(prop.log_abs_det, trace), "propagators"
+    else:
+        # the paper's procedure keeps no propagators and det Phi of the formed matrix is
+        # rounding noise when some multiplier is below the noise floor: nothing to check
+        liouville, liouville_source = math.nan, "unavailable"
     tol = stability_tol
     if math.isfinite(prop.error_estimate):
         tol = max(tol, prop.error_estimate * rho)
@@ -707,6 +1097,8 @@ def floquet(
         n_evaluations=prop.n_evaluations,
         period=T,
         elapsed=time.perf_counter() - t0,
+        accuracy=accuracy,
+        phase_error_estimate=prop.phase_error_estimate,
     )
     logger.debug(
         "floquet(%s): rho=%.6g steps=%d est=%.2e liouville=%.2e",

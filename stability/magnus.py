@@ -21,9 +21,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from stability.expm import expm_stack
+from stability.expm import _c_einsum, expm_stack, mm_soa
 
-__all__ = ["MagnusScheme", "MAGNUS2", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product"]
+__all__ = [
+    "MagnusScheme", "MAGNUS2", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product",
+    "magnus_exponents", "magnus_exponents_soa", "ordered_product_soa",
+]
 
 
 @dataclass(frozen=True)
@@ -124,3 +127,45 @@ def ordered_product(factors: np.ndarray) -> np.ndarray:
                 break
         E = E[1::2] @ E[0::2]
     return E[0]
+
+
+# --------------------------------------------------------------------------- matrix-major stacks
+def _comm_soa(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    return mm_soa(A, B) - mm_soa(B, A)
+
+
+def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarray:
+    """:func:`magnus_exponents` for matrix-major stacks: ``Pg`` of shape ``(q, n, n, N)``, result ``(n, n, N)``."""
+    if scheme.order == 2:
+        return h * Pg[0]
+    if scheme.order == 4:
+        A1, A2 = Pg[0], Pg[1]
+        return 0.5 * h * (A1 + A2) + (math.sqrt(3) / 12.0) * h * h * _comm_soa(A2, A1)
+    if scheme.order == 6:
+        A1, A2, A3 = Pg[0], Pg[1], Pg[2]
+        a1 = h * A2
+        a2 = (math.sqrt(15) / 3.0) * h * (A3 - A1)
+        a3 = (10.0 / 3.0) * h * (A3 - 2.0 * A2 + A1)
+        c1 = _comm_soa(a1, a2)
+        c2 = -(1.0 / 60.0) * _comm_soa(a1, 2.0 * a3 + c1)
+        return a1 + a3 / 12.0 + (1.0 / 240.0) * _comm_soa(-20.0 * a1 - a3 + c1, a2 + c2)
+    raise ValueError(f"unsupported Magnus order {scheme.order}")
+
+
+def ordered_product_soa(factors: np.ndarray, blocks: int = 1) -> np.ndarray:
+    """:func:`ordered_product` for a matrix-major stack ``(n, n, N)`` in time order; returns ``(n, n)``.
+
+    With ``blocks = b``, the stack holds ``b`` interleaved sequences (factor ``k``
+    of sequence ``j`` at index ``k * b + j``), all reduced together; returns
+    ``(n, n, b)``.
+    """
+    n = factors.shape[0]
+    E = factors.reshape(n, n, -1, blocks)
+    while E.shape[2] > 1:
+        if E.shape[2] % 2:
+            last = _c_einsum("ijkb,jlkb->ilkb", E[:, :, -1:], E[:, :, -2:-1])
+            E = np.concatenate([E[:, :, :-2], last], axis=2)
+            if E.shape[2] == 1:
+                break
+        E = _c_einsum("ijkb,jlkb->ilkb", E[:, :, 1::2], E[:, :, 0::2])
+    return E[:, :, 0, 0] if blocks == 1 else E[:, :, 0, :]

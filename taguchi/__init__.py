@@ -33,6 +33,16 @@ from taguchi.sn import (
     sn_ratios,
     sn_target,
 )
+from taguchi.robust import (
+    NoiseFactor,
+    PlantNoiseObjective,
+    RobustConfig,
+    RobustResult,
+    WorstCase,
+    noise_grid,
+    robust_tune,
+    worst_case,
+)
 from taguchi.tuning import GainObjective, TaguchiIteration, TaguchiResult, TuningConfig, taguchi_tune
 
 __all__ = [
@@ -44,4 +54,6 @@ __all__ = [
     "predict_sn", "analyze",
     "GainObjective", "TuningConfig", "TaguchiIteration", "TaguchiResult", "taguchi_tune",
     "DirectResult", "direct_tune",
+    "NoiseFactor", "RobustConfig", "RobustResult", "WorstCase", "PlantNoiseObjective", "noise_grid",
+    "robust_tune", "worst_case",
 ]

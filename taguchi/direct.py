@@ -28,8 +28,8 @@ DIRECT_METHODS = ("nelder-mead", "differential-evolution")
 class DirectResult:
     """Outcome of :func:`direct_tune` (fields as :class:`~taguchi.tuning.TaguchiResult`)."""
 
-    kp: float
-    kd: float
+    gains: tuple[float, ...]
+    names: tuple[str, ...]
     spectral_radius: float
     target: float
     tolerance: float
@@ -39,9 +39,27 @@ class DirectResult:
     evaluations: int
     elapsed: float
 
+    @property
+    def kp(self) -> float:
+        """``kp`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kp")
+
+    @property
+    def kd(self) -> float:
+        """``kd`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kd")
+
+    def _named(self, key: str) -> float:
+        if key not in self.names:
+            raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
+        return self.gains[self.names.index(key)]
+
     def to_dict(self) -> dict:
-        """JSON-ready dictionary."""
-        return dict(self.__dict__)
+        """JSON-ready dictionary (one key per factor, plus ``gains`` and ``names``)."""
+        out = {s: float(v) for s, v in zip(self.names, self.gains)}
+        out.update(dict(self.__dict__))
+        out["gains"], out["names"] = list(self.gains), list(self.names)
+        return out
 
 
 class _Reached(Exception):
@@ -59,7 +77,7 @@ def direct_tune(
     Parameters
     ----------
     objective : callable
-        ``(kp, kd) -> max|rho|``.
+        ``gains -> max|rho|``, gains in the order of ``config.names``.
     config : TuningConfig
         Target, ranges, tolerance and evaluation budget.
     method : {"nelder-mead", "differential-evolution"}
@@ -74,24 +92,24 @@ def direct_tune(
         raise ValueError(f"unknown direct method {method!r}; choose from {', '.join(DIRECT_METHODS)}")
     t0 = time.perf_counter()
     target, tol = config.target, config.effective_tolerance
-    best = {"y": math.inf, "x": (math.nan, math.nan), "n": 0}
+    bounds = list(config.factor_ranges)
+    best = {"y": math.inf, "x": tuple(math.nan for _ in bounds), "n": 0}
 
     def loss(x: np.ndarray) -> float:
         if best["n"] >= config.max_evaluations:
             raise _Reached
-        kp, kd = float(x[0]), float(x[1])
-        y = float(objective((kp, kd)))
+        gains = tuple(float(v) for v in x)
+        y = float(objective(gains))
         best["n"] += 1
         if abs(y - target) < abs(best["y"] - target):
-            best["y"], best["x"] = y, (kp, kd)
+            best["y"], best["x"] = y, gains
         if abs(y - target) <= tol:
             raise _Reached
         return (y - target) ** 2
 
-    bounds = [config.kp_range, config.kd_range]
     try:
         if method == "nelder-mead":
-            x0 = np.array([np.mean(config.kp_range), np.mean(config.kd_range)])
+            x0 = np.array([np.mean(b) for b in bounds])
             minimize(loss, x0, method="Nelder-Mead", bounds=bounds,
                      options={"xatol": 1e-8, "fatol": 0.0, "maxfev": config.max_evaluations})
         else:
@@ -100,8 +118,8 @@ def direct_tune(
         pass
     converged = abs(best["y"] - target) <= tol
     return DirectResult(
-        kp=best["x"][0],
-        kd=best["x"][1],
+        gains=best["x"],
+        names=tuple(config.names),
         spectral_radius=best["y"],
         target=target,
         tolerance=tol,

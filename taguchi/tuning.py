@@ -1,13 +1,16 @@
 """Iterative Taguchi tuning of the PD gains to a target Floquet multiplier.
 
 The objective is the paper's Eq. (34): drive ``y(kp, kd) = max_i |rho_i|``
-to the target ``rho_d``.  One *iteration* is one Taguchi experiment:
+to the target ``rho_d``.  Any number of factors is tuned the same way (two
+drives: ``(kp1, kd1, kp2, kd2)``, :attr:`TuningConfig.ranges`).  One
+*iteration* is one Taguchi experiment:
 
-1. **Levels.** Each factor (``kp``, ``kd``) gets ``levels`` equally spaced
-   values spanning its current range ``[lo, hi]`` (ends included).
-2. **Array.** The runs are the rows of an orthogonal array with two columns
-   of ``levels`` levels (default L9 for 3 levels; ``array=`` chooses
-   another, e.g. ``"L25"`` with 5 levels).  The runs are independent and go
+1. **Levels.** Each factor (``kp``, ``kd``, ...) gets ``levels`` equally
+   spaced values spanning its current range ``[lo, hi]`` (ends included).
+2. **Array.** The runs are the rows of an orthogonal array with one column
+   of ``levels`` levels per factor (default for 3 levels: L9 up to 4
+   factors, L18 up to 7, L27 up to 13; ``array=`` chooses another, e.g.
+   ``"L25"`` with 5 levels).  The runs are independent and go
    through a ``concurrent.futures`` executor.
 3. **S/N.** Each run's response ``y`` gets the target S/N ratio
    ``eta = -10 log10 (y - rho_d)^2`` (:func:`taguchi.sn.sn_target`).
@@ -61,11 +64,13 @@ from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_target
 
 __all__ = [
+    "DriveGainObjective",
     "GainObjective",
     "TaguchiIteration",
     "TaguchiResult",
     "TuningConfig",
     "check_gain_range",
+    "default_factor_names",
     "taguchi_tune",
     "STATUS_CONVERGED",
     "STATUS_BUDGET",
@@ -112,6 +117,48 @@ class GainObjective:
         return floquet(self.plant.with_gains(kp, kd), **self.floquet_options).spectral_radius
 
 
+class DriveGainObjective:
+    """``(kp1, kd1, kp2, kd2, ...) -> max|rho|`` for a plant with one gain pair per drive.
+
+    Parameters
+    ----------
+    plant : object
+        Has ``with_gains(kp, kd)`` taking one value per drive (sequences) and
+        returning a periodic matrix for :func:`stability.floquet` (e.g. a
+        model-file :class:`~linearize.system.LinearizedPeriodicSystem`).
+        Picklable for process or Dask executors.
+    floquet_options : dict
+        Keyword arguments of :func:`stability.floquet`.
+    unit_circle_tolerance : float, optional
+        If given, the response is the largest modulus among the multipliers
+        off the unit circle (``| |rho| - 1 | >= tolerance``): the undamped
+        modes of an FE model without structural damping keep ``|rho| = 1``
+        whatever the gains, and the tuning targets the damped ones (as for the
+        single link's Exudyn plant).  ``None``: the spectral radius.
+    """
+
+    def __init__(self, plant: Any, floquet_options: Optional[dict] = None,
+                 unit_circle_tolerance: Optional[float] = None) -> None:
+        if not callable(getattr(plant, "with_gains", None)):
+            raise ValueError("plant must provide with_gains(kp, kd)")
+        self.plant = plant
+        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.unit_circle_tolerance = unit_circle_tolerance
+
+    def __call__(self, gains: Sequence[float]) -> float:
+        from stability import floquet
+
+        g = [float(v) for v in gains]
+        if len(g) % 2:
+            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
+        res = floquet(self.plant.with_gains(g[0::2], g[1::2]), **self.floquet_options)
+        if self.unit_circle_tolerance is None:
+            return float(res.spectral_radius)
+        moduli = np.abs(np.asarray(res.multipliers))
+        off = moduli[np.abs(moduli - 1.0) >= self.unit_circle_tolerance]
+        return float(np.max(off)) if off.size else float(np.max(moduli))
+
+
 def check_gain_range(value: Any, name: str) -> tuple[float, float]:
     """Validate a gain range ``(low, high)``: finite, ``0 <= low < high``.
 
@@ -133,6 +180,16 @@ def check_gain_range(value: Any, name: str) -> tuple[float, float]:
     return (lo, hi)
 
 
+def default_factor_names(n_factors: int) -> tuple[str, ...]:
+    """Factor names for ``n_factors`` gains: ``(kp, kd)`` for one drive,
+    ``(kp1, kd1, kp2, kd2, ...)`` for several (pairs per drive), else ``x1, x2, ...``."""
+    if n_factors == 2:
+        return ("kp", "kd")
+    if n_factors % 2 == 0:
+        return tuple(f"{g}{j + 1}" for j in range(n_factors // 2) for g in ("kp", "kd"))
+    return tuple(f"x{j + 1}" for j in range(n_factors))
+
+
 @dataclass(frozen=True)
 class TuningConfig:
     """Options of :func:`taguchi_tune`.
@@ -142,12 +199,20 @@ class TuningConfig:
     target : float
         ``rho_d`` > 0.
     kp_range, kd_range : (float, float)
-        Initial ranges, ``0 <= lo < hi``.
+        Initial ranges of the two gains of one drive, ``0 <= lo < hi``; used
+        when ``ranges`` is not given.
+    ranges : sequence of (float, float), optional
+        Initial ranges of any number of factors (e.g. ``(kp1, kd1, kp2, kd2)``
+        for two drives); overrides ``kp_range``/``kd_range``.
+    names : sequence of str, optional
+        Factor names (default :func:`default_factor_names`).
     array : str, optional
-        Orthogonal array name (``"L9"``, ``"L16"``, ``"L25"``, ...); default
-        the smallest array with two columns of ``levels`` levels.
+        Orthogonal array name (``"L9"``, ``"L16"``, ``"L25"``, ``"L27"``, ...);
+        default the smallest array with one column of ``levels`` levels per
+        factor (:func:`taguchi.arrays.array_for`: L9 for up to 4 factors at
+        3 levels, L18 for 5-7, L27 for 8-13).
     levels : int
-        Levels per factor when ``array`` is not given (default 3 -> L9).
+        Levels per factor when ``array`` is not given (default 3).
     tolerance : float, optional
         Stop when ``|max|rho| - rho_d| <= tolerance``; default ``1e-3 rho_d``.
     max_evaluations : int
@@ -164,12 +229,30 @@ class TuningConfig:
     tolerance: Optional[float] = None
     max_evaluations: int = 600
     shrink: float = 0.5
+    ranges: Optional[tuple[tuple[float, float], ...]] = None
+    names: Optional[tuple[str, ...]] = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.target, (int, float)) and math.isfinite(self.target) and self.target > 0):
             raise ValueError(f"target rho_d must be finite and > 0, got {self.target!r}")
         for name in ("kp_range", "kd_range"):
             object.__setattr__(self, name, check_gain_range(getattr(self, name), name))
+        if self.ranges is not None:
+            if isinstance(self.ranges, (str, bytes)) or len(self.ranges) < 1:
+                raise ValueError(f"ranges must be a non-empty sequence of (low, high) pairs, got {self.ranges!r}")
+            n = len(self.ranges)
+        else:
+            n = 2
+        if self.names is not None:
+            names = tuple(str(s) for s in self.names)
+            if len(names) != n or len(set(names)) != n:
+                raise ValueError(f"names must be {n} distinct factor names, got {self.names!r}")
+        else:
+            names = default_factor_names(n)
+        object.__setattr__(self, "names", names)
+        if self.ranges is not None:
+            object.__setattr__(self, "ranges", tuple(
+                check_gain_range(r, f"{s} range") for r, s in zip(self.ranges, names)))
         if isinstance(self.levels, bool) or not isinstance(self.levels, int) or self.levels < 2:
             raise ValueError(f"levels must be an integer >= 2, got {self.levels!r}")
         if self.tolerance is not None and not (math.isfinite(self.tolerance) and self.tolerance > 0):
@@ -180,51 +263,92 @@ class TuningConfig:
             raise ValueError(f"shrink must be in (0, 1), got {self.shrink!r}")
 
     @property
+    def factor_ranges(self) -> tuple[tuple[float, float], ...]:
+        """Initial range of every factor (``ranges``, or ``(kp_range, kd_range)``)."""
+        return self.ranges if self.ranges is not None else (self.kp_range, self.kd_range)
+
+    @property
+    def n_factors(self) -> int:
+        """Number of tuned factors."""
+        return len(self.factor_ranges)
+
+    @property
     def effective_tolerance(self) -> float:
         """The stopping tolerance (``1e-3 rho_d`` unless given)."""
         return self.tolerance if self.tolerance is not None else 1e-3 * self.target
 
     def orthogonal_array(self) -> OrthogonalArray:
-        """The two-factor array used for every iteration."""
+        """The array used for every iteration: one column per factor, equal level counts."""
+        n = self.n_factors
         if self.array is None:
-            return array_for(2, self.levels)
+            return array_for(n, self.levels)
         oa = get_array(self.array)
         for s in sorted(set(oa.levels), reverse=True):
             cols = oa.columns_with_levels(s)
-            if len(cols) >= 2:
-                return oa.subset(cols[:2])
-        raise ValueError(f"array {self.array!r} has no two columns with equal level counts")
+            if len(cols) >= n:
+                return oa.subset(cols[:n])
+        raise ValueError(f"array {self.array!r} has no {n} columns with equal level counts")
+
+
+def _named(names: Sequence[str], values: Sequence[float]) -> dict[str, float]:
+    return {s: float(v) for s, v in zip(names, values)}
 
 
 @dataclass(frozen=True)
 class TaguchiIteration:
-    """One Taguchi experiment of the tuning history."""
+    """One Taguchi experiment of the tuning history.
+
+    ``ranges[j]``, ``factor_levels[j]`` belong to factor ``names[j]``; the
+    ``kp_*``/``kd_*`` properties are those of the first two factors (the
+    single-drive case).
+    """
 
     index: int
-    kp_range: tuple[float, float]
-    kd_range: tuple[float, float]
-    kp_levels: tuple[float, ...]
-    kd_levels: tuple[float, ...]
-    design: tuple[tuple[float, float], ...]
+    ranges: tuple[tuple[float, float], ...]
+    factor_levels: tuple[tuple[float, ...], ...]
+    names: tuple[str, ...]
+    design: tuple[tuple[float, ...], ...]
     responses: tuple[float, ...]
     sn_ratios: tuple[float, ...]
     analysis: TaguchiAnalysis
-    best_levels: tuple[int, int]
+    best_levels: tuple[int, ...]
     predicted_sn: float
-    confirmation_gains: tuple[float, float]
+    confirmation_gains: tuple[float, ...]
     confirmation_response: float
     confirmation_sn: float
-    incumbent_gains: tuple[float, float]
+    incumbent_gains: tuple[float, ...]
     incumbent_response: float
 
+    @property
+    def kp_range(self) -> tuple[float, float]:
+        return self.ranges[0]
+
+    @property
+    def kd_range(self) -> tuple[float, float]:
+        return self.ranges[1]
+
+    @property
+    def kp_levels(self) -> tuple[float, ...]:
+        return self.factor_levels[0]
+
+    @property
+    def kd_levels(self) -> tuple[float, ...]:
+        return self.factor_levels[1]
+
+    def __repr__(self) -> str:  # the design, responses and ANOVA are in to_dict(); keep a REPL readable
+        ranges = ", ".join(f"{s}=({r[0]:.6g}, {r[1]:.6g})" for s, r in zip(self.names, self.ranges))
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.incumbent_gains))
+        return (f"TaguchiIteration(index={self.index}, ranges[{ranges}], runs={len(self.design)}, "
+                f"incumbent=({gains}, max|rho|={self.incumbent_response:.6g}))")
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary."""
-        return {
-            "index": self.index,
-            "kp_range": list(self.kp_range),
-            "kd_range": list(self.kd_range),
-            "kp_levels": list(self.kp_levels),
-            "kd_levels": list(self.kd_levels),
+        """JSON-ready dictionary (``<name>_range``/``<name>_levels`` per factor)."""
+        out: dict[str, Any] = {"index": self.index, "names": list(self.names)}
+        for s, r in zip(self.names, self.ranges):
+            out[f"{s}_range"] = list(r)
+        for s, lv in zip(self.names, self.factor_levels):
+            out[f"{s}_levels"] = list(lv)
+        out.update({
             "design": [list(r) for r in self.design],
             "responses": list(self.responses),
             "sn_ratios": list(self.sn_ratios),
@@ -238,17 +362,16 @@ class TaguchiIteration:
             "best_levels": list(self.best_levels),
             "predicted_sn": self.predicted_sn,
             "confirmation": {
-                "kp": self.confirmation_gains[0],
-                "kd": self.confirmation_gains[1],
+                **_named(self.names, self.confirmation_gains),
                 "spectral_radius": self.confirmation_response,
                 "sn": self.confirmation_sn,
             },
             "incumbent": {
-                "kp": self.incumbent_gains[0],
-                "kd": self.incumbent_gains[1],
+                **_named(self.names, self.incumbent_gains),
                 "spectral_radius": self.incumbent_response,
             },
-        }
+        })
+        return out
 
 
 @dataclass(frozen=True)
@@ -257,8 +380,10 @@ class TaguchiResult:
 
     Attributes
     ----------
-    kp, kd : float
-        The best gains found.
+    gains : tuple of float
+        The best factor values found, in the order of ``names``.
+    names : tuple of str
+        Factor names (``("kp", "kd")`` for one drive).
     spectral_radius : float
         ``max|rho|`` at those gains (as evaluated inside the loop).
     target, tolerance : float
@@ -276,8 +401,8 @@ class TaguchiResult:
         Wall time in s.
     """
 
-    kp: float
-    kd: float
+    gains: tuple[float, ...]
+    names: tuple[str, ...]
     spectral_radius: float
     target: float
     tolerance: float
@@ -290,11 +415,34 @@ class TaguchiResult:
     elapsed: float
     config: TuningConfig = field(repr=False, default_factory=TuningConfig)
 
+    @property
+    def kp(self) -> float:
+        """``kp`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kp")
+
+    @property
+    def kd(self) -> float:
+        """``kd`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kd")
+
+    def _named(self, key: str) -> float:
+        if key not in self.names:
+            raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
+        return self.gains[self.names.index(key)]
+
+    def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
+        gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.gains))
+        return (f"TaguchiResult({gains}, spectral_radius={self.spectral_radius:.6g}, "
+                f"target={self.target:g}, status={self.status!r}, evaluations={self.evaluations}, "
+                f"iterations=<{len(self.iterations)} TaguchiIteration>, array={self.array!r}, "
+                f"elapsed={self.elapsed:.3g} s)")
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dictionary (``iterations`` is the history)."""
-        return {
-            "kp": self.kp,
-            "kd": self.kd,
+        """JSON-ready dictionary (``iterations`` is the history; one key per factor)."""
+        out: dict[str, Any] = _named(self.names, self.gains)
+        out.update({
+            "names": list(self.names),
+            "gains": list(self.gains),
             "spectral_radius": self.spectral_radius,
             "target": self.target,
             "tolerance": self.tolerance,
@@ -305,7 +453,8 @@ class TaguchiResult:
             "array": self.array,
             "elapsed": self.elapsed,
             "iterations": [it.to_dict() for it in self.iterations],
-        }
+        })
+        return out
 
 
 def _levels(rng: tuple[float, float], n: int) -> np.ndarray:
@@ -335,13 +484,14 @@ def taguchi_tune(
     executor: Optional[cf.Executor] = None,
     progress: bool = False,
 ) -> TaguchiResult:
-    """Tune ``(kp, kd)`` so that ``objective(kp, kd) = max|rho|`` reaches ``config.target``.
+    """Tune the factors so that ``objective(gains) = max|rho|`` reaches ``config.target``.
 
     Parameters
     ----------
     objective : callable
-        ``(kp, kd) -> max_i |rho_i|`` (e.g. :class:`GainObjective`); must be
-        picklable when ``executor`` is a process pool or Dask.
+        ``gains -> max_i |rho_i|`` with ``gains`` a tuple in the order of
+        ``config.names`` (``(kp, kd)`` by default, e.g. :class:`GainObjective`);
+        must be picklable when ``executor`` is a process pool or Dask.
     config : TuningConfig
     executor : concurrent.futures.Executor, optional
         Runs the array's rows; default serial in this process.
@@ -364,10 +514,12 @@ def taguchi_tune(
     n_runs = oa.n_runs
     tol = config.effective_tolerance
     target = config.target
-    kp_rng, kd_rng = config.kp_range, config.kd_range
+    names = tuple(config.names)  # type: ignore[arg-type]
+    bounds = config.factor_ranges
+    rngs = tuple(bounds)
     evaluations = 0
     history: list[TaguchiIteration] = []
-    best_gains: Optional[tuple[float, float]] = None
+    best_gains: Optional[tuple[float, ...]] = None
     best_y = math.inf
 
     bar = None
@@ -377,18 +529,17 @@ def taguchi_tune(
         bar = tqdm(total=config.max_evaluations, desc=f"Taguchi rho_d={target:g}", unit="eval", leave=False)
     try:
         while evaluations + n_runs + 1 <= config.max_evaluations:
-            kp_lv = _levels(kp_rng, oa.levels[0])
-            kd_lv = _levels(kd_rng, oa.levels[1])
-            design = to_design(oa, [kp_lv.tolist(), kd_lv.tolist()])
-            points = [(float(a), float(b)) for a, b in design]
+            lv_values = [_levels(r, s) for r, s in zip(rngs, oa.levels)]
+            design = to_design(oa, [v.tolist() for v in lv_values])
+            points = [tuple(float(x) for x in row) for row in design]
             ys = _evaluate(objective, points, executor)
-            _check_responses(ys, points)
+            _check_responses(ys, points, names)
             sn = np.array([sn_target(y, target) for y in ys])
-            result = analyze(oa, sn, factor_names=("kp", "kd"))
+            result = analyze(oa, sn, factor_names=names)
             lv = result.best_levels
-            conf = (float(kp_lv[lv[0]]), float(kd_lv[lv[1]]))
+            conf = tuple(float(v[k]) for v, k in zip(lv_values, lv))
             y_conf = float(objective(conf))  # one run: no point shipping it to a worker
-            _check_responses([y_conf], [conf])
+            _check_responses([y_conf], [conf], names)
             evaluations += n_runs + 1
             if bar is not None:
                 bar.update(n_runs + 1)
@@ -399,15 +550,14 @@ def taguchi_tune(
             history.append(
                 TaguchiIteration(
                     index=len(history),
-                    kp_range=kp_rng,
-                    kd_range=kd_rng,
-                    kp_levels=tuple(kp_lv.tolist()),
-                    kd_levels=tuple(kd_lv.tolist()),
+                    ranges=rngs,
+                    factor_levels=tuple(tuple(v.tolist()) for v in lv_values),
+                    names=names,
                     design=tuple(points),
                     responses=tuple(ys),
                     sn_ratios=tuple(sn.tolist()),
                     analysis=result,
-                    best_levels=(int(lv[0]), int(lv[1])),
+                    best_levels=tuple(int(k) for k in lv),
                     predicted_sn=float(result.predicted_sn),
                     confirmation_gains=conf,
                     confirmation_response=y_conf,
@@ -416,14 +566,12 @@ def taguchi_tune(
                     incumbent_response=best_y,
                 )
             )
-            logger.debug(
-                "iteration %d: kp in %s, kd in %s -> best (%.5g, %.5g) rho=%.6g",
-                len(history), kp_rng, kd_rng, best_gains[0], best_gains[1], best_y,
-            )
+            logger.debug("iteration %d: ranges %s -> best %s rho=%.6g", len(history), rngs, best_gains, best_y)
             if abs(best_y - target) <= tol:
                 break
-            kp_rng = _recentre(best_gains[0], (kp_rng[1] - kp_rng[0]) * config.shrink, config.kp_range)
-            kd_rng = _recentre(best_gains[1], (kd_rng[1] - kd_rng[0]) * config.shrink, config.kd_range)
+            rngs = tuple(
+                _recentre(c, (r[1] - r[0]) * config.shrink, b) for c, r, b in zip(best_gains, rngs, bounds)
+            )
     finally:
         if bar is not None:
             bar.close()
@@ -435,15 +583,16 @@ def taguchi_tune(
         )
     converged = abs(best_y - target) <= tol
     status = STATUS_CONVERGED if converged else STATUS_BUDGET
+    at = ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, best_gains))
     message = (
         f"|max|rho| - rho_d| = {abs(best_y - target):.2e} <= {tol:.2e} after {evaluations} evaluations"
         if converged
         else f"target rho_d = {target:g} not reached within {config.max_evaluations} evaluations; "
-        f"best max|rho| = {best_y:.6g} at kp = {best_gains[0]:.6g}, kd = {best_gains[1]:.6g}"
+        f"best max|rho| = {best_y:.6g} at {at}"
     )
     return TaguchiResult(
-        kp=best_gains[0],
-        kd=best_gains[1],
+        gains=best_gains,
+        names=names,
         spectral_radius=best_y,
         target=target,
         tolerance=tol,
@@ -458,7 +607,8 @@ def taguchi_tune(
     )
 
 
-def _check_responses(ys: Sequence[float], points: Sequence[tuple[float, float]]) -> None:
+def _check_responses(ys: Sequence[float], points: Sequence[tuple[float, ...]], names: Sequence[str]) -> None:
     for y, p in zip(ys, points):
         if not math.isfinite(y) or y < 0:
-            raise ValueError(f"objective returned {y!r} at kp = {p[0]:.6g}, kd = {p[1]:.6g}")
+            at = ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, p))
+            raise ValueError(f"objective returned {y!r} at {at}")

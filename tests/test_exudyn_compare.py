@@ -1,11 +1,13 @@
 """scripts/compare_models.py in its fast mode (2 elements, Omega = 2 pi).
 
-Oracle: the paper's Table 3 (|rho_1| = 0.3 at Omega = 2 pi with its gains,
-p. 489) for the reduced and the Exudyn models, and the direct Exudyn
-monodromy against the linearisation.
+Oracles: the paper's Table 3 (|rho_1| = 0.3 at Omega = 2 pi with its gains,
+p. 489) for the reduced model; the direct Exudyn monodromy (Exudyn's own
+integrator) for the Exudyn linearisation.  Reduced vs Exudyn is an agreement
+between two models, bounded by what separates them (``_model_bounds``).
 """
 import importlib.util
 import json
+import math
 import os
 from pathlib import Path
 
@@ -13,10 +15,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest
 
+from mbs_models.exudyn_link import ExudynLinkConfig
+from mbs_models.orbit import find_periodic_orbit
+
+from _model_bounds import model_difference_bound  # tests/ helper
+
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_models.py"
+#: Half a unit of the 4th decimal: the gains of Table 3 are printed to 1e-4 and
+#: d|rho|/dkp ~ 1e-2, so the reduced model meets the printed 0.3 to ~1e-6 (test_table2).
+TABLE3_RESOLUTION = 1e-4
 
 
-def test_compare_models_fast(tmp_path):
+def test_compare_models_fast_reduced_vs_table3_and_exudyn_vs_direct(tmp_path):
     spec = importlib.util.spec_from_file_location("compare_models", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -25,13 +35,25 @@ def test_compare_models_fast(tmp_path):
     md = (tmp_path / "models.md").read_text()
     rows = data["rows"]
     assert [(r["kp"], r["kd"]) for r in rows] == [(0.0, 0.0), (37.1617, 29.241)]
-    ctrl = rows[1]
-    assert ctrl["reduced"] == pytest.approx(0.3, rel=0.02)
-    assert ctrl["exudyn_orbit"] == pytest.approx(0.3, rel=0.02)
-    assert ctrl["exudyn_orbit"] == pytest.approx(ctrl["direct"], rel=0.005)
-    # uncontrolled: unstable in every model, linearisation and direct agree
-    unc = rows[0]
-    assert unc["exudyn_orbit"] > 1 and unc["reduced"] > 1
-    assert unc["exudyn_orbit"] == pytest.approx(unc["direct"], rel=0.005)
+    ctrl, unc = rows[1], rows[0]
+    # published value: Table 3, p. 489
+    assert ctrl["reduced"] == pytest.approx(0.3, rel=TABLE3_RESOLUTION)
+    # independent oracle for the Exudyn linearisation: Exudyn's own integrator.  The direct
+    # monodromy carries the integrator's error over one period of the closed loop, which its
+    # run reports as the shooting defect from the orbit state (relative to the elastic
+    # deformation: ~1e-3 controlled, ~2e-2 uncontrolled at h = 1e-3, 2 elements).  The
+    # linearisation route's own error is far smaller (test_linearize).  (This error bar
+    # cannot tell the rigid-reference linearisation from the true-orbit one at 2 pi: issue 10.)
+    for row in (ctrl, unc):
+        assert row["exudyn_orbit_mode"] == "hub"
+        assert row["direct_closed_loop_defect"] < 0.05  # the integrator resolves the period
+        assert row["exudyn_orbit"] == pytest.approx(row["direct"], rel=row["direct_closed_loop_defect"])
+    # model agreement (reduced vs Exudyn), bounded by the orbit's deflection
+    orbit = find_periodic_orbit(config=ExudynLinkConfig(elements=data["elements"]), samples=data["samples"],
+                                verify=False)
+    for row in (ctrl, unc):
+        assert abs(math.log(row["exudyn_orbit"] / row["reduced"])) <= model_difference_bound(orbit, row["reduced"])
+    # uncontrolled: unstable in every model
+    assert unc["exudyn_orbit"] > 1 and unc["reduced"] > 1 and unc["direct"] > 1
     # every number in the table comes from the JSON
     assert f"{ctrl['exudyn_orbit']:.6g}" in md and f"{unc['direct']:.6g}" in md

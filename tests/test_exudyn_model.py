@@ -31,11 +31,19 @@ def test_coordinate_map_derivatives():
     v = v + 1e-2 * rng.standard_normal(m.n)
     q, J = m.coordinates(p), m.jacobian(p)
     p2, v2 = m.independent(q, J @ v)
-    assert np.allclose(p2, p, atol=1e-14) and np.allclose(v2, v, atol=1e-13)
+    # round trip g^-1(g(p)): a rotation and a shift each way, a few roundings of O(1) numbers per
+    # entry: <= 16 eps max(1, |p|) (measured 1e-16); the rates also carry w |p| (the S u term).
+    # (np.allclose's default rtol=1e-5 used to hide in the old check.)
+    eps = np.finfo(float).eps
+    np.testing.assert_allclose(p2, p, rtol=0, atol=16 * eps * max(1.0, np.max(np.abs(p))))
+    np.testing.assert_allclose(v2, v, rtol=0,
+                               atol=16 * eps * max(1.0, np.max(np.abs(v))) * max(1.0, np.max(np.abs(p))))
     h = 1e-6
     Jfd = np.array([(m.coordinates(p + h * e) - m.coordinates(p - h * e)) / (2 * h) for e in np.eye(m.n)]).T
+    # central differences: h^2 |g'''| / 6 + eps |g| / h ~ 1e-12 + 2e-10 (|g| ~ 1 m, rad): 1e-8 is 50x
     assert np.max(np.abs(Jfd - J)) < 1e-8
-    # q(t) = g(p + v t): q''(0) = J' v (the convective term), by central differences
+    # q(t) = g(p + v t): q''(0) = J' v (the convective term), by central differences:
+    # hs^2 |g''''| |v|^4 / 12 + 4 eps |g| / hs^2 ~ 1e-9 + 1e-7, against 1e-5 |q''| (|q''| ~ 1.3)
     hs = 1e-4
     qdd = (m.coordinates(p + hs * v) - 2 * q + m.coordinates(p - hs * v)) / hs**2
     assert np.max(np.abs(qdd - m.convective(p, v))) < 1e-5 * np.max(np.abs(qdd))

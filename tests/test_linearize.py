@@ -2,11 +2,13 @@
 
 Oracles: O(h^2) convergence of the central differences; the PD gains added as
 constants equal differentiating through Exudyn's PD spring-damper; spectral
-convergence of the time interpolation; the paper's Table 3 (p. 489) multiplier
-0.3 at Omega = 2 pi; and the direct monodromy of Exudyn's own integrator.
+convergence of the time interpolation; the direct monodromy of Exudyn's own
+integrator.  Agreement with the paper's reduced model (Table 3, p. 489: 0.3 at
+Omega = 2 pi) is a comparison of two models, bounded by what separates them.
 """
 import math
 import os
+from types import SimpleNamespace
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -14,9 +16,19 @@ import numpy as np
 import pytest
 
 from linearize import LinearizedPeriodicSystem, central_difference_jacobians, linearize_along_orbit
-from mbs_models.exudyn_floquet import direct_monodromy, exponential_midpoint_floquet, exudyn_floquet
+from mbs_models.exudyn_floquet import (
+    UNDAMPED_TOLERANCE,
+    classify_multipliers,
+    direct_monodromy,
+    exponential_midpoint_floquet,
+    exudyn_floquet,
+)
+from mbs_models.reduced import ReducedModel
 from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
 from mbs_models.orbit import find_periodic_orbit
+from stability import floquet
+
+from _model_bounds import model_difference_bound  # tests/ helper
 
 KP, KD = 37.1617, 29.2410  # paper Table 3, Omega = 2 pi
 
@@ -40,6 +52,8 @@ def test_central_differences_are_second_order(orbit2):
 def test_pd_constant_terms_equal_pd_inside_exudyn(orbit2):
     outside = linearize_along_orbit(orbit2, kp=KP, kd=KD, samples=8)
     inside = linearize_along_orbit(orbit2, kp=KP, kd=KD, samples=8, gains_inside=True)
+    # central differences at h = eps^(1/3) max(1, |x|): truncation + rounding ~ eps^(2/3) = 4e-11
+    # relative each; 1e-7 leaves 1000x for the size of the third derivatives
     for a, b in ((outside.K, inside.K), (outside.C, inside.C), (outside.M, inside.M)):
         assert np.max(np.abs(a - b)) <= 1e-7 * np.max(np.abs(b))
     assert outside.C[0, 0, 0] - linearize_along_orbit(orbit2, samples=8).C[0, 0, 0] == pytest.approx(KD, rel=1e-9)
@@ -65,34 +79,62 @@ def test_linearized_system_validation():
         lin.with_gains(1.0, 1.0)
 
 
-def test_table3_multiplier_and_direct_exudyn_monodromy():
-    """Omega = 2 pi, Table 3 gains: |rho_1| = 0.3 (paper) and Exudyn's own monodromy agrees."""
+def _hub_multiplier(lin, floquet_result):
+    """The multiplier labelled "hub" by its Floquet vector's modal energy (the largest such;
+    the others labelled "hub" are the ~1e-17 rounding noise of the stiff hub eigenvalue)."""
+    modes = classify_multipliers(lin, floquet_result)
+    return next(complex(mu) for mu, m in zip(floquet_result.multipliers, modes) if m["mode"] == "hub")
+
+
+def test_table3_exudyn_agrees_with_reduced_model_and_direct_exudyn_monodromy():
+    """Omega = 2 pi, Table 3 gains.
+
+    * model agreement (not an oracle for either): the Exudyn linearisation about the
+      true orbit vs the paper's reduced model (itself designed for |rho_1| = 0.3, Table 3,
+      p. 489), within the model-difference bound of ``_model_bounds``;
+    * independent oracle for the Exudyn route: the monodromy of Exudyn's own integrator
+      (finite differences of 2n + 1 nonlinear runs, 2 elements for speed).
+    """
     r8 = exudyn_floquet(kp=KP, kd=KD, elements=8, samples=16, n_steps=64, verify_orbit=False)
     assert r8.dominant_mode == "hub"
-    assert abs(abs(r8.dominant_multiplier) - 0.300) < 0.02 * 0.300
-    # undamped structural modes are reported on the unit circle, not hidden
+    rho_reduced = floquet(ReducedModel(2 * math.pi, KP, KD)).spectral_radius
+    assert abs(math.log(abs(r8.dominant_multiplier) / rho_reduced)) <= model_difference_bound(r8.orbit, rho_reduced)
+    # undamped structural modes are reported on the unit circle, not hidden: the FE model has
+    # no structural damping (docs: |rho| = 1 +- 1e-4 at 8 elements); 2e-3 = UNDAMPED_TOLERANCE
     assert r8.undamped_count > 0
-    assert r8.floquet.spectral_radius == pytest.approx(1.0, abs=2e-3)
-    # cross-method: direct monodromy of the nonlinear Exudyn model (2 elements for speed)
+    assert r8.floquet.spectral_radius == pytest.approx(1.0, abs=UNDAMPED_TOLERANCE)
+    # cross-method: direct monodromy of the nonlinear Exudyn model.  Its error is that of
+    # Exudyn's integrator over one period, which the run measures as the closed-loop shooting
+    # defect from the orbit state (relative to the elastic deformation); the linearisation
+    # route is far more accurate (its step-doubling estimate is ~1e-4 on the axial modes,
+    # ~1e-7 on the hub multiplier: test_propagator_step_convergence_and_lead_engine).
     r2 = exudyn_floquet(kp=KP, kd=KD, elements=2, samples=16, n_steps=64, verify_orbit=False)
     d2 = direct_monodromy(r2.orbit, kp=KP, kd=KD)
-    assert abs(abs(r2.dominant_multiplier) - abs(d2.dominant_multiplier)) < 0.005 * abs(d2.dominant_multiplier)
-    assert d2.closed_loop_defect < 0.01
+    assert d2.closed_loop_defect < 0.01  # Exudyn's h = 1e-3 resolves the period (h^2 convergence: test_exudyn_model)
+    # the direct monodromy is in the same independent coordinates: label its multipliers alike
+    hub_direct = abs(_hub_multiplier(r2.linearization, SimpleNamespace(monodromy=d2.monodromy,
+                                                                       multipliers=d2.multipliers)))
+    error_bar = d2.closed_loop_defect * hub_direct
+    assert abs(abs(r2.dominant_multiplier) - hub_direct) <= error_bar
+    # ... and both checks reject a wrong prediction: kd 5 % off (the reduced model, and the
+    # Exudyn linearisation about the same orbit) moves the hub multiplier outside either bound
+    wrong_reduced = floquet(ReducedModel(2 * math.pi, KP, 1.05 * KD)).spectral_radius
+    assert abs(math.log(abs(r8.dominant_multiplier) / wrong_reduced)) > model_difference_bound(r8.orbit, wrong_reduced)
+    wrong = exudyn_floquet(kp=KP, kd=1.05 * KD, elements=2, samples=16, n_steps=64, orbit=r2.orbit)
+    assert abs(abs(wrong.dominant_multiplier) - hub_direct) > error_bar
 
 
 def test_propagator_step_convergence_and_lead_engine(orbit2):
     lin = linearize_along_orbit(orbit2, kp=KP, kd=KD)
+    # the hub multiplier selected by its mode label (classify_multipliers), not by a modulus window
     dom = []
     for n in (32, 64, 128):
         f = exponential_midpoint_floquet(lin, n_steps=n, error_estimate=False)
-        mods = np.abs(f.multipliers)
-        dom.append(mods[(mods > 0.05) & (mods < 0.9)][0])
+        dom.append(abs(_hub_multiplier(lin, f)))
+    # step convergence to the 1e-4 the tables need (measured 2e-7 .. 1e-6 relative)
     assert abs(dom[1] - dom[2]) < 1e-4 * dom[2]
-    from stability import floquet
-
     ref = floquet(lin, method="magnus4", n_steps=1024, error_estimate=False)
-    mods = np.abs(ref.multipliers)
-    assert mods[(mods > 0.05) & (mods < 0.9)][0] == pytest.approx(dom[2], rel=1e-4)
+    assert abs(_hub_multiplier(lin, ref)) == pytest.approx(dom[2], rel=1e-4)
 
 
 def test_mesh_independence_8_vs_16_elements():

@@ -223,9 +223,11 @@ def test_matrices_and_P_at_arbitrary_times(constants, c):
         np.testing.assert_allclose(Ks[i], K, rtol=1e-12, atol=1e-12 * np.abs(K).max())
         np.testing.assert_allclose(Cs[i], C, rtol=1e-15)
         P = _hand_P(M, C, K)
+        # both sides solve with M (cond 240): <= 2 n cond(M) eps = 2e-13 relative to max|P|; 1e-10 is 500x
         np.testing.assert_allclose(Ps[i], P, rtol=1e-10, atol=1e-10 * np.abs(P).max())
         np.testing.assert_allclose(model(float(t)), P, rtol=1e-10, atol=1e-10 * np.abs(P).max())
-    # T-periodic
+    # T-periodic: sin(Omega T) = sin(fl(2 pi)) = -2.4e-16 moves q by <= 2 ulp at pi/2, where sin q is
+    # flat and cos(Omega T) = 1: equal to rounding (atol 1e-9 is ~1e-15 of max|P|)
     np.testing.assert_allclose(Ps[-1], Ps[0], rtol=1e-12, atol=1e-9)
 
 
@@ -241,6 +243,8 @@ def test_pd_gains_enter_as_eq32():
     eK[0, 0] = kp
     eC = np.zeros((2, 2))
     eC[0, 0] = kd
+    # (k + kp) - k rounds to <= eps (|k| + kp) ~ 1e-14 (the other entries are bitwise equal);
+    # (alpha + kd) - alpha: two roundings at 6.87, <= ulp(6.87) = 8.9e-16
     np.testing.assert_allclose(dK, np.broadcast_to(eK, dK.shape), atol=1e-11)
     np.testing.assert_allclose(dC, np.broadcast_to(eC, dC.shape), atol=1e-15)
     np.testing.assert_array_equal(ctrl.mass(t), base.mass(t))
@@ -249,6 +253,8 @@ def test_pd_gains_enter_as_eq32():
     expected = np.zeros((4, 4))
     expected[2:, 0:2] = -Minv @ eK
     expected[2:, 2:] = -Minv @ eC
+    # the gains change column 0 of K and C only; M^-1 (cond 240) times them: <= n cond(M) eps ~ 1e-13
+    # relative to |M^-1 kp| ~ 2.6e3; the untouched columns of P are bitwise equal (same inputs)
     np.testing.assert_allclose(dP, np.broadcast_to(expected, dP.shape), rtol=1e-9, atol=1e-9)
     # with_gains is the same model
     np.testing.assert_array_equal(base.with_gains(kp, kd).evaluate(t), ctrl.evaluate(t))

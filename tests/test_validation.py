@@ -1,4 +1,7 @@
-"""Nonlinear closed-loop validation (issue 5, items 1-2).
+"""Nonlinear closed-loop time series (issue 5, items 1-2): validation.closed_loop.
+
+The CLI ``flexstab validate`` and the study script now measure multipliers
+(issue 10, tests/test_multipliers.py); this module keeps the transient tool.
 
 Oracle: the dominant Floquet multiplier of the Exudyn linearisation along the
 periodic orbit (an independent computation: finite-difference matrices and an
@@ -10,11 +13,9 @@ kd = 29.2410.  Runs use 2 elements (the dominant multiplier is 0.29981 at 2,
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import os
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -23,18 +24,19 @@ import pytest
 
 from mbs_models import exudyn_link
 from mbs_models.exudyn_floquet import exudyn_floquet
-from mbs_models.validation import (
+from validation.closed_loop import (
     AGREEMENT_TOLERANCE,
     PAPER_PERTURBATION,
     linear_prediction,
     validate_closed_loop,
 )
 
+from _model_bounds import model_difference_bound  # tests/ helper
+
 TWO_PI = 2 * math.pi
 KP3, KD3 = 37.1617, 29.2410  # paper Table 3, Omega = 2 pi
 ELEMENTS = 2
 SAMPLES = 16
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_linear_nonlinear.py"
 
 
 @pytest.fixture(scope="module")
@@ -47,27 +49,60 @@ def uncontrolled_floquet():
     return exudyn_floquet(omega=TWO_PI, kp=0.0, kd=0.0, elements=ELEMENTS, samples=SAMPLES)
 
 
+def _nonlinear_bound(r, periods=None) -> float:
+    """Relative deviation of the nonlinear run from the linearised one.
+
+    The neglected terms are quadratic in the distance from the orbit (perturbation plus
+    the reference run's own drift); the kinematics is trigonometric in the hub angle
+    (``sin``, ``cos``: second-order term / first-order term <= |Delta q| / 2 + O(Delta q^2)
+    per rad), so relative to the linear response they are at most the largest hub-angle
+    distance in rad over the periods used.
+    """
+    k = slice(None) if periods is None else slice(0, max(periods))
+    return float(np.max(r.envelope[k]) + np.max(r.reference_drift[k]))
+
+
 def test_table3_gains_measured_ratio_matches_linearisation(controlled):
     r = controlled
     assert not r.diverged and r.reason == ""
     assert r.periods_completed == 3
-    # oracle: the linearisation's dominant (hub) multiplier, itself ~ the paper's 0.3
+    # published value: the reduced model meets Table 3's |rho_1| = 0.3 (gains printed to 1e-4,
+    # d|rho|/dkp ~ 1e-2: test_table2)
+    assert r.predicted_multiplier_reduced == pytest.approx(0.3, rel=1e-4)
+    # model agreement, not an oracle: the Exudyn linearisation's dominant (hub) multiplier vs
+    # the reduced model, within the bound of what separates them (orbit deflection)
     assert r.predicted_mode_exudyn == "hub"
-    assert abs(r.predicted_multiplier_exudyn - 0.3) < 0.02 * 0.3
+    model_diff = model_difference_bound(r.exudyn.orbit, r.predicted_multiplier_reduced)
+    assert abs(math.log(r.predicted_multiplier_exudyn / r.predicted_multiplier_reduced)) <= model_diff
+    # oracle of the nonlinear run: the linearisation, up to the quadratic remainder
+    nonlinear = _nonlinear_bound(r)
+    assert nonlinear < r.linear_range_angle  # the whole run is in the documented linear range
     rel = abs(r.measured_ratio_per_period / r.predicted_multiplier_exudyn - 1)
     assert rel < AGREEMENT_TOLERANCE
-    assert rel < 1e-3  # measured: 2e-5
+    assert rel < nonlinear  # measured: 2e-5 against 1e-2
     assert r.agrees
-    assert abs(r.measured_ratio_envelope / r.predicted_multiplier_exudyn - 1) < 1e-2
-    assert abs(r.measured_ratio_per_period / r.predicted_multiplier_reduced - 1) < 1e-2
-    # the issue's trial: 1.0e-2 -> 2.9e-3 -> 8.5e-4 rad per period
-    assert r.envelope[0] == pytest.approx(1.0e-2, rel=0.05)
-    assert r.stroboscopic[1] == pytest.approx(2.9e-3, rel=0.05)
-    assert r.stroboscopic[2] == pytest.approx(8.5e-4, rel=0.05)
+    assert abs(r.measured_ratio_envelope / r.predicted_multiplier_exudyn - 1) < nonlinear
+    assert abs(math.log(r.measured_ratio_per_period / r.predicted_multiplier_reduced)) < nonlinear + model_diff
+    # Instead of the issue's trial amplitudes (1.0e-2 -> 2.9e-3 -> 8.5e-4, an earlier run):
+    # a pure hub-velocity kick leaves Delta q_a(0) = 0; every later sample is the independent
+    # linear response (the linearisation propagated by exponential-midpoint factors, no time
+    # simulation) up to the quadratic remainder; each envelope covers its period's end samples.
+    assert r.stroboscopic[0] == 0.0
+    np.testing.assert_allclose(r.stroboscopic[1:], linear_prediction(r).stroboscopic[1:], rtol=nonlinear)
+    assert np.all(r.envelope >= r.stroboscopic[:-1]) and np.all(r.envelope >= r.stroboscopic[1:])
     assert r.fit_periods == (1, 2, 3)
     assert r.linear_range_left_at is None
-    # the reference run stays on the orbit (closed loop is stable)
+    # the reference run stays on the orbit (closed loop is stable): hub-angle error at the
+    # integrator's level (docs/exudyn_notes.md: < 1e-4 rad; shooting defect 2e-3 of ~6 mm)
     assert np.max(r.reference_drift) < 1e-4
+
+
+def test_nonlinear_bound_rejects_a_wrong_prediction(controlled):
+    """The linear-response check fails a prediction with kd 5 % off (a different multiplier)."""
+    wrong = exudyn_floquet(omega=TWO_PI, kp=KP3, kd=1.05 * KD3, elements=ELEMENTS, samples=SAMPLES,
+                           orbit=controlled.exudyn.orbit)
+    rel = abs(controlled.measured_ratio_per_period / abs(wrong.dominant_multiplier) - 1)
+    assert rel > _nonlinear_bound(controlled)
 
 
 def test_to_dict_is_json_with_required_keys(controlled):
@@ -83,9 +118,12 @@ def test_linear_prediction_decays_with_the_multiplier(controlled):
     lp = linear_prediction(controlled)
     s = lp.stroboscopic
     assert s[0] == 0.0
+    # after two periods the other damped multipliers (<= 1.2e-3, docs/exudyn_notes.md) are gone
+    # relative to rho_1 to (1.2e-3 / 0.3)^2 = 2e-5; 1e-3 leaves room for the undamped axial
+    # modes' small share of the hub angle
     assert s[3] / s[2] == pytest.approx(controlled.predicted_multiplier_exudyn, rel=1e-3)
-    # the nonlinear run follows the linear prediction at t = kT
-    assert np.allclose(controlled.stroboscopic[1:], s[1:], rtol=0.02)
+    # the nonlinear run follows the linear prediction at t = kT (quadratic remainder)
+    np.testing.assert_allclose(controlled.stroboscopic[1:], s[1:], rtol=_nonlinear_bound(controlled))
 
 
 def test_uncontrolled_growth_until_linear_range_is_left(uncontrolled_floquet):
@@ -97,11 +135,22 @@ def test_uncontrolled_growth_until_linear_range_is_left(uncontrolled_floquet):
     assert rho1 > 10
     assert r.measured_ratio_per_period > 1
     assert abs(r.measured_ratio_per_period / rho1 - 1) < AGREEMENT_TOLERANCE  # measured 0.8 %
-    # rho_1 = 13.6 amplifies the reference run's own drift too: range left in period 2
-    assert r.linear_range_left_at is not None and r.linear_range_left_period == 2
-    assert r.fit_periods == (1, 2)
-    # like with like: the linearised system's response from the same state, same fit
-    assert r.measured_ratio_per_period == pytest.approx(r.linear_ratio_per_period, rel=2e-2)
+    # rho_1 = 13.6 amplifies the reference run's own drift too: the range is left within the
+    # 3 periods.  Recompute the documented criterion from the recorded series: the first
+    # sample where |Delta q_a| or the drift exceeds the linear-range angle ...
+    assert r.linear_range_left_at is not None
+    distance = np.maximum(np.abs(r.hub_error), np.abs(r.drift))
+    first = int(np.argmax(distance > r.linear_range_angle))
+    assert distance[first] > r.linear_range_angle and np.all(distance[:first] <= r.linear_range_angle)
+    assert r.linear_range_left_at == pytest.approx(r.times[first], abs=0.5 * r.step)
+    left_period = int(r.times[first] // r.period)
+    assert r.linear_range_left_period == left_period
+    # ... and only the samples k T before it enter the fit
+    assert r.fit_periods == tuple(range(1, left_period + 1))
+    # like with like: the linearised system's response from the same state, same fit, up to
+    # the quadratic remainder over the fitted periods (measured 2.4e-3 against 1.1e-2)
+    assert r.measured_ratio_per_period == pytest.approx(r.linear_ratio_per_period,
+                                                        rel=_nonlinear_bound(r, r.fit_periods))
 
 
 def test_uncontrolled_paper_perturbation_leaves_linear_range_without_raising(uncontrolled_floquet):
@@ -151,48 +200,3 @@ def test_library_rejects_bad_input(kwargs):
     base.update(kwargs)
     with pytest.raises(ValueError):
         validate_closed_loop(**base)
-
-
-def test_cli_json(capsys):
-    from flexstab.cli import main
-
-    rc = main(["validate", "--elements", "2", "--periods", "2", "--json"])
-    assert rc == 0
-    d = json.loads(capsys.readouterr().out)
-    for key in ("omega", "kp", "kd", "periods", "predicted_multiplier_reduced", "predicted_multiplier_exudyn",
-                "measured_ratio_per_period", "diverged", "gains_source"):
-        assert key in d
-    assert (d["kp"], d["kd"]) == (KP3, KD3) and "Table 3" in d["gains_source"]
-    assert d["diverged"] is False
-    assert abs(d["measured_ratio_per_period"] / d["predicted_multiplier_exudyn"] - 1) < AGREEMENT_TOLERANCE
-
-
-@pytest.mark.parametrize(
-    "argv",
-    [["--periods", "-1"], ["--periods", "0"], ["--elements", "0"], ["--omega", "nan"], ["--omega", "abc"],
-     ["--kp", "-2"], ["--periods", "2.5"], ["--perturbation", "0"], ["--config", "/nonexistent/x.toml"]],
-)
-def test_cli_bad_input_one_line_exit_2(argv, capsys):
-    from flexstab.cli import main
-
-    rc = main(["validate"] + argv)
-    assert rc == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and err.startswith("flexstab validate: error:")
-
-
-def test_compare_script_quick(tmp_path):
-    spec = importlib.util.spec_from_file_location("compare_linear_nonlinear", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    assert module.main(["--quick", "--out", str(tmp_path)]) == 0
-    data = json.loads((tmp_path / "linear_vs_nonlinear.json").read_text())
-    md = (tmp_path / "linear_vs_nonlinear.md").read_text()
-    assert (tmp_path / "linear_vs_nonlinear_omega2pi.png").stat().st_size > 10_000
-    cases = {row["case"]: row for row in data["rows"]}
-    assert set(cases) == {"uncontrolled", "uncontrolled, small", "Table 3", "Taguchi"}
-    assert cases["Taguchi"]["agrees"] and cases["Table 3"]["agrees"]
-    assert cases["uncontrolled"]["linear_range_left_at"] is not None
-    for row in data["rows"]:  # every measured number in the table comes from the JSON
-        if row["measured_ratio_per_period"] is not None:
-            assert f"{row['measured_ratio_per_period']:.6g}" in md

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, omega_type, positive_float
+from flexstab.options import dump_json, add_model_options, omega_type, positive_float, resolve_omega
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -54,6 +54,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = cfg if cfg is not None else load_config(args.config)
+    omega = resolve_omega(args, cfg)
     kp_rng = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     if min(kp_rng) < 0 or min(kd_rng) < 0:
@@ -81,17 +82,17 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
         from mbs_models.exudyn_floquet import exudyn_plant
 
         elements = getattr(args, "elements", None) or cfg.elements
-        tag = f"w{args.omega:.6g}_exudyn{elements}_{fingerprint}"
-        plant = exudyn_plant(cfg.manipulator, omega=args.omega, elements=elements)
-        task = PlantRadius(plant, float(args.omega))
+        tag = f"w{omega:.6g}_exudyn{elements}_{fingerprint}"
+        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements)
+        task = PlantRadius(plant, float(omega))
         omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
         objective = GainObjective(plant)
         label = f"Exudyn model ({elements} elements; hub / first bending mode)"
     else:
-        tag = f"w{args.omega:.6g}_{args.constants}_{fingerprint}"
+        tag = f"w{omega:.6g}_{args.constants}_{fingerprint}"
         task = ReducedRadius(cfg.manipulator, args.constants)
         omega_task = task
-        objective = GainObjective(ReducedModel(args.omega, params=cfg.manipulator, constants=args.constants))
+        objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=args.constants))
         label = "linearised reduced model"
 
     path = None
@@ -102,19 +103,30 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     n_tasks = kp.size * kd.size
     kind = "dask" if args.scheduler else ("process" if exudyn and args.workers != 1 else "auto")
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
-        gc = gain_chart(task, args.omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
+        gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
                         progress=progress)
         gkp = args.kp if args.kp is not None else (tuned.kp if tuned else 0.0)
         gkd = args.kd if args.kd is not None else (tuned.kd if tuned else 0.0)
         otag = tag.split("_", 1)[1]
         oc = omega_chart(omega_task, omegas, gkp, gkd, ex, out / f"chart_omega_{otag}_{gkp:.6g}_{gkd:.6g}.jsonl",
                          progress=progress)
-    png1 = plot_gain_chart(gc, out / f"chart_gains_{tag}.png", path, label=label)
-    png2 = plot_omega_chart(oc, out / f"chart_omega_{otag}.png", label=label)
+    # figure and summary names identify every input that changes what is drawn (grid, ranges, target,
+    # Omega range, gains), so a coarse chart never overwrites the study's chart of the same system
+    drawn = hashlib.sha1(json.dumps(
+        [tag, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
+    ).encode()).hexdigest()[:8]
+    name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
+    png1 = plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label)
+    png2 = plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
+                            ylabel="dominant |ρ| (hub / first bending mode)" if exudyn else "max|ρ| (spectral radius)")
     summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
-               "figures": [str(png1), str(png2)], "json": str(out / f"chart_{tag}.json")}
-    (out / f"chart_{tag}.json").write_text(json.dumps(summary))
+               "inputs": {"manipulator": cfg.manipulator.to_dict(), "constants": args.constants,
+                          "model": "exudyn" if exudyn else "reduced", "omega": omega, "grid": [kp.size, kd.size],
+                          "kp_range": list(kp_rng), "kd_range": list(kd_rng), "target": target,
+                          "omega_range": [float(w_lo), float(w_hi)], "omega_points": int(omegas.size)},
+               "figures": [str(png1), str(png2)], "json": str(out / f"chart_{name}.json")}
+    (out / f"chart_{name}.json").write_text(json.dumps(summary))
     return summary
 
 

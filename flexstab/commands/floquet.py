@@ -68,8 +68,7 @@ def floquet_report(args: argparse.Namespace) -> dict:
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        res = floquet(model, method=method,
-                      small_multipliers=args.small_multipliers if method != "paper" else "flag")
+        res = floquet(model, method=method, small_multipliers=args.small_multipliers)
         out["constants"] = args.constants
     else:
         from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
@@ -139,19 +138,28 @@ def _table(d: dict) -> str:
         zip(d["multipliers"], d["moduli"], d["reliable_digits"], d["log_moduli"]), 1
     ):
         label = ""
-        if mod == 0.0 and math.isfinite(lg):  # underflows as a number: show it through its logarithm
+        if lg is None:  # ln 0 (JSON null): the multiplier is exactly zero as computed
+            label = "  |rho| = 0 (below the smallest double)"
+        elif mod == 0.0:  # underflows as a number: show it through its logarithm
             label = f"  |rho| = 10^{lg / math.log(10):.2f}"
         if modes:
             m = modes[i - 1]
             label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
         lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
+    phase_est = d.get("phase_error_estimate")
+    phase = "n/a" if phase_est is None else f"{phase_est:.1e}"
+    liou = d["liouville_residual"]
+    if d["liouville_source"] == "unavailable":
+        liouville = "n/a (multipliers below the rounding floor; this method keeps no propagators)"
+    else:
+        liouville = f"{'inf' if liou is None else f'{liou:.1e}'} (from the {d['liouville_source']})"
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
-        f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (step doubling, relative)",
-        f"Liouville        |det Phi / exp(int tr P) - 1| = {d['liouville_residual']:.1e}"
-        f" (from the {d['liouville_source']})",
+        f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
+        f" phases {phase} rad)",
+        f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
     ]
     if "drives" in d:
         lines += [

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
+from typing import Iterator
 
 from flexstab.options import dump_json
 
@@ -17,6 +19,22 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return value
+
+
+@contextlib.contextmanager
+def _exudyn_quiet(quiet: bool) -> Iterator[None]:
+    """Switch Exudyn's console output (solver banners) off while the block runs; restore it after."""
+    if not quiet:
+        yield
+        return
+    import exudyn as exu
+
+    previous = bool(exu.config.printToConsole)
+    exu.config.printToConsole = False
+    try:
+        yield
+    finally:
+        exu.config.printToConsole = previous
 
 
 def register(sub) -> None:
@@ -53,9 +71,9 @@ def modes_report(args: argparse.Namespace) -> dict:
             elements = cfg.elements
     elements = 8 if elements is None else elements
     # analytic values exist for the bending modes; give as many as asked for
-    from mbs_models.validation import _exudyn_console
-
-    with _exudyn_console(quiet=bool(getattr(args, "json", False))):  # keep --json output pure JSON
+    # Exudyn prints its warnings (e.g. "more than 1000 coordinates, consider a sparse solver") through
+    # Python's stdout: send them to stderr so that stdout holds only the table or the JSON object
+    with contextlib.redirect_stdout(sys.stderr), _exudyn_quiet(quiet=bool(getattr(args, "json", False))):
         res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,
                                  analytic_count=args.count)
     out = res.to_dict()

@@ -19,9 +19,11 @@ def register(sub) -> None:
     )
     p.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator")
     p.add_argument("--out", default="results", help="output folder (default results/)")
-    p.add_argument("--quick", action="store_true", help="one case, coarse grids (< 60 s)")
+    p.add_argument("--quick", action="store_true", help="one case, coarse grids (about a minute)")
     p.add_argument("--stages", default=None, help="comma-separated subset of the stages")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler for the sweeps")
+    p.add_argument("--no-resume", action="store_true",
+                   help="recompute every stage (default: reuse finished stages whose inputs are unchanged)")
     p.set_defaults(func=run)
 
 
@@ -36,9 +38,15 @@ def run(args: argparse.Namespace) -> int:
     if args.stages is not None and not args.stages.strip():
         raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
-    res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
-                                      progress=sys.stderr.isatty(), scheduler=args.scheduler))
-    failed = [k for k, v in res.stages.items() if "error" in v]
+    tty = sys.stderr.isatty()
+
+    def log_line(line: str) -> None:  # one line per stage event when stderr is a file or a pipe
+        print(line, file=sys.stderr, flush=True)
+
+    res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages, progress=tty,
+                                      scheduler=args.scheduler, log=None if tty else log_line,
+                                      resume=not args.no_resume))
+    failed = [k for k, v in res.stages.items() if v.get("status") == "failed"]
     print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
     for k in failed:
         print(f"stage {k} failed: {res.stages[k]['error']}", file=sys.stderr)

@@ -6,9 +6,9 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, positive_float
+from flexstab.options import dump_json, add_model_options, positive_float, resolve_omega
 
-__all__ = ["register", "run", "tune_report", "build_plant"]
+__all__ = ["register", "run", "tune_report", "robust_report", "build_plant"]
 
 
 def register(sub) -> None:
@@ -30,6 +30,9 @@ def register(sub) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: auto)")
     p.add_argument("--compare", action="store_true", help="also run the direct optimisers (Nelder-Mead, DE)")
+    p.add_argument("--robust", action="store_true",
+                   help="robust design: gains crossed with an outer array of noise factors (payload, Omega, E; "
+                        "[robust] in --config), compared with the nominal gains over a fine noise grid")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -68,6 +71,59 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements)
 
 
+def robust_report(args: argparse.Namespace) -> dict:
+    """``tune --robust``: nominal vs robust gains, judged over the ``[robust]`` noise grid."""
+    from flexstab.executor import make_executor
+    from flexstab.robust import ReducedNoisePlant, compare_nominal_robust
+    from taguchi.robust import RobustConfig
+    from taguchi.tuning import TuningConfig
+
+    if args.model != "reduced":
+        raise ValueError("--robust is available for --model reduced")
+    cfg = load_config(args.config)
+    rs = cfg.robust
+    tcfg = TuningConfig(
+        target=args.target if args.target is not None else cfg.target,
+        kp_range=tuple(args.kp_range) if args.kp_range else cfg.kp_range,
+        kd_range=tuple(args.kd_range) if args.kd_range else cfg.kd_range,
+        array=args.array, tolerance=args.tolerance, max_evaluations=args.max_evaluations,
+    )
+    noise = rs.noise_factors(cfg.manipulator.tip_mass)
+    # the crossed arrays need (inner + 1) x outer runs per experiment: budget per experiment x iterations
+    rcfg = RobustConfig(
+        tuning=TuningConfig(target=tcfg.target, kp_range=tcfg.kp_range, kd_range=tcfg.kd_range, array=args.array,
+                            max_evaluations=10**6),
+        noise=noise, outer_array=rs.outer_array, sn=rs.sn, max_iterations=rs.max_iterations,
+    )
+    rcfg.outer()  # validates the outer array early
+    omega = resolve_omega(args, cfg)
+    factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
+    n_tasks = tcfg.orthogonal_array().n_runs * len(rcfg.outer_runs())
+    with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers, scheduler=args.scheduler,
+                       n_tasks=n_tasks) as ex:
+        cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=rs.grid, executor=ex)
+    out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega, "robust_design": True}
+    out.update(cmp.to_dict())
+    out["converged"] = cmp.nominal.converged
+    return out
+
+
+def _print_robust(d: dict) -> None:
+    nom, rob = d["nominal"], d["robust"]
+    print(f"Omega = {d['omega']:.6g} rad/s, target rho_d = {d['target']:g}; robust design: inner "
+          f"{rob['inner_array']} x outer {rob['outer_array']}, S/N '{rob['sn_kind']}'")
+    for n in rob["noise"]:
+        print(f"  noise {n['name']}: [{n['low']:g}, {n['high']:g}], nominal {n['nominal']:g}, {n['levels']} levels")
+    print(f"{'':>8} {'kp':>10} {'kd':>10} {'nominal max|rho|':>17} {'worst on grid':>14}  worst at")
+    for label, row in (("nominal", nom), ("robust", rob["check"])):
+        g = row["gains"]
+        print(f"{label:>8} {g[0]:10.5g} {g[1]:10.5g} {row['nominal']:17.6f} {row['worst']:14.6f}  {row['worst_noise']}")
+    print(f"worst case over {d['grid_size']} grid points lowered by {d['worst_case_improvement']:.4g} "
+          f"({d['worst_case_improvement_percent']:.2f} %); cost at nominal: |max|rho| - rho_d| "
+          f"{'+' if d['nominal_cost'] >= 0 else ''}{d['nominal_cost']:.3g}")
+    print(f"robust tuning: {rob['status']}, {rob['evaluations']} evaluations; total {d['elapsed']:.1f} s")
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
@@ -76,7 +132,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = load_config(args.config)
-    omega = args.omega
+    omega = resolve_omega(args, cfg)
     if args.max_evaluations < 1:
         raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
     tcfg = TuningConfig(
@@ -121,6 +177,13 @@ def tune_report(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "robust", False):
+        d = robust_report(args)
+        if args.json:
+            dump_json(d, sys.stdout)
+        else:
+            _print_robust(d)
+        return 0 if d["converged"] else 1
     d = tune_report(args)
     if not d["converged"]:
         print(f"flexstab tune: not converged: {d['message']}", file=sys.stderr)

@@ -1,9 +1,15 @@
-"""``flexstab validate``: nonlinear Exudyn closed-loop run against the predicted multipliers.
+"""``flexstab validate``: Floquet multipliers measured from nonlinear Exudyn runs vs the prediction.
 
-Gains: ``--kp``/``--kd`` if given (a missing one is 0); if neither is given
-and Omega is one of the paper's cases (2pi, 4pi, 6pi, 8pi), the paper's
-printed Table 3 gains are used (and the output says so); otherwise the loop
-is uncontrolled (``kp = kd = 0``).
+The one-period map of the nonlinear closed loop (feed-forward + PD, started
+from the periodic orbit perturbed along the predicted Floquet vectors) is
+measured with generalised-alpha at ``rho_inf = 1`` and steps ``h, h/2, h/4``;
+its eigenvalues are compared with the predicted multipliers in modulus and
+phase within the measurement's error bar (:mod:`validation.multipliers`).
+
+Gains: ``--kp``/``--kd`` if given (a missing one is 0; one value per drive,
+comma-separated, or one value for all); if neither is given and Omega is one
+of the paper's cases (2pi, 4pi, 6pi, 8pi), the paper's printed Table 3 gains
+(the output says so); otherwise the loop is uncontrolled.
 
 Numbers are parsed here rather than by ``argparse`` so that every bad value
 ends as one line and exit code 2.
@@ -26,27 +32,39 @@ __all__ = ["register", "run", "validation_report", "resolve_gains"]
 def register(sub) -> None:
     p = sub.add_parser(
         "validate",
-        help="nonlinear Exudyn closed-loop run vs the predicted Floquet multipliers",
+        help="Floquet multipliers measured from nonlinear Exudyn runs vs the prediction",
         description=(
-            "Simulate the free-hub Exudyn model under feed-forward + PD from the periodic orbit "
-            "with the hub velocity raised by the paper's 0.25 pi rad/s (Eqs. 26/35), measure the "
-            "per-period decay of the perturbation and compare it with the dominant multipliers of "
-            "the reduced model and of the Exudyn linearisation."
+            "Measure the one-period map of the nonlinear Exudyn closed loop on the subspace of the "
+            "predicted dominant multipliers (perturbed-minus-reference runs, generalised-alpha with "
+            "rho_inf = 1 at h, h/2, h/4) and compare its eigenvalues with the prediction in modulus and "
+            "phase within the measurement's error bar; report the distance to the reduced model and "
+            "to the rigid-reference linearisation."
         ),
     )
+    p.add_argument("--model", default="exudyn",
+                   help="'exudyn' (built-in single link, default), a model file PATH.py or a built-in model name")
     p.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator (see README)")
     p.add_argument("--omega", default=None, metavar="W",
                    help="frequency of the fundamental motion, rad/s or like '2pi' (default: config, else 2pi)")
-    p.add_argument("--kp", default=None, help="proportional gain (N m/rad); see the gain rule in --help")
-    p.add_argument("--kd", default=None, help="derivative gain (N m s/rad)")
-    p.add_argument("--elements", default=None, help="ANCF elements (default: config, else 8)")
-    p.add_argument("--periods", default="5", help="periods to simulate (default 5)")
-    p.add_argument("--perturbation", default=None,
-                   help="hub-velocity perturbation in rad/s (default 0.25pi, paper Eqs. 26/35)")
-    p.add_argument("--step", default="1e-3", help="generalised-alpha step in s (default 1e-3)")
+    p.add_argument("--kp", default=None, help="proportional gain(s) (N m/rad), comma-separated per drive")
+    p.add_argument("--kd", default=None, help="derivative gain(s) (N m s/rad), comma-separated per drive")
+    p.add_argument("--elements", default=None, help="ANCF elements (default 4)")
+    p.add_argument("--samples", default="16", help="orbit / linearisation samples per period (default 16)")
+    p.add_argument("--step", default=None,
+                   help="coarsest generalised-alpha step in s (default 1e-3 for the single link, T/128 for model files)")
+    p.add_argument("--spectral-radius", default="1",
+                   help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
+    p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4)")
+    p.add_argument("--amplitude", default="1e-3",
+                   help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3)")
+    p.add_argument("--compare", default="2", help="number of multipliers compared (default 2; pairs kept whole)")
+    p.add_argument("--growth-periods", default=None,
+                   help="periods of the multi-period growth run (default: 3 if the prediction is unstable, else 0)")
+    p.add_argument("--predict-reference", choices=("periodic", "rigid"), default="periodic",
+                   help="reference motion of the prediction under test (default: the periodic orbit)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="DIR", default=None,
-                   help="also write validation.json and validation.png to DIR")
+                   help="also write validation.json and validation.png (complex plane) to DIR")
     p.epilog = (
         "Gains: if neither --kp nor --kd is given and Omega is 2pi, 4pi, 6pi or 8pi, the paper's "
         "Table 3 gains are used; otherwise a missing gain is 0."
@@ -71,35 +89,55 @@ def _number(name: str, text: Optional[str], *, minimum: Optional[float] = None, 
     return int(value) if integer else value
 
 
+def _gains(name: str, text: Optional[str]) -> Optional[list]:
+    """Comma-separated non-negative gains (one per drive)."""
+    if text is None:
+        return None
+    parts = [s for s in str(text).split(",")]
+    return [_number(name, s.strip(), minimum=0.0) for s in parts]
+
+
 def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float]) -> tuple[float, float, str]:
     """Gains to use and where they come from (see the module docstring)."""
     if kp is None and kd is None:
-        from flexstab.paper_tables import TABLE3_PRINTED
+        from mbs_models.paper_data import table3_gains
 
-        for k, _rho_d, kp3, kd3, _rho in TABLE3_PRINTED:
-            if abs(omega - k * math.pi) <= 1e-9 * omega:
-                return kp3, kd3, f"paper Table 3 gains for Omega = {k}pi"
+        hit = table3_gains(omega)
+        if hit is not None:
+            k, kp3, kd3 = hit
+            return kp3, kd3, f"paper Table 3 gains for Omega = {k}pi"
         return 0.0, 0.0, "uncontrolled (no gains given, Omega not a Table 3 case)"
     return (kp or 0.0), (kd or 0.0), "command line"
 
 
 def validation_report(args: argparse.Namespace):
-    """Run the validation requested by ``args``; return ``(dict, ValidationResult)``."""
-    from mbs_models.validation import PAPER_PERTURBATION, validate_closed_loop
+    """Run the validation requested by ``args``; return ``(dict, MultiplierValidation)``."""
+    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
 
+    if args.model != "exudyn":
+        return _model_file_report(args)
     cfg = load_config(args.config)
     omega = parse_omega(args.omega) if args.omega is not None else cfg.omega
-    kp = _number("kp", args.kp, minimum=0.0)
-    kd = _number("kd", args.kd, minimum=0.0)
+    kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
+    for nm, g in (("kp", kps), ("kd", kds)):
+        if g is not None and len(g) != 1:
+            raise ValueError(f"--{nm}: the built-in single link has one drive (hub), got {len(g)} values")
+    kp = kps[0] if kps else None
+    kd = kds[0] if kds else None
     elements = _number("elements", args.elements, minimum=1, integer=True)
-    elements = cfg.elements if elements is None else elements
-    periods = _number("periods", args.periods, minimum=1, integer=True)
-    perturbation = _number("perturbation", args.perturbation)
-    if perturbation is None:
-        perturbation = PAPER_PERTURBATION
-    if perturbation == 0.0:
-        raise ValueError("--perturbation must be non-zero")
-    step = _number("step", args.step, minimum=0.0, strict=True)
+    elements = 4 if elements is None else elements
+    samples = _number("samples", args.samples, minimum=4, integer=True)
+    if samples % 2:
+        raise ValueError(f"--samples must be even, got {args.samples!r}")
+    step = _number("step", args.step if args.step is not None else "1e-3", minimum=0.0, strict=True)
+    refinements = _number("refinements", args.refinements, minimum=0, integer=True)
+    if refinements > 4:
+        raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
+    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True)
+    compare = _number("compare", args.compare, minimum=1, integer=True)
+    growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
+    if step >= 2 * math.pi / omega:
+        raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
     if args.out is not None:
         out = Path(args.out)
         try:
@@ -107,69 +145,135 @@ def validation_report(args: argparse.Namespace):
         except OSError as exc:
             raise ValueError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
     kp, kd, source = resolve_gains(omega, kp, kd)
-    res = validate_closed_loop(
-        cfg.manipulator, omega, kp, kd,
-        elements=elements, periods=periods, perturbation=perturbation, step=step,
-    )
+    if growth is None:
+        growth = 3 if (kp == 0.0 and kd == 0.0) else 0
+    config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
+                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
+    res = validate_link_multipliers(cfg.manipulator, omega, kp, kd, elements=elements, samples=samples,
+                                    config=config, predict_reference=args.predict_reference)
     d = res.to_dict()
     d["gains_source"] = source
     return d, res
 
 
+def _spectral_radius(args: argparse.Namespace) -> float:
+    rho = _number("spectral-radius", args.spectral_radius, minimum=0.0)
+    if rho > 1.0:
+        raise ValueError(f"--spectral-radius must be in [0, 1], got {args.spectral_radius!r}")
+    return rho
+
+
+def _model_file_report(args: argparse.Namespace):
+    """``--model PATH.py`` (or a built-in model name): the generic path."""
+    from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
+
+    if args.config is not None:
+        raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
+    if args.predict_reference != "periodic":
+        raise ValueError("--predict-reference rigid applies to the built-in single link only")
+    if args.elements is not None:
+        raise ValueError("--elements applies to the built-in single link only")
+    from mbs_models.model_file import resolve_model
+
+    definition = resolve_model(args.model)
+    omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
+    T = 2 * math.pi / omega
+    kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
+    samples = _number("samples", args.samples, minimum=4, integer=True)
+    if samples % 2:
+        raise ValueError(f"--samples must be even, got {args.samples!r}")
+    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else T / 128
+    if step >= T:
+        raise ValueError(f"--step must be smaller than the period T = {T:.6g} s, got {args.step!r}")
+    refinements = _number("refinements", args.refinements, minimum=0, integer=True)
+    if refinements > 4:
+        raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
+    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True)
+    compare = _number("compare", args.compare, minimum=1, integer=True)
+    growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
+    if args.out is not None:
+        try:
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ValueError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
+    config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
+                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
+    res = validate_model_multipliers(definition, omega, kp=kps if kps else 0.0, kd=kds if kds else 0.0,
+                                     samples=samples, config=config)
+    d = res.to_dict()
+    d["gains_source"] = "command line" if (kps or kds) else "none given (0 for every drive)"
+    d.setdefault("elements", None)
+    return d, res
+
+
+def _c(z) -> str:
+    if z is None:
+        return "n/a"
+    re_, im = z
+    return f"{re_:+.7f}{im:+.7f}i"
+
+
 def _text(d: dict) -> str:
-    def f(x, fmt=".6g"):
+    def f(x, fmt=".3g"):
         return "n/a" if x is None else format(x, fmt)
 
+    steps = ", ".join(f"{h:g}" for h in d["steps"])
+    what = f"{d['elements']} elements" if d.get("elements") else f"model {d['model']}"
+    gains = ", ".join(f"{g['name']}: kp = {g['kp']:.6g}, kd = {g['kd']:.6g}" for g in d.get("drives", [])) or "no drives"
     lines = [
-        f"nonlinear validation (Exudyn, {d['elements']} elements, h = {d['step']:g} s)",
+        f"nonlinear multiplier measurement (Exudyn, {what}, {d['integrator']}, h = {steps} s)",
         f"omega = {d['omega']:.6g} rad/s ({d['omega_over_pi']:.6g} pi), T = {d['period']:.6g} s",
-        f"kp = {d['kp']:.6g}, kd = {d['kd']:.6g}  ({d['gains_source']})",
-        f"hub-velocity perturbation {d['perturbation']:.6g} rad/s, {d['periods_completed']}/{d['periods']} periods",
+        f"{gains}  ({d['gains_source']})",
+        f"prediction under test: {d['prediction']}",
         "",
-        f"{'k':>3}  {'|dq_a(kT)| rad':>15}  {'max|dq_a| rad':>14}  {'max|dw_tip| m':>14}  {'ref. drift rad':>14}",
+        f"{'mode':<10} {'predicted':>26} {'measured':>26} {'|error|':>9} {'bar':>9} {'step':>9} {'ampl.':>9} {'agrees':>6}",
     ]
-    env = d["envelope"] or []
-    for k, s in enumerate(d["stroboscopic"] or []):
-        e = env[k] if k < len(env) else None
-        te = d["tip_envelope"][k] if k < len(env) else None
-        dr = d["reference_drift"][k] if k < len(env) else None
-        lines.append(f"{k:>3}  {f(s, '15.4e')}  {f(e, '14.4e'):>14}  {f(te, '14.4e'):>14}  {f(dr, '14.4e'):>14}")
+    for m in d["multipliers"]:
+        lines.append(
+            f"{m['mode']:<10} {_c(m['predicted']):>26} {_c(m.get('measured')):>26} {f(m.get('abs_error')):>9} "
+            f"{f(m.get('error_bar')):>9} {f(m.get('step_error')):>9} {f(m.get('amplitude_error')):>9} "
+            f"{('yes' if m.get('agrees') else 'no'):>6}"
+        )
+    a = d["amplitude_check"]
     lines += [
         "",
-        f"measured ratio per period   {f(d['measured_ratio_per_period'])}  (stroboscopic fit, periods {d['fit_periods']});"
-        f" envelope fit {f(d['measured_ratio_envelope'])}",
-        f"predicted, Exudyn lin.      {f(d['predicted_multiplier_exudyn'])}  ({d['predicted_mode_exudyn']} mode)"
-        f"  -> relative difference {f(d['relative_error_exudyn'], '+.2%') if d['relative_error_exudyn'] is not None else 'n/a'}",
-        f"predicted, reduced model    {f(d['predicted_multiplier_reduced'])}"
-        f"  -> relative difference {f(d['relative_error_reduced'], '+.2%') if d['relative_error_reduced'] is not None else 'n/a'}",
-        f"last per-period ratio       {f(d['last_ratio'])};"
-        f" linear response, same fit {f(d['linear_ratio_per_period'])}",
-        f"agreement within {d['agreement_tolerance']:.0%}: {'yes' if d['agrees'] else 'no'}",
+        f"amplitude check (a = {a['amplitude']:g} -> {a['half']:g}, h = {a['step']:g} s): change "
+        f"{', '.join(f(c) for c in (a['change'] or []))} -> {'passed' if a['passed'] else 'NOT passed'}",
+        f"step convergence: observed ratio {', '.join(f(q) for q in (d['observed_ratio'] or []))}"
+        f" ({'converging' if d['step_converged'] else 'NOT converging'})",
     ]
-    if d["linear_range_left_at"] is not None:
+    for alt in d["alternatives"]:
+        verdict = ("no measurement" if alt["distance"] is None
+                   else ("consistent with" if alt["consistent"] else "excluded by") + " the measurement")
+        lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> {verdict}")
+    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'}; the measurement confirms: {', '.join(d['confirms']) or 'none'}")
+    g = d.get("growth")
+    if g:
         lines.append(
-            f"linear range left at t = {d['linear_range_left_at']:.4g} s (period {d['linear_range_left_period']}):"
-            f" |dq_a| or reference drift > {d['linear_range_angle']:g} rad; later periods not fitted"
+            f"growth run: per-period ratios {', '.join(f(r, '.5g') for r in g['ratios'] or [])}; inside the linear range "
+            f"{f(g['measured_growth'], '.6g')} vs predicted {f(g['predicted'], '.6g')}; "
+            + (f"linear range left at t = {g['linear_range_left_at']:.4g} s" if g['linear_range_left_at'] is not None
+               else "linear range not left")
+            + (f"; DIVERGED: {g['reason']}" if g["diverged"] else "")
         )
     if d["diverged"]:
         lines.append(f"DIVERGED at t = {f(d['diverged_at'], '.4g')} s: {d['reason']}")
     t = d["timings"]
-    lines.append(
-        f"time: Exudyn Floquet {t.get('exudyn_floquet', 0):.2f} s, simulations {t.get('simulation_reference', 0):.2f}"
-        f" + {t.get('simulation_perturbed', 0):.2f} s for {t.get('simulated_time', 0):.3g} s of model time, total {t.get('total', 0):.2f} s"
-    )
+    lines.append(f"time: prediction {t.get('prediction', 0):.2f} s, alternatives {t.get('alternatives', 0):.2f} s, "
+                 f"measurement {t.get('measurement', 0):.2f} s, total {t.get('total', 0):.2f} s")
     return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
     d, res = validation_report(args)
     if args.out is not None:
-        from mbs_models.validation_plots import plot_validation_figure
+        from validation.plots import plot_multiplier_plane
 
         out = Path(args.out)
         (out / "validation.json").write_text(json.dumps(d, indent=2))
-        plot_validation_figure([res], out / "validation.png",
-                               titles=[f"Omega = {d['omega_over_pi']:.4g} pi, kp = {d['kp']:.4g}, kd = {d['kd']:.4g}"])
+        gains = ", ".join(f"{g['name']}: kp = {g['kp']:.4g}, kd = {g['kd']:.4g}" for g in d.get("drives", []))
+        plot_multiplier_plane([res], out / "validation.png",
+                              titles=[f"{d['model']}, Omega = {d['omega_over_pi']:.4g} pi" + (f", {gains}" if gains else "")])
     if args.json:
         dump_json(d, sys.stdout)
     else:

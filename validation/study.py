@@ -1,6 +1,6 @@
 """Linear against nonlinear: the four Omega cases, uncontrolled and controlled (issue 5, item 2).
 
-:func:`compare_linear_nonlinear` runs :func:`~mbs_models.validation.validate_closed_loop`
+:func:`compare_linear_nonlinear` runs :func:`~validation.closed_loop.validate_closed_loop`
 for every Omega of the paper (Table 3: rho_d = 0.3, 0.3, 0.3, 0.4) and four
 cases each:
 
@@ -19,7 +19,7 @@ cases each:
 The periodic orbit is computed once per Omega and shared (it does not depend
 on the gains).  :func:`comparison_markdown` renders the table of
 ``results/linear_vs_nonlinear.md``; the figures come from
-:func:`mbs_models.validation_plots.plot_validation_figure`.
+:func:`validation.plots.plot_validation_figure`.
 """
 from __future__ import annotations
 
@@ -31,9 +31,13 @@ from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 from mbs_models.parameters import ManipulatorParameters
-from mbs_models.validation import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
+from validation.closed_loop import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
 
 __all__ = [
+    "MULTIPLIER_CASES",
+    "MultiplierCase",
+    "multiplier_markdown",
+    "multiplier_study",
     "CASES",
     "SMALL_PERTURBATION",
     "ComparisonCase",
@@ -46,7 +50,7 @@ logger = logging.getLogger(__name__)
 
 #: Hub-velocity perturbation (rad/s) of the uncontrolled linear-range run:
 #: after one period at Omega = 2 pi (rho_1 = 13.6) the hub error is 2.4e-4 rad,
-#: well inside :data:`~mbs_models.validation.LINEAR_RANGE_ANGLE`.
+#: well inside :data:`~validation.closed_loop.LINEAR_RANGE_ANGLE`.
 SMALL_PERTURBATION = 1e-4
 #: Case names in table order.
 CASES = ("uncontrolled", "uncontrolled, small", "Table 3", "Taguchi")
@@ -104,7 +108,7 @@ def compare_linear_nonlinear(
     cases : sequence of str
         Subset of :data:`CASES`.
     elements, periods, samples, step :
-        Passed to :func:`~mbs_models.validation.validate_closed_loop`.
+        Passed to :func:`~validation.closed_loop.validate_closed_loop`.
     params : ManipulatorParameters, optional
     progress : callable, optional
         Called with a short label before each run.
@@ -113,7 +117,7 @@ def compare_linear_nonlinear(
     -------
     list of ComparisonCase
     """
-    from flexstab.paper_tables import TABLE3_PRINTED
+    from mbs_models.paper_data import TABLE3_PRINTED
 
     table3 = {k: (rho_d, kp, kd) for k, rho_d, kp, kd, _ in TABLE3_PRINTED}
     unknown = [c for c in cases if c not in CASES]
@@ -205,5 +209,153 @@ def comparison_markdown(rows: Sequence[ComparisonCase], *, elements: int, period
     if figures:
         lines += ["", "## Figures", ""]
         lines += [f"![{Path(f).stem}]({Path(f).name})" for f in figures]
+    lines.append("")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- multipliers measured (issue 10)
+#: Cases of :func:`multiplier_study`: (name, Omega / pi, gains: "table3", "uncontrolled" or (kp, kd),
+#: prediction-gain factor, prediction reference).
+MULTIPLIER_CASES = (
+    ("complex pair (kp = 10, kd = 2)", 2, (10.0, 2.0), 1.0, "periodic"),
+    ("Table 3", 2, "table3", 1.0, "periodic"),
+    ("Table 3", 4, "table3", 1.0, "periodic"),
+    ("Table 3", 6, "table3", 1.0, "periodic"),
+    ("Table 3", 8, "table3", 1.0, "periodic"),
+    ("Table 3, prediction with gains +5 % (must fail)", 8, "table3", 1.05, "periodic"),
+    ("Table 3, rigid-reference prediction (must fail)", 8, "table3", 1.0, "rigid"),
+    ("uncontrolled", 2, "uncontrolled", 1.0, "periodic"),
+)
+
+
+@dataclass(frozen=True)
+class MultiplierCase:
+    """One row of :func:`multiplier_study`."""
+
+    name: str
+    omega_over_pi: int
+    result: object = field(repr=False)
+    gains_source: str = ""
+
+    def to_dict(self) -> dict:
+        d = {"case": self.name, "omega_over_pi": self.omega_over_pi, "gains_source": self.gains_source}
+        d.update(self.result.to_dict())
+        return d
+
+
+def multiplier_study(
+    *,
+    cases: Sequence[tuple] = MULTIPLIER_CASES,
+    elements: int = 4,
+    samples: int = 16,
+    config=None,
+    growth_periods: int = 4,
+    params: Optional[ManipulatorParameters] = None,
+    progress: Optional[Callable[[str], None]] = None,
+) -> list:
+    """Measure the multipliers of each case (:func:`validation.multipliers.validate_link_multipliers`).
+
+    The periodic orbit is computed once per Omega and shared (it does not
+    depend on the gains).  Uncontrolled cases also run
+    :func:`~validation.multipliers.measure_growth` over ``growth_periods``.
+
+    Returns
+    -------
+    list of MultiplierCase
+    """
+    from dataclasses import replace
+
+    from mbs_models.paper_data import TABLE3_GAINS
+    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+
+    config = config or MultiplierCheckConfig()
+    orbits: dict = {}
+    rows = []
+    for name, k, gains, factor, ref in cases:
+        if gains == "table3":
+            kp, kd = TABLE3_GAINS[k]
+            source = "paper Table 3 (printed)"
+        elif gains == "uncontrolled":
+            kp, kd, source = 0.0, 0.0, "uncontrolled"
+        else:
+            kp, kd = gains
+            source = "issue 10 complex-pair case"
+        if progress is not None:
+            progress(f"{k}pi {name}")
+        cfg = replace(config, growth_periods=growth_periods if gains == "uncontrolled" else 0)
+        tic = time.perf_counter()
+        res = validate_link_multipliers(
+            params, k * math.pi, kp, kd, elements=elements, samples=samples, config=cfg,
+            predicted_gains=(factor * kp, factor * kd) if factor != 1.0 else None, predict_reference=ref,
+            orbit=orbits.get(k),
+        )
+        if k not in orbits and res.orbit is not None:
+            orbits[k] = res.orbit  # the periodic orbit of the runs (also with a rigid-reference prediction)
+        logger.info("%dpi %s: %.1f s", k, name, time.perf_counter() - tic)
+        rows.append(MultiplierCase(name, k, res, source))
+    return rows
+
+
+def _z(z) -> str:
+    return "–" if z is None else f"{z[0]:+.6f}{z[1]:+.6f}i"
+
+
+def multiplier_markdown(rows: Sequence[MultiplierCase], *, elements: int, figures: Sequence[str] = ()) -> str:
+    """Markdown report of :func:`multiplier_study`."""
+    lines = [
+        "# Floquet multipliers measured from nonlinear Exudyn runs against the prediction",
+        "",
+        f"Free-hub Exudyn model, {elements} ANCF elements, feed-forward + PD. One-period map of the nonlinear "
+        "closed loop measured on the subspace of the compared multipliers (central perturbed-minus-reference "
+        "differences along the predicted right Floquet vectors, Petrov-Galerkin projection with the left "
+        "ones), generalised-alpha with spectralRadius = 1; error bar = Richardson step error (h, h/2, h/4) "
+        "+ amplitude error (4/3 of the change when the amplitude is halved) + the prediction's propagator "
+        "refinement. Agrees iff |measured − predicted| ≤ error bar, for every compared multiplier.",
+        "",
+        "| Ω | case | kp | kd | mode | predicted | measured | abs. error | rel. error | |ρ| error | phase error (rad) | step error | amplitude err. | bar | agrees | amplitude check | rigid ref. distance | reduced distance | confirms | diverged | wall (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+
+    def f(x, fmt=".3g"):
+        return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, fmt)
+
+    for row in rows:
+        d = row.to_dict()
+        alts = {("rigid" if "rigid" in a["name"] else "reduced" if "reduced" in a["name"] else a["name"]): a
+                for a in d["alternatives"]}
+        for i, m in enumerate(d["multipliers"]):
+            first = i == 0
+            lines.append(
+                f"| {row.omega_over_pi}π | {row.name if first else ''} | {f(d['kp'], '.6g') if first else ''} | "
+                f"{f(d['kd'], '.6g') if first else ''} | {m['mode']} | {_z(m['predicted'])} | {_z(m.get('measured'))} | "
+                f"{f(m.get('abs_error'))} | {f(m.get('relative_error'))} | {f(m.get('modulus_error'), '.2e')} | "
+                f"{f(m.get('phase_error'), '.2e')} | {f(m.get('step_error'))} | {f(m.get('amplitude_error'))} | "
+                f"{f(m.get('error_bar'))} | {'yes' if m.get('agrees') else 'no'} | "
+                + (f"{'passed' if d['amplitude_check']['passed'] else 'NOT passed'} | "
+                   f"{f(alts.get('rigid', {}).get('distance'))} | {f(alts.get('reduced', {}).get('distance'))} | "
+                   f"{'; '.join(d['confirms']) or 'none'} | {('yes: ' + d['reason']) if d['diverged'] else 'no'} | "
+                   f"{d['timings'].get('total', 0):.1f} |" if first else "| | | | | |")
+            )
+        g = d.get("growth")
+        if g:
+            lines.append(
+                f"| {row.omega_over_pi}π | ↳ growth run | | | | | per-period ratios "
+                f"{' → '.join(f(r, '.5g') for r in g['ratios'] or [])} | | | | | | | | | nonlinearity "
+                f"{' → '.join(f(x, '.2e') for x in g['nonlinearity'] or [])} | | | inside the linear range "
+                f"{f(g['measured_growth'], '.6g')} vs |ρ₁| = {f(g['predicted'], '.6g')}; left at "
+                f"{f(g['linear_range_left_at'], '.3g')} s | {('yes: ' + g['reason']) if g['diverged'] else 'no'} | |"
+            )
+    t3 = [r for r in rows if r.name == "Table 3"]
+    if t3:
+        worst = max(float(r.result.per_multiplier()[0]["relative_error"]) for r in t3 if r.result.measured.size)
+        ok = all(r.result.agrees for r in t3)
+        lines += [
+            "",
+            f"**Table 3 gains, all Ω: {'all agree' if ok else 'NOT all agree'}**; largest relative difference "
+            f"measured vs predicted dominant multiplier {worst:.2e} (acceptance 1e-3, moonshot 1e-4).",
+        ]
+    if figures:
+        lines += ["", "## Figures", ""]
+        lines += [f"![{Path(fig).stem}]({Path(fig).name})" for fig in figures]
     lines.append("")
     return "\n".join(lines)

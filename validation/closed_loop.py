@@ -124,7 +124,7 @@ DEFAULT_PREDICTION_STEPS = 256
 
 
 @contextlib.contextmanager
-def _exudyn_console(quiet: bool) -> Iterator[None]:
+def exudyn_console(quiet: bool) -> Iterator[None]:
     """Silence Exudyn's console output (solver banners) while the block runs.
 
     Uses ``exudyn.config.printToConsole`` and restores the caller's value.
@@ -482,7 +482,7 @@ def validate_closed_loop(
     if not isinstance(params, ManipulatorParameters):
         raise ValueError(f"params must be ManipulatorParameters, got {type(params).__name__}")
 
-    from mbs_models.exudyn_floquet import exudyn_floquet
+    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 
@@ -514,7 +514,7 @@ def validate_closed_loop(
     state_ref, state_per = (p0, v0), (p0, v1)
     diverged, diverged_at, reason = False, None, ""
     completed = 0
-    with _exudyn_console(quiet):
+    with exudyn_console(quiet):
         for k in range(periods):
             t0, t1 = k * T, (k + 1) * T
             for name, run, state in (("reference", ref, state_ref), ("perturbed", per, state_per)):

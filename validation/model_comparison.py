@@ -16,14 +16,13 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Optional
 
+from mbs_models.paper_data import TABLE3_GAINS
 from mbs_models.parameters import ManipulatorParameters
 
 __all__ = ["TABLE3_GAINS", "ComparisonRow", "compare_models", "comparison_markdown"]
 
 logger = logging.getLogger(__name__)
 
-#: Paper Table 3 (p. 489): Omega / pi -> (kp, kd).
-TABLE3_GAINS = {2: (37.1617, 29.2410), 4: (28.7617, 11.7501), 6: (22.2666, 6.7208), 8: (23.0147, 6.8628)}
 
 
 @dataclass(frozen=True)
@@ -39,6 +38,7 @@ class ComparisonRow:
     exudyn_rigid: float
     exudyn_rigid_mode: str
     direct: float
+    direct_closed_loop_defect: float
     orbit_residual: float
     shooting_residual: float
     spectral_radius_exudyn: float
@@ -77,7 +77,7 @@ def compare_models(
         Called with a short text before each case.
     """
     from mbs_models.exudyn_floquet import direct_monodromy, exudyn_floquet
-    from mbs_models.orbit import find_periodic_orbit, rigid_reference
+    from mbs_models import find_periodic_orbit, rigid_reference
     from mbs_models.exudyn_link import ExudynLinkConfig
     from mbs_models.reduced import ReducedModel
     from stability import floquet
@@ -101,12 +101,12 @@ def compare_models(
             ex = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, orbit=orbit, n_steps=n_steps)
             t_lin = time.perf_counter() - tic + t_orbit
             exr = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, orbit=rigid, n_steps=n_steps)
-            d_mod, t_dir = math.nan, math.nan
+            d_mod, d_defect, t_dir = math.nan, math.nan, math.nan
             if direct:
                 tic = time.perf_counter()
                 d = direct_monodromy(orbit, kp=kp, kd=kd)
                 t_dir = time.perf_counter() - tic
-                d_mod = abs(d.dominant_multiplier)
+                d_mod, d_defect = abs(d.dominant_multiplier), d.closed_loop_defect
             rows.append(
                 ComparisonRow(
                     omega_over_pi=w,
@@ -118,6 +118,7 @@ def compare_models(
                     exudyn_rigid=abs(exr.dominant_multiplier),
                     exudyn_rigid_mode=exr.dominant_mode,
                     direct=d_mod,
+                    direct_closed_loop_defect=d_defect,
                     orbit_residual=orbit.residual,
                     shooting_residual=orbit.shooting_residual,
                     spectral_radius_exudyn=float(ex.floquet.spectral_radius),

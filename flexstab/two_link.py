@@ -1,0 +1,144 @@
+"""The two-link flexible arm study (issue 11): Floquet, mesh convergence, four-gain Taguchi, checks, figures.
+
+Everything goes through the generic model-file path (``linearize.find_orbit``,
+``linearize.linearize_orbit``, ``linearize.analyze``) with the built-in model
+file ``mbs_models/builtin/two_link.py``; the independent checks are
+:mod:`validation.direct_monodromy` (finite-difference monodromy of one-period
+Exudyn runs) and a second Floquet method on the same linearisation.
+
+Tuning response: like the single link's Exudyn plant, the dominant multiplier
+*off the unit circle* (``| |rho| - 1 | >= UNDAMPED_TOLERANCE``): without
+structural damping the axial and most bending modes of the FE model keep
+``|rho| = 1`` whatever the gains.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from taguchi.tuning import DriveGainObjective, TaguchiResult, TuningConfig, taguchi_tune
+
+__all__ = [
+    "MODEL",
+    "TUNING_RANGES",
+    "UNDAMPED_TOLERANCE",
+    "TUNING_FLOQUET",
+    "two_link_orbit",
+    "dominant_damped",
+    "tuning_objective",
+    "tune_four_gains",
+    "gain_slices",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Name of the built-in model file.
+MODEL = "two-link"
+#: Multipliers with ``| |rho| - 1 |`` below this are undamped FE modes (as ``linearize.analysis``).
+UNDAMPED_TOLERANCE = 2e-3
+#: Floquet options inside the tuning loop: exponential midpoint (every factor an exact
+#: matrix exponential: the stiff axial modes make higher-order Magnus overflow), fixed steps.
+TUNING_FLOQUET = {"method": "magnus2", "n_steps": 256, "error_estimate": False}
+#: Initial gain ranges (kp1, kd1, kp2, kd2) of the four-gain tuning; see the 2-D slices
+#: (``gain_slices``) in the study for why they bracket rho_d = 0.3 at both Omega.
+TUNING_RANGES = ((0.0, 60.0), (0.0, 20.0), (0.0, 20.0), (0.0, 6.0))
+
+
+def two_link_orbit(omega: float, elements: Optional[int] = None, **options: Any):
+    """The periodic orbit of the built-in two-link arm (generic collocation path)."""
+    from linearize.periodic_orbit import find_orbit
+    from mbs_models.model_file import builtin_model
+
+    opts = dict(options)
+    if elements is not None:
+        opts["elements"] = elements
+    return find_orbit(builtin_model(MODEL, **opts), omega)
+
+
+def dominant_damped(multipliers: Sequence[complex], tolerance: float = UNDAMPED_TOLERANCE) -> complex:
+    """Largest multiplier off the unit circle (else the largest)."""
+    mus = np.asarray(multipliers)
+    order = np.argsort(-np.abs(mus), kind="stable")
+    for j in order:
+        if abs(abs(mus[j]) - 1.0) >= tolerance:
+            return complex(mus[j])
+    return complex(mus[order[0]])
+
+
+def tuning_objective(lin: Any, floquet_options: Optional[dict] = None) -> DriveGainObjective:
+    """``(kp1, kd1, kp2, kd2) -> |rho|`` of the dominant damped multiplier of ``lin`` with those gains."""
+    return DriveGainObjective(lin, floquet_options or TUNING_FLOQUET, unit_circle_tolerance=UNDAMPED_TOLERANCE)
+
+
+def tune_four_gains(lin: Any, target: float = 0.3, *, ranges: Sequence = TUNING_RANGES,
+                    executor: Any = None, max_evaluations: int = 2000) -> TaguchiResult:
+    """Iterative Taguchi (L9, four factors) to ``max|rho| = target`` on the linearisation ``lin``."""
+    cfg = TuningConfig(target=target, ranges=tuple(ranges), max_evaluations=max_evaluations)
+    return taguchi_tune(tuning_objective(lin), cfg, executor=executor)
+
+
+@dataclass(frozen=True)
+class GainSlices:
+    """``|rho|`` over 2-D slices of the gain space (one drive's pair varied, the other fixed)."""
+
+    kp_grid: tuple
+    kd_grid: tuple
+    shoulder: np.ndarray  # (kd, kp) with the elbow gains fixed
+    elbow: np.ndarray
+    fixed: tuple
+
+    def to_dict(self) -> dict:
+        return {"kp_grid": [list(g) for g in self.kp_grid], "kd_grid": [list(g) for g in self.kd_grid],
+                "shoulder": self.shoulder.tolist(), "elbow": self.elbow.tolist(), "fixed": list(self.fixed)}
+
+
+def gain_slices(lin: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES, points: int = 9,
+                executor: Any = None) -> GainSlices:
+    """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1)."""
+    obj = tuning_objective(lin)
+    grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
+    grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
+    out = []
+    for drive in (0, 1):
+        pts = []
+        for kd in grids_d[drive]:
+            for kp in grids_p[drive]:
+                g = list(fixed)
+                g[2 * drive], g[2 * drive + 1] = float(kp), float(kd)
+                pts.append(tuple(g))
+        vals = list(executor.map(obj, pts)) if executor is not None else [obj(p) for p in pts]
+        out.append(np.array(vals).reshape(points, points))
+    return GainSlices(kp_grid=tuple(tuple(g) for g in grids_p), kd_grid=tuple(tuple(g) for g in grids_d),
+                      shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
+
+
+def plot_gain_slices(sl: GainSlices, path, *, target: float = 0.3, title: str = "") -> None:
+    """Contour plots of the two slices with the ``rho_d`` level."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    for ax, data, name, d in ((axes[0], sl.shoulder, "shoulder", 0), (axes[1], sl.elbow, "elbow", 1)):
+        X, Y = np.meshgrid(sl.kp_grid[d], sl.kd_grid[d])
+        cs = ax.contourf(X, Y, np.minimum(data, 1.5), levels=20, cmap="viridis")
+        fig.colorbar(cs, ax=ax, label="|rho| dominant damped (clipped at 1.5)")
+        ax.contour(X, Y, data, levels=[target], colors="r", linewidths=2)
+        ax.set_xlabel(f"kp{d + 1} (N m/rad)")
+        ax.set_ylabel(f"kd{d + 1} (N m s/rad)")
+        other = (sl.fixed[2], sl.fixed[3]) if d == 0 else (sl.fixed[0], sl.fixed[1])
+        ax.set_title(f"{name} gains; other drive at kp = {other[0]:.3g}, kd = {other[1]:.3g}", fontsize=9)
+    fig.suptitle(title or f"two-link: dominant damped |rho| over gain slices (red: rho_d = {target})", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def timed(fn, *args, **kwargs):
+    """``(result, seconds)``."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t0

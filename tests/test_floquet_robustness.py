@@ -1,0 +1,201 @@
+"""Robustness of the Floquet engine (issue 13, items 5-7).
+
+Oracles: an independent scheme (4th-order Magnus at a fixed, fine step count,
+with its own step-halving estimate), so that the adaptive default is checked
+against a computation that shares neither its scheme nor its step selection;
+and the error contracts of the command line (one line, exit code 2 for input
+that cannot mean anything, 1 for a computation that cannot be completed).
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from flexstab.cli import main as cli_main
+from mbs_models.parameters import ManipulatorParameters
+from mbs_models.reduced import ReducedModel
+from stability import floquet
+from stability.floquet import FloquetError
+
+#: Independent reference: magnus4 with a fixed step count (its error ~ C N^-4 is
+#: reported by the N/2 comparison and enters the bound below).
+REFERENCE_STEPS = 1024
+#: Richardson estimates are asymptotic, not rigorous: the adaptive method accepts
+#: a pair only when the observed error scaling agrees with the scheme's order
+#: within a factor 4 (floquet.CONSISTENCY), so allow 10x the sum of both estimates.
+ESTIMATE_FACTOR = 10.0
+
+
+def _agree(a, b) -> bool:
+    """Moduli >= 1e-6 of the largest agree within the combined error estimates.
+
+    Bound: |rho_a - rho_b| / rho <= 10 (est_a + est_b) + 100 eps (rounding of the moduli).
+    """
+    keep = b.moduli >= 1e-6 * b.moduli[0]
+    diff = np.max(np.abs(a.moduli[keep] / b.moduli[keep] - 1.0))
+    bound = ESTIMATE_FACTOR * (a.error_estimate + b.error_estimate) + 100 * np.finfo(float).eps
+    return bool(diff <= bound)
+
+
+def _reference(model):
+    return floquet(model, method="magnus4", n_steps=REFERENCE_STEPS)
+
+
+USER_LINK = ManipulatorParameters(length=0.6, tip_mass=0.3)
+
+
+@pytest.mark.parametrize("kd", [15.0, 18.0, 21.0])
+def test_default_method_on_the_user_link_at_4pi(kd):
+    """Issue 13.5: 0.6 m / 0.3 kg at 4 pi, kd 15-21 overflowed the default's first step count."""
+    model = ReducedModel(4 * math.pi, 20.0, kd, params=USER_LINK)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no overflow warnings either
+        res = floquet(model)
+    assert res.error_estimate <= 1e-9
+    assert _agree(res, _reference(model))
+
+
+def test_agreement_check_rejects_a_wrong_answer():
+    """The check above fails on a result that is really off: the default's moduli moved by
+    1e-7 relative (100x its estimate), and magnus6 with 32 steps (h|lambda| = 87, 4e-4 off)."""
+    import dataclasses
+
+    model = ReducedModel(4 * math.pi, 20.0, 18.0, params=USER_LINK)
+    ref = _reference(model)
+    res = floquet(model)
+    assert _agree(res, ref)
+    shifted = dataclasses.replace(res, log_moduli=res.log_moduli + 1e-7)
+    assert not _agree(shifted, ref)
+    coarse = floquet(model, n_steps=32)
+    assert abs(coarse.spectral_radius / ref.spectral_radius - 1) > 1e-4
+    assert not _agree(dataclasses.replace(coarse, error_estimate=res.error_estimate), ref)
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    length=st.floats(0.4, 1.4),
+    tip_mass=st.floats(0.0, 0.6),
+    k=st.sampled_from([2, 4, 6, 8]),
+    kp=st.floats(0.0, 60.0),
+    kd=st.floats(0.0, 40.0),
+)
+def test_default_agrees_with_an_independent_scheme_on_random_links(length, tip_mass, k, kp, kd):
+    model = ReducedModel(k * math.pi, kp, kd, params=ManipulatorParameters(length=length, tip_mass=tip_mass))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        res = floquet(model)
+    ref = _reference(model)
+    assert _agree(res, ref), (res.moduli, ref.moduli, res.error_estimate, ref.error_estimate)
+
+
+def test_stiff_fast_system_fails_fast_with_high_order_magnus():
+    """Issue 13.7: a 40-state system with ||P|| ~ 4e5 1/s (like the Exudyn linearisation) and
+    magnus6: a clear error naming magnus2 instead of an endless refinement."""
+    rng = np.random.default_rng(0)
+    n = 40
+    A = rng.standard_normal((n, n)) * 1e3
+    A[0, 0] = -4e5
+    B = rng.standard_normal((n, n)) * 1e3
+
+    def P(t):
+        return A + math.sin(2 * math.pi * t) * B
+
+    with pytest.raises(FloquetError, match="magnus2"):
+        floquet(P, period=1.0, method="magnus6")
+
+
+def test_exact_overflow_is_named():
+    """An exponentially growing system beyond double precision in one period."""
+    with pytest.raises(FloquetError, match="beyond"):
+        floquet(lambda t: np.array([[800.0 + math.sin(6.283185307179586 * t), 0.0], [0.0, -1.0]]), period=1.0)
+
+
+@pytest.mark.parametrize("argv, code, pattern", [
+    (["--omega", "1e-300"], 2, "too long"),
+    (["--omega", "1e-6"], 1, "too long"),
+    (["--method", "paper", "--small-multipliers", "qr"], 2, "factor method"),
+])
+def test_cli_one_line_errors(argv, code, pattern, capsys):
+    assert cli_main(["floquet", *argv]) == code
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and pattern in err and "Traceback" not in err
+
+
+def test_cli_table_with_null_log_moduli_and_liouville(capsys):
+    """Issue 13.6/13.7: JSON nulls (ln 0, an unavailable Liouville check) print as text, not a traceback."""
+    from flexstab.commands.floquet import _table
+
+    d = {
+        "model": "reduced", "omega": 2 * math.pi, "period": 1.0, "kp": 1.0, "kd": 1.0,
+        "method": "paper", "n_steps": 10, "multipliers": [[0.3, 0.0], [0.0, 0.0]], "moduli": [0.3, 0.0],
+        "reliable_digits": [9.0, 0.0], "log_moduli": [math.log(0.3), None], "error_estimate": None,
+        "spectral_radius": 0.3, "verdict": "asymptotically stable", "stability_tolerance": 1e-8,
+        "liouville_residual": None, "liouville_source": "unavailable",
+    }
+    text = _table(d)
+    assert "n/a" in text and "|rho| = 0" in text
+
+
+def test_cli_huge_omega_prints_a_table(capsys):
+    assert cli_main(["floquet", "--omega", "1e6pi"]) == 0
+    out = capsys.readouterr().out
+    assert "spectral radius" in out
+
+
+# --------------------------------------------------------------------------- kernels
+@pytest.mark.parametrize("norm", [0.0, 1e-3, 0.5, 0.82, 3.0, 40.0, 700.0])
+def test_taylor_expm_of_small_stacks_against_scipy(norm):
+    """expm_soa (degree-16 Taylor, scaling and squaring) vs scipy.linalg.expm (Pade, independent).
+
+    Bound: scaling and squaring loses ~ 2^s * eps * cond; Higham (2005) observes
+    relative errors ~ 1e-13 at 1-norms ~ 1e3 -> 1e-12 allowed, 1e-15 below the
+    unscaled threshold (0.82)."""
+    from scipy.linalg import expm
+
+    from stability.expm import expm_soa
+
+    rng = np.random.default_rng(int(norm * 10) + 1)
+    A = rng.standard_normal((12, 4, 4))
+    A *= norm / max(np.max(np.sum(np.abs(A), axis=1)), 1e-300)
+    ref = np.array([expm(a) for a in A])
+    got = expm_soa(np.ascontiguousarray(A.transpose(1, 2, 0))).transpose(2, 0, 1)
+    tol = 1e-15 * 4 if norm <= 0.82 else 1e-12
+    assert np.max(np.abs(got - ref)) <= tol * np.max(np.abs(ref))
+    if norm > 10.0:  # rejects a wrong answer: the Taylor polynomial without scaling
+        from stability import expm as expm_module
+
+        unscaled = expm_module.THETA_TAYLOR
+        try:
+            expm_module.THETA_TAYLOR = 1e300
+            bad = expm_soa(np.ascontiguousarray(A.transpose(1, 2, 0))).transpose(2, 0, 1)
+        finally:
+            expm_module.THETA_TAYLOR = unscaled
+        assert not np.max(np.abs(bad - ref)) <= tol * np.max(np.abs(ref))
+
+
+def test_interleaved_products_match_separate_products():
+    from stability.magnus import ordered_product, ordered_product_soa
+
+    rng = np.random.default_rng(5)
+    A, B = rng.standard_normal((7, 3, 3)), rng.standard_normal((7, 3, 3))
+    both = np.stack([A.transpose(1, 2, 0), B.transpose(1, 2, 0)], axis=3).reshape(3, 3, 14)
+    got = ordered_product_soa(both, blocks=2)
+    # reference: the plain sequential product E_7 ... E_1
+    for k, X in enumerate((A, B)):
+        ref = np.eye(3)
+        for E in X:
+            ref = E @ ref
+        np.testing.assert_allclose(got[:, :, k], ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+        np.testing.assert_allclose(ordered_product(X), ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+
+
+def test_chart_grid_guard(capsys):
+    """Issue 13.7: ``chart --grid 100000`` (1e10 evaluations) is refused with one line, exit 2."""
+    assert cli_main(["chart", "--grid", "100000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "grid points" in err

@@ -1,0 +1,258 @@
+"""Figures of the nonlinear validation: nonlinear runs against the linear prediction.
+
+:func:`plot_validation_figure` draws one column per
+:class:`~validation.closed_loop.ValidationResult` with three rows:
+
+1. the hub-angle error ``Delta q_a(t)`` of the nonlinear run (perturbed minus
+   reference), the response of the linearised Exudyn system to the same
+   initial perturbation (:func:`~validation.closed_loop.linear_prediction`) and
+   the envelope ``+- C |rho|^(t/T)``;
+2. ``|Delta q_a|`` on a log scale with the stroboscopic samples ``|Delta q_a(kT)|``
+   of both and the envelope (the per-period ratio is the slope);
+3. the tip-deflection error of both runs.
+
+The linear curves are clipped to the range of the nonlinear data where they
+explode (unstable loops leave the linear range).
+"""
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional, Sequence, Union
+
+import numpy as np
+
+from validation.closed_loop import LinearPrediction, ValidationResult, linear_prediction
+
+if TYPE_CHECKING:  # pragma: no cover
+    from validation.multipliers import MultiplierValidation
+
+__all__ = ["plot_multiplier_plane", "plot_validation_figure"]
+
+logger = logging.getLogger(__name__)
+
+
+def _fmt(x: float) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.4g}"
+
+
+def plot_validation_figure(
+    results: Sequence[ValidationResult],
+    path: Union[str, Path],
+    *,
+    titles: Optional[Sequence[str]] = None,
+    predictions: Optional[Sequence[Optional[LinearPrediction]]] = None,
+    suptitle: Optional[str] = None,
+) -> Path:
+    """Write a PNG comparing nonlinear runs with their linear predictions.
+
+    Parameters
+    ----------
+    results : sequence of ValidationResult
+        One column each.
+    path : str or Path
+        Output PNG.
+    titles : sequence of str, optional
+        Column titles (default: the gains).
+    predictions : sequence of LinearPrediction or None, optional
+        Default: :func:`~validation.closed_loop.linear_prediction` of each result.
+    suptitle : str, optional
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    results = list(results)
+    if not results:
+        raise ValueError("no results to plot")
+    if predictions is None:
+        predictions = [linear_prediction(r) if (r.prediction is not None or r.exudyn is not None) else None
+                       for r in results]
+    titles = list(titles) if titles is not None else [f"kp = {r.kp:.4g}, kd = {r.kd:.4g}" for r in results]
+    ncol = len(results)
+    fig, axes = plt.subplots(3, ncol, figsize=(4.2 * ncol, 9.0), squeeze=False)
+    for j, (r, lp, title) in enumerate(zip(results, predictions, titles)):
+        T = r.period
+        ax_h, ax_l, ax_t = axes[0, j], axes[1, j], axes[2, j]
+        t = r.times
+        ylim_h = 1.15 * float(np.max(np.abs(r.hub_error))) if r.hub_error.size else 1.0
+        ylim_t = 1.15 * float(np.max(np.abs(r.tip_error))) if r.tip_error.size else 1.0
+        ax_h.plot(t / T, r.hub_error, color="C0", lw=1.0, label="nonlinear (Exudyn)")
+        ax_t.plot(t / T, 1e3 * r.tip_error, color="C0", lw=1.0, label="nonlinear (Exudyn)")
+        if r.hub_error.size:
+            pos = np.abs(r.hub_error) > 0
+            ax_l.semilogy(t[pos] / T, np.abs(r.hub_error[pos]), color="C0", lw=0.8, label="|nonlinear|")
+        k = np.arange(r.stroboscopic.size)
+        ok = r.stroboscopic > 0
+        ax_l.semilogy(k[ok], r.stroboscopic[ok], "o", color="C0", ms=5, label="nonlinear at t = kT")
+        if lp is not None:
+            tl = lp.t / T
+            ax_h.plot(tl, lp.hub_error, "--", color="C1", lw=1.0, label="linearised Exudyn")
+            ax_t.plot(tl, 1e3 * lp.tip_error, "--", color="C1", lw=1.0, label="linearised Exudyn")
+            env = lp.envelope(lp.t)
+            if math.isfinite(lp.envelope_constant):
+                ax_h.plot(tl, env, ":", color="C3", lw=1.2, label=rf"$\pm C|\rho|^{{t/T}}$, |ρ| = {lp.modulus:.4g}")
+                ax_h.plot(tl, -env, ":", color="C3", lw=1.2)
+                ax_l.semilogy(tl, env, ":", color="C3", lw=1.2, label=r"$C|\rho|^{t/T}$")
+            kl = np.arange(lp.stroboscopic.size)
+            okl = lp.stroboscopic > 0
+            ax_l.semilogy(kl[okl], lp.stroboscopic[okl], "x", color="C1", ms=7, label="linear at t = kT")
+        ax_h.set_ylim(-ylim_h, ylim_h)
+        ax_t.set_ylim(-1e3 * ylim_t, 1e3 * ylim_t)
+        if r.hub_error.size:
+            pos_vals = np.abs(r.hub_error)[np.abs(r.hub_error) > 0]
+            if pos_vals.size:
+                lo = max(float(np.min(r.stroboscopic[ok])) if np.any(ok) else float(pos_vals.min()), 1e-12)
+                ax_l.set_ylim(lo / 30.0, 3.0 * float(pos_vals.max()))
+        if r.linear_range_left_at is not None:
+            for ax in (ax_h, ax_l, ax_t):
+                ax.axvline(r.linear_range_left_at / T, color="0.5", lw=0.8, ls="-.")
+            ax_h.text(r.linear_range_left_at / T, 0.9 * ylim_h, " linear range left", fontsize=7, color="0.3", va="top")
+        if r.diverged and r.diverged_at is not None:
+            ax_h.axvline(r.diverged_at / T, color="r", lw=0.8)
+        sub = (
+            f"measured {_fmt(r.measured_ratio_per_period)} / period; "
+            f"Exudyn lin. {_fmt(r.predicted_multiplier_exudyn)}, reduced {_fmt(r.predicted_multiplier_reduced)}"
+        )
+        ax_h.set_title(f"{title}\n{sub}", fontsize=8)
+        ax_h.set_ylabel(r"hub-angle error $\Delta q_a$ (rad)")
+        ax_l.set_ylabel(r"$|\Delta q_a|$ (rad)")
+        ax_t.set_ylabel(r"tip-deflection error (mm)")
+        ax_t.set_xlabel("t / T")
+        for ax in (ax_h, ax_l, ax_t):
+            ax.grid(True, alpha=0.3)
+            ax.set_xlim(0, max(r.periods, 1))
+        if j == 0:
+            ax_h.legend(fontsize=7, loc="lower right")
+            ax_l.legend(fontsize=7, loc="lower left")
+            ax_t.legend(fontsize=7, loc="lower right")
+        elif lp is not None and math.isfinite(lp.envelope_constant):
+            ax_h.legend(handles=ax_h.lines[2:3], fontsize=7, loc="lower right")
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    logger.info("wrote %s", path)
+    return path
+
+
+def plot_multiplier_plane(
+    results: Sequence["MultiplierValidation"],
+    path: Union[str, Path],
+    *,
+    titles: Optional[Sequence[str]] = None,
+    suptitle: Optional[str] = None,
+) -> Path:
+    """Measured and predicted multipliers in the complex plane with the unit circle.
+
+    One column per :class:`~validation.multipliers.MultiplierValidation`:
+    top, the whole plane (unit circle, every predicted multiplier, the
+    compared ones, the measured ones, the alternatives); bottom, a zoom on the
+    dominant compared multiplier with the measured values per step
+    (``h, h/2, h/4``), the error-bar circle of the measurement and the
+    alternatives (whose distance the measurement resolves or not).
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    results = list(results)
+    if not results:
+        raise ValueError("no results to plot")
+    titles = list(titles) if titles is not None else [f"{r.info.get('model', '')}: kp = {r.info.get('kp')}, kd = {r.info.get('kd')}"
+                                                      for r in results]
+    ncol = len(results)
+    fig, axes = plt.subplots(2, ncol, figsize=(4.6 * ncol, 9.0), squeeze=False)
+    markers = ["^", "v", "s", "D"]
+    for j, (r, title) in enumerate(zip(results, titles)):
+        ax, az = axes[0, j], axes[1, j]
+        th = np.linspace(0, 2 * np.pi, 400)
+        ax.plot(np.cos(th), np.sin(th), color="0.6", lw=0.8, label="unit circle")
+        allm = r.prediction.all_multipliers
+        allm = allm[np.abs(allm) <= 1.5 * max(1.0, float(np.max(np.abs(r.prediction.multipliers))))]
+        ax.plot(allm.real, allm.imag, ".", color="0.75", ms=4, label="predicted, not compared")
+        p = r.prediction.multipliers
+        ax.plot(p.real, p.imag, "x", color="C1", ms=9, mew=2, label="predicted (under test)")
+        if r.measured.size:
+            ax.plot(r.measured.real, r.measured.imag, "o", mfc="none", color="C0", ms=10, mew=1.5,
+                    label="measured (nonlinear Exudyn)")
+        for i, alt in enumerate(r.alternatives):
+            a = np.asarray(alt.multipliers)
+            ax.plot(a.real, a.imag, markers[i % 4], mfc="none", color=f"C{i + 2}", ms=7, label=alt.name)
+        lim = max(1.1, 1.1 * float(np.max(np.abs(p))))
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_aspect("equal")
+        ax.axhline(0, color="0.85", lw=0.5)
+        ax.axvline(0, color="0.85", lw=0.5)
+        verdict = "diverged" if r.diverged else ("agrees" if r.agrees else "DISAGREES")
+        ax.set_title(f"{title}\n{r.prediction.name}: {verdict}", fontsize=8)
+        ax.set_xlabel("Re ρ")
+        ax.set_ylabel("Im ρ")
+        ax.legend(fontsize=6, loc="lower left")
+        # zoom on the dominant compared multiplier
+        i0 = 0
+        z0 = p[i0]
+        pts = [z0]
+        if r.levels.size:
+            lv = r.levels[:, i0]
+            steps = r.config.steps
+            az.plot(lv.real, lv.imag, "-", color="C0", lw=0.8, alpha=0.6)
+            for s, z in zip(steps, lv):
+                az.plot(z.real, z.imag, "o", color="C0", ms=4, alpha=0.5)
+                az.annotate(f"h={s:g}", (z.real, z.imag), fontsize=6, color="C0", xytext=(3, 3),
+                            textcoords="offset points")
+            pts += list(lv)
+        if r.measured.size:
+            m = r.measured[i0]
+            bar = float(r.errors[i0])
+            az.plot(m.real, m.imag, "o", mfc="none", color="C0", ms=10, mew=1.5, label=f"measured ± {bar:.2g}")
+            az.add_patch(Circle((m.real, m.imag), bar, fill=False, ls="--", color="C0", lw=1.0))
+            pts += [m + bar, m - bar, m + 1j * bar, m - 1j * bar]
+        az.plot(z0.real, z0.imag, "x", color="C1", ms=10, mew=2, label="predicted (under test)")
+        for i, alt in enumerate(r.alternatives):
+            a = np.asarray(alt.multipliers)
+            if a.size:
+                za = a[int(np.argmin(np.abs(a - z0)))]
+                az.plot(za.real, za.imag, markers[i % 4], mfc="none", color=f"C{i + 2}", ms=8,
+                        label=f"{alt.name} ({'consistent' if alt.consistent else 'excluded'})")
+                pts.append(za)
+        pts_a = np.array(pts)
+        cx, cy = float(np.mean([pts_a.real.min(), pts_a.real.max()])), float(np.mean([pts_a.imag.min(), pts_a.imag.max()]))
+        half = 0.6 * max(float(np.ptp(pts_a.real)), float(np.ptp(pts_a.imag)), 1e-7 * max(abs(z0), 1e-3))
+        az.set_xlim(cx - half, cx + half)
+        az.set_ylim(cy - half, cy + half)
+        az.set_aspect("equal")
+        az.ticklabel_format(useOffset=False, style="plain")
+        az.tick_params(labelsize=6)
+        az.xaxis.set_major_locator(plt.MaxNLocator(4))
+        az.yaxis.set_major_locator(plt.MaxNLocator(5))
+        az.set_title(f"zoom on ρ = {z0.real:.5g}{z0.imag:+.5g}i ({r.prediction.labels[i0] or 'dominant'})", fontsize=8)
+        az.set_xlabel("Re ρ")
+        az.set_ylabel("Im ρ")
+        az.grid(True, alpha=0.3)
+        az.legend(fontsize=6, loc="best")
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    logger.info("wrote %s", path)
+    return path
