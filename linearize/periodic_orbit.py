@@ -534,7 +534,7 @@ def _polish(col: _Collocation, X: np.ndarray, solve, res: float, qscale: float, 
     return X
 
 
-def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
+def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = None
@@ -550,7 +550,7 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
             return _polish(col, X, solve, res, qscale, history), history, True, tb
         if it > STAGNATION_ITERATIONS and res > history[0]:
             return X, history, False, tb
-        if it > EARLY_GIVE_UP_ITERATIONS and res > EARLY_GIVE_UP_FACTOR * history[0]:
+        if early_give_up and it > EARLY_GIVE_UP_ITERATIONS and res > EARLY_GIVE_UP_FACTOR * history[0]:
             return X, history, False, tb  # no progress from this guess: continuation will do better
         if solve is None or len(history) < 2 or history[-1] > 0.5 * history[-2]:
             solve, tb = col.newton_solver(X)
@@ -722,7 +722,7 @@ def find_orbit(
     built = build_model(definition, omega)
     col = _Collocation(built, samples, solver)
     X = _guess(col, definition)
-    X, history, ok, tb = _newton(col, X, tol, max_iterations)
+    X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation)
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
         X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)
