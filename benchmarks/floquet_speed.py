@@ -270,7 +270,7 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         best, tried = _best_baseline(model, ref, IVP_METHODS, rtols, 1 if quick else 3, log)
         results.append(CaseResult(
             case=label, omega=k * math.pi, kp=kp, kd=kd,
-            reference_moduli=[float(x) for x in ref], reference_seconds=ref_s,
+            reference_moduli=[float(x) for x in np.abs(ref)], reference_seconds=ref_s,
             default_ms=d_s * 1e3, default_repeats=d_rep, default_n_steps=int(d_res.n_steps),
             default_max_rel_error=d_err, default_error_estimate=float(d_res.error_estimate),
             multipliers_ms=m_s * 1e3, multipliers_n_steps=int(m_res.n_steps), multipliers_max_rel_error=m_err,

@@ -104,7 +104,7 @@ def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Op
 
     layout = arm_layout(_built(orbit).mbs)
     T = orbit.period
-    fig, ax = plt.subplots(figsize=(6.0, 5.6))
+    fig, ax = plt.subplots(figsize=(7.6, 5.0))
     cmap = plt.get_cmap("viridis")
     fine = np.linspace(0.0, T, 201)
     tips = []
@@ -127,7 +127,7 @@ def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Op
     ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
     ax.set_title(title or f"{orbit.model.name}: poses over one period, Omega = {orbit.omega:.4g} rad/s")
-    ax.legend(fontsize=7, ncol=2, loc="best")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -81,6 +81,11 @@ class ExudynOmegaRadius:
         return float(abs(r.dominant_multiplier))
 
 
+#: Most points per chart axis (a 1001 x 1001 gain chart is already 1e6 Floquet evaluations,
+#: ~1 h on 2 cores; more points cannot be told apart on a figure).
+MAX_GRID_POINTS = 1001
+
+
 def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
     """``linspace(lo, hi, n)`` after validating the range (clear errors naming ``name``)."""
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -89,6 +94,9 @@ def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
         raise ValueError(f"{name} range is empty or inverted: [{lo}, {hi}]")
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ValueError(f"{name} needs at least 2 grid points, got {n!r}")
+    if n > MAX_GRID_POINTS:
+        raise ValueError(f"{name}: {n} grid points is more than the {MAX_GRID_POINTS} a chart can resolve "
+                         f"(a {n} x {n} gain chart would be {n * n:.3g} Floquet evaluations)")
     return np.linspace(lo, hi, int(n))
 
 
@@ -208,16 +216,25 @@ def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequenc
     fig, ax = plt.subplots(figsize=(7.5, 5.8))
     KP, KD = np.meshgrid(chart.kp, chart.kd)
     L = np.log10(chart.radius)
-    lo, hi = float(np.nanmin(L)), float(np.nanmax(L))
-    # centre the colour scale at log10|rho| = 0; keep both halves even if the chart lies on one side
-    lo, hi = min(lo, -1e-3), max(hi, 1e-3)
+    data_lo, hi = float(np.nanmin(L)), float(np.nanmax(L))
+    # centre the colour scale at log10|rho| = 0; keep both halves even if the chart lies on one side.
+    # Resolve |rho| down to FLOOR (everything smaller is "very stable", the darkest blue), so that
+    # the range around rho_d is not washed out by a deep minimum of 1e-6.
+    floor = min(-2.0, math.log10(chart.target) - 1.0) if chart.target else -2.0
+    lo, hi = min(max(data_lo, floor), -1e-3), max(hi, 1e-3)
     norm = TwoSlopeNorm(vmin=lo, vcenter=0.0, vmax=hi)
     levels = np.unique(np.concatenate([np.linspace(lo, 0.0, 16), np.linspace(0.0, hi, 16)]))
-    cf_ = ax.contourf(KP, KD, L, levels=levels, cmap="RdBu_r", norm=norm)
+    cf_ = ax.contourf(KP, KD, L, levels=levels, cmap="RdBu_r", norm=norm,
+                      extend="min" if data_lo < lo else "neither")
     cb = fig.colorbar(cf_, ax=ax)
-    cb.set_label("log10 max|ρ|   (blue: |ρ| < 1 stable, red: |ρ| > 1 unstable)")
+    # ticks at readable |rho| values (1, 3, 10, 30, ... and 0.3, 0.1, ...), labelled as |rho|, not its log
+    cands = [m * 10.0 ** e for e in range(int(math.floor(lo)) - 1, int(math.ceil(hi)) + 1) for m in (1.0, 3.0)]
+    ticks = [math.log10(c) for c in cands if lo <= math.log10(c) <= hi]
+    cb.set_ticks(ticks)
+    cb.set_ticklabels([f"{10.0 ** t:.3g}" for t in ticks])
+    cb.set_label("max|ρ| (log scale; blue: < 1 stable, red: > 1 unstable)")
     cb.ax.axhline(0.0, color="k", lw=2)
-    if lo < 0 < hi and np.nanmin(L) < 0 < np.nanmax(L):
+    if np.nanmin(L) < 0 < np.nanmax(L):
         cs = ax.contour(KP, KD, chart.radius, levels=[1.0], colors="k", linewidths=2)
         _label_every_segment(ax, cs, "|ρ| = 1", "k")
     if chart.target is not None and np.nanmin(chart.radius) < chart.target < np.nanmax(chart.radius):

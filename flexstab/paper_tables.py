@@ -22,7 +22,7 @@ from typing import Optional
 import numpy as np
 
 from mbs_models.paper_data import TABLE3_PRINTED as _TABLE3_PRINTED
-from flexstab.report import figure, percent, table, text, to_markdown
+from flexstab.report import percent, relative, table, text, to_markdown
 from mbs_models.parameters import ManipulatorParameters
 from mbs_models.reduced import ReducedModel
 from stability import floquet
@@ -273,12 +273,12 @@ def table3_blocks(rows: list[dict]) -> list[dict]:
         body.append(cells + [r["nelder_mead"]["evaluations"]])
     blocks = [text(intro), table(header, body)]
     ours = max(abs(r["relative_error_to_target"]) for r in rows)
-    closing = (f"Our gains reach ρ_d within {percent(ours, 3)} (paper method). max|ρ|(kp, kd) = ρ_d holds on a curve "
+    closing = (f"Our gains reach ρ_d to a relative {relative(ours, sign=False)} (paper method). max|ρ|(kp, kd) = ρ_d holds on a curve "
                "in the gain plane, and Eq. (34) does not select a point on it: Taguchi returns one point of that curve.")
     if printed:
         theirs = max(abs(r["printed_gains_relative_error_to_target"]) for r in rows)
-        closing += (" Our gains differ from the printed ones for that reason; the printed gains give max|ρ| within "
-                    f"{percent(theirs, 3)} of ρ_d in our engine"
+        closing += (" Our gains differ from the printed ones for that reason; the printed gains give max|ρ| "
+                    f"within a relative {relative(theirs, sign=False)} of ρ_d in our engine"
                     + (", i.e. they reach it too." if theirs <= 1e-3 else "."))
     blocks.append(text(closing))
     return blocks

@@ -32,6 +32,7 @@ __all__ = [
     "markdown_table",
     "markdown_table_cells",
     "percent",
+    "relative",
     "fixed",
 ]
 
@@ -71,6 +72,17 @@ def percent(x: float, digits: int = 2, sign: bool = False) -> str:
     if round(value, digits) == 0:
         value = 0.0
     return f"{value:{'+' if sign and value != 0 else ''}.{digits}f} %"
+
+
+def relative(x: float, sign: bool = True) -> str:
+    """A relative difference: a percentage from 0.01 % up, else in scientific notation (never ``0.00 %``)."""
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if x == 0:
+        return "0"
+    if abs(x) >= 1e-4:
+        return percent(x, 2, sign)
+    return f"{x:{'+' if sign else ''}.1e}"
 
 
 def fixed(x: float, digits: int) -> str:
@@ -143,7 +155,8 @@ def _inline(s: str) -> str:
     """HTML-escape, then render Markdown's ``code`` and **bold** spans."""
     s = html.escape(s)
     s = re.sub(r"`([^`]+)`", r"<code>\1</code>", s)
-    return re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
+    s = re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", s)
+    return re.sub(r"(?<![\w*])\*([^*\s][^*]*)\*(?![\w*])", r"<em>\1</em>", s)
 
 
 def to_html(title: str, preamble: Sequence[dict], sections: Sequence[tuple[str, Sequence[dict]]]) -> str:

@@ -54,7 +54,7 @@ from pathlib import Path
 from typing import Callable, Optional
 
 from flexstab.config import StudyConfig
-from flexstab.report import figure, fixed, percent, table, text, to_html, to_markdown
+from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
 __all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash"]
 
@@ -181,6 +181,12 @@ def _w(omega: float) -> str:
     return f"{k:.4g}π rad/s"
 
 
+def _pi(omega: float) -> str:
+    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
+    k = f"{omega / math.pi:.4g}"
+    return "π" if k == "1" else f"{k}π"
+
+
 def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
     """Printed Table 3 gains (paper's manipulator at a paper Omega), else Taguchi on the reduced model."""
     from flexstab.paper_tables import TABLE3_PRINTED, paper_case
@@ -254,8 +260,8 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
     names = [Path(f).name for f in s["figures"]]
     blocks = [
         text(f"Reduced model, {len(g['kp'])} × {len(g['kd'])} gain grid, kp in [{g['kp'][0]:g}, {g['kp'][-1]:g}] "
-             f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} Omegas from "
-             f"{o['omega'][0] / math.pi:.3g}π to {o['omega'][-1] / math.pi:.3g}π rad/s."),
+             f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} values of Ω from "
+             f"{_pi(o['omega'][0])} to {_pi(o['omega'][-1])} rad/s."),
         figure(names[0], f"max|ρ| over the (kp, kd) plane at Ω = {_w(cfg.omega)}: blue = asymptotically stable "
                          f"(|ρ| < 1), red = unstable; the |ρ| = 1 boundary, the ρ_d = {cfg.target:g} contour and the "
                          "Taguchi path (incumbent after each iteration) are drawn."),
@@ -286,10 +292,10 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
     figs = [c["figure_file"] for c in doc["cases"]]
     rows = []
     for c in doc["cases"]:
-        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else c["figure_file"],
+        rows.append([f"Fig. {c['figure']}" if c["figure"] is not None else (c["gains_source"] or "given gains"),
                      f"{c['omega_over_pi']:.4g}π", f"{c.get('kp', 0):g}", f"{c.get('kd', 0):g}",
                      f"{c['spectral_radius']:.6g}", f"{c['last_ratio']:.6g}", f"k = {c['periods_measured'] - 1}",
-                     percent(c["last_ratio_relative_error"], sign=True)])
+                     relative(c["last_ratio_relative_error"])])
     blocks = [
         text("Homogeneous response (Eq. 25/33) of the linearised reduced model from x(0) = [0, 0, 0.25π, 0] "
              "(Eqs. 26/35), with the envelope ρ₁^(t/T) of the dominant multiplier. Measured growth per period "
@@ -298,7 +304,8 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
                "relative difference"], rows),
     ]
     blocks += [figure(f, "") for f in figs]
-    title = ("Transient responses (paper Figs. 2-9)" if _is_paper(cfg) and repro
+    paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
+    title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
     return {"json": "transients.json", "title": title, "blocks": blocks, "files": figs + ["transients.json"]}
 
@@ -352,7 +359,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
                 f"{tuned.kp:.4f}, {tuned.kd:.4f}", f"{tuned.spectral_radius:.5f} ({tuned.status})",
                 tuned.evaluations]]),
         text(f"At the reference gains the Exudyn and reduced models differ by "
-             f"{percent(row['reference_gains_dominant_exudyn'] / reduced - 1, sign=True)} in the dominant multiplier."),
+             f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
     ]
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
 

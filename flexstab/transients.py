@@ -242,9 +242,9 @@ def _caption(case: Case, res: dict, with_forcing: bool) -> str:
 
 
 def _signed_percent(x: float) -> str:
-    from flexstab.report import percent
+    from flexstab.report import relative
 
-    return percent(x, sign=True)
+    return relative(x)
 
 
 def plot_case(res: dict, path: Path, with_forcing: bool) -> None:

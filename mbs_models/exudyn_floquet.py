@@ -60,6 +60,7 @@ __all__ = [
     "exudyn_floquet",
     "exudyn_plant",
     "ExudynPlant",
+    "PreparedExudynPlant",
     "TUNING_PROPAGATOR_STEPS",
     "PAPER_MODES",
 ]
@@ -140,13 +141,14 @@ def _structural_modes(lin: LinearizedPeriodicSystem) -> tuple[np.ndarray, np.nda
     return lam, V, labels
 
 
-def classify_multipliers(lin: LinearizedPeriodicSystem, floquet_result: Any) -> list:
+def classify_multipliers(lin: LinearizedPeriodicSystem, floquet_result: Any, modes: Optional[tuple] = None) -> list:
     """Mode label of each multiplier (by the modal energy of its Floquet vector at t = 0).
 
-    Returns a list of dicts ``{"modulus", "mode", "frequency_hz", "undamped"}``
-    in the order of ``floquet_result.multipliers``.
+    ``modes`` may pass ``_structural_modes(lin)`` computed before (they do not
+    depend on the gains).  Returns a list of dicts ``{"modulus", "mode",
+    "frequency_hz", "undamped"}`` in the order of ``floquet_result.multipliers``.
     """
-    lam, V, labels = _structural_modes(lin)
+    lam, V, labels = modes if modes is not None else _structural_modes(lin)
     n = lin.size
     Phi = np.asarray(floquet_result.monodromy)
     w, X = np.linalg.eig(Phi)
@@ -493,6 +495,55 @@ class ExudynPlant:
         lin = self.with_gains(kp, kd)
         res = self.floquet(kp, kd)
         dom, _ = _dominant(res, classify_multipliers(lin, res))
+        return float(abs(dom))
+
+
+class PreparedExudynPlant:
+    """:class:`ExudynPlant` with the gain-independent work done once.
+
+    The gains enter ``P(t)`` as two rank-one terms (paper Eq. 32), so the
+    linearisation is interpolated, the mass matrices solved and the system
+    balanced once, at the Gauss points of the plant's step count
+    (:class:`stability.gains.FloquetWorkspace`); each evaluation then costs the
+    exponentials, the product and the eigenvalues.  It evaluates the same
+    scheme at the same nodes as :meth:`ExudynPlant.floquet`.  Picklable (the
+    workspace is rebuilt in each process).
+    """
+
+    def __init__(self, plant: ExudynPlant) -> None:
+        self.plant = plant
+        self._workspace = None
+        self._modes = None
+
+    def __getstate__(self) -> dict:
+        return {"plant": self.plant, "_workspace": None, "_modes": None}
+
+    @property
+    def workspace(self):
+        if self._workspace is None:
+            from stability.gains import FloquetWorkspace, pd_gain_family
+
+            base = self.plant.linearization.with_gains(0.0, 0.0)
+            self._workspace = FloquetWorkspace(pd_gain_family(base, 0), self.plant.n_steps, method="magnus2")
+        return self._workspace
+
+    def with_gains(self, kp: float, kd: float) -> LinearizedPeriodicSystem:
+        return self.plant.with_gains(kp, kd)
+
+    def floquet(self, kp: float, kd: float):
+        """Floquet result with gains ``(kp, kd)`` (``magnus2``, the plant's step count)."""
+        for name, v in (("kp", kp), ("kd", kd)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+        return self.workspace.floquet((kp, kd))
+
+    def spectral_measure(self, kp: float, kd: float) -> float:
+        """``|rho|`` of the dominant multiplier of the hub / first bending mode (as :class:`ExudynPlant`)."""
+        res = self.floquet(kp, kd)
+        lin = self.plant.linearization
+        if self._modes is None:
+            self._modes = _structural_modes(lin)  # of the uncontrolled mean system: gain-independent
+        dom, _ = _dominant(res, classify_multipliers(lin, res, modes=self._modes))
         return float(abs(dom))
 
 

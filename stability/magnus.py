@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from stability.expm import expm_stack, mm_soa
+from stability.expm import _c_einsum, expm_stack, mm_soa
 
 __all__ = [
     "MagnusScheme", "MAGNUS2", "MAGNUS4", "MAGNUS6", "magnus_factors", "ordered_product",
@@ -163,9 +163,9 @@ def ordered_product_soa(factors: np.ndarray, blocks: int = 1) -> np.ndarray:
     E = factors.reshape(n, n, -1, blocks)
     while E.shape[2] > 1:
         if E.shape[2] % 2:
-            last = np.einsum("ijkb,jlkb->ilkb", E[:, :, -1:], E[:, :, -2:-1])
+            last = _c_einsum("ijkb,jlkb->ilkb", E[:, :, -1:], E[:, :, -2:-1])
             E = np.concatenate([E[:, :, :-2], last], axis=2)
             if E.shape[2] == 1:
                 break
-        E = np.einsum("ijkb,jlkb->ilkb", E[:, :, 1::2], E[:, :, 0::2])
+        E = _c_einsum("ijkb,jlkb->ilkb", E[:, :, 1::2], E[:, :, 0::2])
     return E[:, :, 0, 0] if blocks == 1 else E[:, :, 0, :]

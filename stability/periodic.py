@@ -218,7 +218,7 @@ class PeriodicMatrixFunction:
             raise ValueError(f"{what} must be a square (n, n) matrix, got shape {P.shape[1:]}")
         if hasattr(self, "n") and P.shape[-1] != self.n:
             raise ValueError(f"{what} has shape {P.shape[1:]}, expected ({self.n}, {self.n})")
-        if not np.all(np.isfinite(P)):
+        if not np.isfinite(P).all():
             raise ValueError(f"{what} contains NaN or inf")
         return P
 

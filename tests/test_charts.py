@@ -84,3 +84,54 @@ def test_exudyn_gain_chart_points_equal_exudyn_floquet(tmp_path):
     assert chart.radius[0, 1] == pytest.approx(abs(ref.dominant_multiplier), rel=1e-5)
     with pytest.raises(ValueError, match="linearised at omega"):
         PlantRadius(plant, 2 * math.pi)({"omega": 4 * math.pi, "kp": 1.0, "kd": 1.0})
+
+
+def test_chart_names_identify_grid_and_ranges(tmp_path, capsys):
+    """A coarse chart into the same folder must not overwrite the finer one (issue 13, item 4)."""
+    base = ["chart", "--omega-points", "3", "--out", str(tmp_path), "--json", "--no-taguchi"]
+    assert cli_main(base + ["--grid", "4"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    before = {f: (tmp_path / f.split("/")[-1]).read_bytes() for f in first["figures"] + [first["json"]]}
+    assert cli_main(base + ["--grid", "3", "--kp-range", "0", "10"]) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert not set(second["figures"]) & set(first["figures"]) and second["json"] != first["json"]
+    for f, data in before.items():
+        assert (tmp_path / f.split("/")[-1]).read_bytes() == data
+    assert second["inputs"]["grid"] == [3, 3] and second["inputs"]["kp_range"] == [0.0, 10.0]
+
+
+def test_every_unit_contour_region_is_labelled():
+    """Two separate |rho| < 1 islands: each boundary gets its own '|rho| = 1' label."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from flexstab.charts import _label_every_segment
+
+    x, y = np.meshgrid(np.linspace(0, 10, 60), np.linspace(0, 10, 60))
+    r = 0.2 + np.minimum((x - 2) ** 2 + (y - 2) ** 2, (x - 8) ** 2 + (y - 8) ** 2) / 4  # two wells, |rho| = 1 at radius ~1.8
+    fig, ax = plt.subplots()
+    cs = ax.contour(x, y, r, levels=[1.0])
+    assert _label_every_segment(ax, cs, "|ρ| = 1", "k") == 2
+    assert sum(t.get_text() == "|ρ| = 1" for t in ax.texts) == 2
+    plt.close(fig)
+
+
+def test_gain_chart_colour_scale_is_centred_at_one(tmp_path):
+    """Blue below |rho| = 1, red above, white at the boundary (diverging scale centred at log10|rho| = 0)."""
+    import matplotlib.image as mpimg
+
+    from flexstab.charts import GainChart, plot_gain_chart
+
+    kp, kd = np.linspace(0, 1, 30), np.linspace(0, 1, 30)
+    radius = np.tile(10.0 ** np.linspace(-2.0, 0.5, 30), (30, 1))  # |rho| from 0.01 (left) to 3.2 (right)
+    png = plot_gain_chart(GainChart(2 * math.pi, kp, kd, radius, None, 0, 900), tmp_path / "g.png")
+    img = mpimg.imread(png)
+    h, w = img.shape[:2]
+    row = img[h // 2]
+    # the plot area spans roughly 9-78 % of the width (kp = 0 .. 1, |rho| = 1 at kp = 0.8):
+    # sample near kp = 0.05 and kp = 0.97
+    left, right = row[int(0.12 * w)], row[int(0.76 * w)]
+    assert left[2] > left[0] + 0.2, f"stable region not blue: {left}"
+    assert right[0] > right[2] + 0.2, f"unstable region not red: {right}"

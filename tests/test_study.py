@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 import re
 from html.parser import HTMLParser
 
@@ -312,3 +311,23 @@ def test_markdown_escapes_pipes_and_html_needs_no_parsing():
     assert "<th>max|rho|</th>" in page and "<td>a|b</td>" in page
     with pytest.raises(ValueError, match="cells"):
         table(["a", "b"], [["1"]])
+
+
+def test_interrupted_study_resumes_at_the_stage_it_stopped_in(tmp_path, monkeypatch):
+    """Ctrl-C during table3: table2 is finished and recorded, so the rerun reuses it and computes table3."""
+    import flexstab.study as study_mod
+
+    def interrupted(cfg, opts):
+        raise KeyboardInterrupt
+
+    opts = StudyOptions(out=tmp_path, quick=True, stages=("table2", "table3"), progress=False)
+    monkeypatch.setitem(study_mod.STAGES, "table3", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        run_study(StudyConfig(), opts)
+    assert not (tmp_path / "report.md").exists()  # no report of a half run
+    monkeypatch.undo()
+    lines = []
+    res = run_study(StudyConfig(), StudyOptions(out=tmp_path, quick=True, stages=("table2", "table3"),
+                                                progress=False, log=lines.append))
+    assert res.stages["table2"]["status"] == "reused" and res.stages["table3"]["status"] == "computed"
+    assert any("table2 reused" in s for s in lines) and any("table3 started" in s for s in lines)

@@ -186,3 +186,21 @@ def test_script_quick_writes_figures_and_json(tmp_path):
         assert case["last_ratio"] == pytest.approx(rho, rel=0.02)
         assert case["fitted_ratio"] == pytest.approx(rho, rel=0.05)
         assert case["spectral_radius"] == pytest.approx(case["printed_spectral_radius"], rel=1e-3)
+
+
+def test_caption_matches_the_plotted_periods_and_quotes_no_rounding_noise():
+    """Issue 13, item 10: captions name plotted vs integrated periods; rho2 below the floor is a bound."""
+    from flexstab.transients import QUICK, _caption, paper_case_pair, run_case
+
+    unc, ctl = paper_case_pair(2)
+    r = run_case(ctl, QUICK, False)
+    s = r["summary"]
+    assert not s["subdominant_reliable"]  # |rho2| ~ 1e-19 here: below n eps ||Phi||
+    cap = _caption(ctl, r, False)
+    assert "below the rounding floor" in cap and f"{s['subdominant_over_dominant']:.3g}" not in cap
+    r = run_case(unc, QUICK, False)
+    cap = _caption(unc, r, False)
+    s = r["summary"]
+    assert s["periods_measured"] > s["periods_plotted"]
+    assert f"the first {s['periods_plotted']} are plotted" in cap and "integrated beyond" in cap
+    assert f"|ρ₂/ρ₁| = {s['subdominant_over_dominant']:.3g}" in cap

@@ -72,12 +72,13 @@ def robust_report(args: argparse.Namespace) -> dict:
         noise=noise, outer_array=rs.outer_array, sn=rs.sn, max_iterations=rs.max_iterations,
     )
     rcfg.outer()  # validates the outer array early
-    factory = ReducedNoisePlant(omega=args.omega, params=cfg.manipulator, constants=args.constants)
+    omega = resolve_omega(args, cfg)
+    factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
     n_tasks = tcfg.orthogonal_array().n_runs * len(rcfg.outer_runs())
     with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers, scheduler=args.scheduler,
                        n_tasks=n_tasks) as ex:
         cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=rs.grid, executor=ex)
-    out = {"model": args.model, "omega": args.omega, "period": 2 * math.pi / args.omega, "robust_design": True}
+    out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega, "robust_design": True}
     out.update(cmp.to_dict())
     out["converged"] = cmp.nominal.converged
     return out

@@ -1,0 +1,148 @@
+"""Structured collocation Newton (linearize.collocation_solver) against the dense route.
+
+Oracles: the dense route's own residual and Newton matrix (independent code:
+one central difference per column, a dense 4-D assembly), the definition of a
+structurally orthogonal colouring, and Exudyn's forces themselves (a pattern
+that misses a coupling must be rejected, a wrong Newton matrix must not
+converge).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from linearize import collocation_solver as cs
+from linearize import periodic_orbit as po
+from linearize.periodic_orbit import OrbitConvergenceError, find_orbit
+from mbs_models.model_file import build_model, resolve_model
+
+HERE = Path(__file__).parent
+DOUBLE = str(HERE / "models" / "double_pendulum.py")
+PENDULUM = str(HERE / "models" / "vertical_pendulum.py")
+OMEGA = 2 * math.pi
+SAMPLES = 16
+
+
+def _structurally_orthogonal(pattern: np.ndarray, colours: tuple) -> bool:
+    return all(int(np.max(pattern[:, c].sum(axis=1), initial=0)) <= 1 for c in colours)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 12), st.integers(1, 12), st.integers(0, 2**31 - 1))
+def test_colouring_is_a_structurally_orthogonal_partition(rows, cols, seed):
+    P = np.random.default_rng(seed).random((rows, cols)) < 0.3
+    colours = cs.colour_columns(P)
+    assert sorted(np.concatenate(colours).tolist()) == list(range(cols))
+    assert _structurally_orthogonal(P, colours)
+
+
+def test_colouring_of_a_band_needs_its_width_only():
+    # a tridiagonal band of 4-coordinate nodes (ANCF chain): rows of node i touch nodes i-1..i+1
+    nodes, w = 30, 4
+    P = np.zeros((nodes * w, nodes * w), dtype=bool)
+    for i in range(nodes):
+        for j in range(max(0, i - 1), min(nodes, i + 2)):
+            P[i * w:(i + 1) * w, j * w:(j + 1) * w] = True
+    colours = cs.colour_columns(P)
+    assert _structurally_orthogonal(P, colours)
+    assert len(colours) == 3 * w  # columns of nodes i, i+3, i+6, ... share no row
+    # a wrong "colouring" (two neighbours together) is caught by the same predicate
+    assert not _structurally_orthogonal(P, (np.array([0, w]),))
+
+
+@pytest.fixture(scope="module")
+def double_orbits():
+    dense = find_orbit(DOUBLE, OMEGA, samples=SAMPLES, verify=False, solver="dense")
+    structured = find_orbit(DOUBLE, OMEGA, samples=SAMPLES, verify=False, solver="structured")
+    return dense, structured
+
+
+def _dense_collocation(orbit):
+    col = po._Collocation(build_model(orbit.model, orbit.omega), orbit.samples, "dense")
+    X = np.concatenate([orbit.q, orbit.lambdas, orbit.torques], axis=1)
+    return col, X
+
+
+def test_structured_orbit_satisfies_the_dense_equations(double_orbits):
+    dense, structured = double_orbits
+    assert structured.residual <= structured.tolerance
+    col, X = _dense_collocation(structured)
+    out, fscale = col.residual(X)
+    res = col.relative(out, fscale, max(1.0, float(np.max(np.abs(structured.q)))))
+    assert res <= structured.tolerance  # the dense route's residual, not the structured solver's
+    # Same orbit: the difference of two solutions with relative residuals <= tol is
+    # <= ||J^-1|| * 2 tol * force scale; here both polish to round-off (~1e-14), so
+    # 1e-9 of the coordinate scale is a bound with decades to spare.
+    assert np.max(np.abs(structured.q - dense.q)) <= 1e-9 * max(1.0, float(np.max(np.abs(dense.q))))
+    assert np.max(np.abs(structured.torques - dense.torques)) <= 1e-9 * float(np.max(np.abs(dense.torques)))
+
+
+def test_compressed_blocks_equal_dense_differences(double_orbits):
+    _, orbit = double_orbits
+    dense_tb = po.tangent_blocks(*_tangent_args(orbit))
+    # same difference rule and steps; only the round-off of evaluating several
+    # perturbed columns at once differs: eps |f| / h ~ 1e-16 / 6e-6 ~ 2e-11 relative
+    for name in ("M", "K_force", "K_reaction", "C", "Cq"):
+        a, b = getattr(dense_tb, name), getattr(orbit.tangent, name)
+        assert np.max(np.abs(a - b)) <= 1e-8 * max(float(np.max(np.abs(a))), 1e-300), name
+
+
+def _tangent_args(orbit):
+    col = po._Collocation(build_model(orbit.model, orbit.omega), orbit.samples, "dense")
+    return col.system, col.times, orbit.q, orbit.q_t, orbit.q_tt, orbit.lambdas
+
+
+def test_sparse_newton_matrix_equals_dense_assembly(double_orbits):
+    _, orbit = double_orbits
+    col, X = _dense_collocation(orbit)
+    J_dense, tb = col.jacobian(X)
+    J_sparse = cs.sparse_newton_matrix(tb.M, tb.K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+    assert J_sparse.shape == J_dense.shape
+    assert np.max(np.abs(J_sparse.toarray() - J_dense)) <= 1e-14 * np.max(np.abs(J_dense))
+    r = np.random.default_rng(0).standard_normal(J_dense.shape[0])
+    x = cs.sparse_solver(J_sparse)(r)
+    assert np.max(np.abs(J_dense @ x - r)) <= 1e-9 * np.max(np.abs(r))
+
+
+def test_pattern_missing_a_coupling_is_rejected(double_orbits):
+    _, orbit = double_orbits
+    system, times, Q, V, A, L = _tangent_args(orbit)
+    pattern = cs.coupling_pattern(system)
+    eye = np.eye(system.n, dtype=bool)
+    assert np.any(pattern.force & ~eye)  # the pendulum's forces do couple coordinates
+    wrong = cs.CouplingPattern(force=eye, reaction=pattern.reaction, force_colours=cs.colour_columns(eye),
+                               reaction_colours=pattern.reaction_colours)
+    rule = po._central_difference
+    steps = lambda x: po.fd_steps(x, po.CENTRAL_DIFFERENCE_STEP)  # noqa: E731
+    ok = cs.compressed_blocks(system, times, Q, V, A, L, pattern, derivative=rule, steps=steps)
+    assert ok.pattern_mismatch <= cs.PATTERN_CHECK_TOLERANCE
+    with pytest.raises(cs.PatternError, match="outside the structural pattern"):
+        cs.compressed_blocks(system, times, Q, V, A, L, wrong, derivative=rule, steps=steps)
+
+
+@pytest.mark.parametrize("factor", [100.0, -1.0])
+def test_inconsistent_newton_matrix_fails_loudly(monkeypatch, factor):
+    """Newton accepts only the true residual: with a Newton matrix 100x too large (steps 100x
+    too short) or of the wrong sign it must end in OrbitConvergenceError with the residuals
+    reached, never return an orbit."""
+    real = cs.sparse_newton_matrix
+    monkeypatch.setattr(cs, "sparse_newton_matrix", lambda *blocks: factor * real(*blocks))
+    with pytest.raises(OrbitConvergenceError, match="did not converge") as err:
+        find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
+                   max_iterations=6, amplitude=0.05)
+    assert min(err.value.residuals) > po.DEFAULT_TOLERANCE
+    # the same call with the consistent matrix converges (so the failure is the matrix's)
+    monkeypatch.setattr(cs, "sparse_newton_matrix", real)
+    orbit = find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
+                       max_iterations=6, amplitude=0.05)
+    assert orbit.residual <= orbit.tolerance
+
+
+def test_unknown_solver_is_rejected():
+    with pytest.raises(ValueError, match="solver must be one of"):
+        find_orbit(resolve_model(DOUBLE), OMEGA, samples=SAMPLES, verify=False, solver="gmres")
