@@ -274,7 +274,7 @@ def _select(multipliers: np.ndarray, labels: Sequence[str], allowed: Optional[Se
     mu = np.asarray(multipliers)
     cand = [i for i in np.argsort(-np.abs(mu), kind="stable")
             if abs(mu[i]) >= MULTIPLIER_FLOOR and abs(abs(mu[i]) - 1.0) >= undamped_tol
-            and (allowed is None or labels[i] in allowed)]
+            and (labels[i] in allowed if allowed is not None else not labels[i].endswith("(unresolved)"))]
     chosen: list = []
     for i in cand:
         if len(chosen) >= k:
@@ -579,6 +579,9 @@ def _eigs_matched(A: np.ndarray, target: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A multiplier counts as measured only if its step error bar is below this fraction of its modulus.
+MEASURED_FRACTION = 0.1
+
 #: Safety factor of the three-level step error (Roache's grid convergence index, observed order).
 #: Measured need: Kapitza pendulum, h = T/128 ... T/512, ratio 4.25: the plain Richardson estimate
 #: (1.06e-5) was 10 % below the true error of the finest level against Mathieu (1.17e-5).
@@ -694,6 +697,9 @@ def measure_multipliers(
         galerkin = np.full(k, math.nan + 0j)
     else:
         step_err, obs, conv, measured = _step_error(L)
+        # a bar that is not small against the multiplier is no measurement of it (e.g. two levels
+        # far apart): not converged, whatever the number of levels
+        conv = conv & (step_err <= MEASURED_FRACTION * np.maximum(np.abs(measured), np.abs(pred)))
         step_ok = bool(np.all(conv))
         amp_err = np.where(np.isfinite(amp_change), 4.0 / 3.0 * amp_change, 0.0)
         errors = np.nan_to_num(step_err, nan=0.0) + amp_err + prediction.errors
@@ -1158,7 +1164,9 @@ def validate_model_multipliers(
             name += f" with kp = {predicted_gains[0]}, kd = {predicted_gains[1]}"
         res = tested.floquet
         prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
-                                         config.compare, None)
+                                         config.compare, None,
+                                         [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
+                                         config.steps[-1])
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)
