@@ -367,3 +367,21 @@ def test_cli_model_file_bad_input(argv, capsys):
     assert rc == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("flexstab validate: error:")
+
+
+def test_analytic_unconverged_steps_give_no_verdict():
+    # a step error as large as the multipliers: two levels far apart are no measurement, even though
+    # the prediction lies inside the (huge) bar
+    A = _oscillators()
+    n = A.shape[0] // 2
+    x0 = np.zeros(2 * n)
+    pred = prediction_from_monodromy("analytic", scipy.linalg.expm(A * T_ANALYTIC), k=2)
+    norm = energy_norm(np.eye(n), np.eye(n))
+
+    def factory(h):
+        Phi_h = scipy.linalg.expm(A * (1.0 + 60.0 * h**2) * T_ANALYTIC)  # second order: finer level inside the bar
+        return lambda x, hh: Phi_h @ x
+
+    r = measure_multipliers(factory, x0, pred, norm, MultiplierCheckConfig(step=0.05, refinements=1))
+    assert np.all(np.abs(r.measured - pred.multipliers) <= r.errors)  # inside the bar ...
+    assert not r.step_converged and not r.agrees and not r.agrees_dominant  # ... but not measured
