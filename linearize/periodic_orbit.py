@@ -373,11 +373,6 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
 SOLVERS = ("auto", "dense", "structured")
 
 
-def _central_difference(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
-    """``d/ds fun(x + s e)`` at 0 by a central difference (the rule of :func:`tangent_blocks`)."""
-    return (fun(x + h * e) - fun(x - h * e)) / (2 * h)
-
-
 class _Collocation:
     """Residual and Newton matrix of the collocation equations at one omega."""
 
@@ -398,17 +393,24 @@ class _Collocation:
             solver = "structured" if self.K * self.s > structured.STRUCTURED_THRESHOLD else "dense"
         self.solver = solver
         self.pattern = structured.coupling_pattern(self.system) if solver == "structured" else None
+        self._exudyn_jacobians: Optional[bool] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
-        """Per-sample blocks at ``X``: dense differences, or column-compressed ones
-        (:mod:`linearize.collocation_solver`) with the same rule and steps."""
+        """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
+        :func:`tangent_blocks` would difference every column (Exudyn's force Jacobians
+        fail their check or ``M`` depends on ``q``), column-compressed differences with
+        the same rule and steps (:mod:`linearize.collocation_solver`)."""
         Q, L, _ = self.split(X)
         V, A = self.D1 @ Q, self.D2 @ Q
         if self.pattern is None:
             return tangent_blocks(self.system, self.times, Q, V, A, L)
+        if self._exudyn_jacobians is None:
+            self._exudyn_jacobians = _exudyn_jacobians_ok(self.system, Q[0], V[0], A[0], float(self.times[0]),
+                                                          RICHARDSON_STEP, self.system.mass_is_constant(Q[0]))
+        if self._exudyn_jacobians:
+            return tangent_blocks(self.system, self.times, Q, V, A, L, use_exudyn_jacobian=True)
         sb = structured.compressed_blocks(self.system, self.times, Q, V, A, L, self.pattern,
-                                          derivative=_central_difference,
-                                          steps=lambda x: fd_steps(x, CENTRAL_DIFFERENCE_STEP))
+                                          derivative=_richardson, steps=lambda x: fd_steps(x, RICHARDSON_STEP))
         return TangentBlocks(M=sb.M, K_force=sb.K_force, K_reaction=sb.K_reaction, C=sb.C, Cq=sb.Cq)
 
     def newton_solver(self, X: np.ndarray):
