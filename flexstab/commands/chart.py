@@ -83,7 +83,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
 
         elements = getattr(args, "elements", None) or cfg.elements
         tag = f"w{omega:.6g}_exudyn{elements}_{fingerprint}"
-        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements)
+        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements, prepared=True)
         task = PlantRadius(plant, float(omega))
         omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
         objective = GainObjective(plant)
