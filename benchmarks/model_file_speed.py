@@ -6,7 +6,7 @@ run at the same mesh:
 
 * the generic path (``linearize.analyze("single-link", ...)``): orbit,
   linearisation, Floquet (exponential midpoint, ``--steps``), with timings per stage;
-* the hand-derived route (``mbs_models.exudyn_floquet.exudyn_floquet``) at the
+* the hand-derived route (``linearize.link_floquet.exudyn_floquet``) at the
   same samples and steps: its dominant (hub) multiplier is the reference the
   generic one must equal to 1e-6 (issue 9);
 * the direct Exudyn monodromy (``direct_monodromy``, 2 n + 1 one-period
@@ -29,7 +29,7 @@ TABLE3 = [(2, 37.1617, 29.2410), (4, 28.7617, 11.7501), (6, 22.2666, 6.7208), (8
 
 def main(argv=None) -> int:
     from linearize.analysis import analyze
-    from mbs_models.exudyn_floquet import direct_monodromy, exudyn_floquet
+    from linearize.link_floquet import direct_monodromy, exudyn_floquet
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, default=8)

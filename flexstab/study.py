@@ -313,7 +313,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
     from flexstab.executor import make_executor
-    from mbs_models.exudyn_floquet import ExudynPlant, exudyn_floquet
+    from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -323,7 +323,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     kp_r, kd_r, source = _reference_gains(cfg, opts)
     with make_executor("process" if not opts.quick else "serial", max_workers=2) as ex:
         ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
-        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0))
+        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
         uncontrolled = plant.spectral_measure(0.0, 0.0)
         tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                             max_evaluations=100 if opts.quick else 300)

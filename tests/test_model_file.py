@@ -184,7 +184,7 @@ def _hand_route(omega, elements, samples):
     """The hand-derived hub-frame route (kept only as this independent check)."""
     from linearize import linearize_along_orbit
     from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-    from mbs_models.orbit import find_periodic_orbit
+    from linearize.link_orbit import find_periodic_orbit
 
     cfg = ExudynLinkConfig(elements=elements, drive="free", omega=omega)
     orbit = find_periodic_orbit(None, cfg, samples=samples, verify=False)
