@@ -74,11 +74,16 @@ class ExudynOmegaRadius:
     elements: int = 4
 
     def __call__(self, point: dict) -> float:
-        from mbs_models.exudyn_floquet import exudyn_floquet
+        from linearize.link_floquet import exudyn_floquet
 
         r = exudyn_floquet(self.params, omega=point["omega"], kp=point["kp"], kd=point["kd"],
                            elements=self.elements, verify_orbit=False)
         return float(abs(r.dominant_multiplier))
+
+
+#: Most points per chart axis (a 1001 x 1001 gain chart is already 1e6 Floquet evaluations,
+#: ~1 h on 2 cores; more points cannot be told apart on a figure).
+MAX_GRID_POINTS = 1001
 
 
 def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
@@ -89,6 +94,9 @@ def check_grid(lo: float, hi: float, n: int, name: str) -> np.ndarray:
         raise ValueError(f"{name} range is empty or inverted: [{lo}, {hi}]")
     if isinstance(n, bool) or int(n) != n or n < 2:
         raise ValueError(f"{name} needs at least 2 grid points, got {n!r}")
+    if n > MAX_GRID_POINTS:
+        raise ValueError(f"{name}: {n} grid points is more than the {MAX_GRID_POINTS} a chart can resolve "
+                         f"(a {n} x {n} gain chart would be {n * n:.3g} Floquet evaluations)")
     return np.linspace(lo, hi, int(n))
 
 

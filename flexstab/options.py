@@ -5,7 +5,8 @@ import argparse
 import math
 import re
 
-__all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float", "positive_float"]
+__all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
+           "positive_float", "gain_list", "is_model_file"]
 
 _PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -55,6 +56,19 @@ def _float_type(lower: float, strict: bool, what: str):
 
 
 non_negative_float = _float_type(0.0, False, "finite and >= 0")
+
+
+def gain_list(text: str) -> tuple:
+    """``argparse`` type: one gain or a comma-separated list (one per drive), each finite and >= 0."""
+    parts = [p for p in str(text).split(",")]
+    if not parts or any(not p.strip() for p in parts):
+        raise argparse.ArgumentTypeError(f"expected a number or a comma-separated list like 10,2, got {text!r}")
+    return tuple(non_negative_float(p.strip()) for p in parts)
+
+
+def is_model_file(model: str) -> bool:
+    """Whether ``--model`` names a model file (a ``.py`` path) rather than a built-in model."""
+    return str(model).endswith(".py")
 positive_float = _float_type(0.0, True, "finite and > 0")
 
 

@@ -181,6 +181,12 @@ def _w(omega: float) -> str:
     return f"{k:.4g}π rad/s"
 
 
+def _pi(omega: float) -> str:
+    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
+    k = f"{omega / math.pi:.4g}"
+    return "π" if k == "1" else f"{k}π"
+
+
 def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
     """Printed Table 3 gains (paper's manipulator at a paper Omega), else Taguchi on the reduced model."""
     from flexstab.paper_tables import TABLE3_PRINTED, paper_case
@@ -255,7 +261,7 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
     blocks = [
         text(f"Reduced model, {len(g['kp'])} × {len(g['kd'])} gain grid, kp in [{g['kp'][0]:g}, {g['kp'][-1]:g}] "
              f"N·m/rad, kd in [{g['kd'][0]:g}, {g['kd'][-1]:g}] N·m·s/rad; {len(o['omega'])} values of Ω from "
-             f"{o['omega'][0] / math.pi:.3g}π to {o['omega'][-1] / math.pi:.3g}π rad/s."),
+             f"{_pi(o['omega'][0])} to {_pi(o['omega'][-1])} rad/s."),
         figure(names[0], f"max|ρ| over the (kp, kd) plane at Ω = {_w(cfg.omega)}: blue = asymptotically stable "
                          f"(|ρ| < 1), red = unstable; the |ρ| = 1 boundary, the ρ_d = {cfg.target:g} contour and the "
                          "Taguchi path (incumbent after each iteration) are drawn."),
@@ -298,7 +304,8 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
                "relative difference"], rows),
     ]
     blocks += [figure(f, "") for f in figs]
-    title = ("Transient responses (paper Figs. 2-9)" if _is_paper(cfg) and repro
+    paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
+    title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
     return {"json": "transients.json", "title": title, "blocks": blocks, "files": figs + ["transients.json"]}
 
@@ -306,7 +313,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
     from flexstab.executor import make_executor
-    from mbs_models.exudyn_floquet import ExudynPlant, exudyn_floquet
+    from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -316,7 +323,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     kp_r, kd_r, source = _reference_gains(cfg, opts)
     with make_executor("process" if not opts.quick else "serial", max_workers=2) as ex:
         ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
-        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0))
+        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
         uncontrolled = plant.spectral_measure(0.0, 0.0)
         tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                             max_evaluations=100 if opts.quick else 300)

@@ -45,7 +45,10 @@ class ModelFloquetResult:
         (energy fraction per item and per drive coordinate), ``frequency_hz``
         (of the frozen-time mode it resembles most), ``mac``, ``undamped``.
     dominant_multiplier : complex
-        Largest multiplier not on the unit circle (else the largest).
+        Largest multiplier of a drive mode or of ``bending 1`` (the modes a rigid or
+        one-mode model has; for the single link the paper's hub / first bending mode)
+        that is not on the unit circle; without such modes the largest one not on the
+        unit circle.  ``floquet.spectral_radius`` stays the max over all.
     orbit : PeriodicOrbit
     linearization : LinearizedPeriodicSystem
     kp, kd : tuple of float
@@ -99,7 +102,8 @@ class FrozenModes:
     shapes : ndarray, shape (r, r)
         Columns ``phi_j``.
     labels : list of str
-        ``drive <name>`` when the mode is mostly the driven coordinate, ``bending k`` /
+        The drive's name for the ``d`` lowest modes (the motions the ``d`` released
+        drives control, e.g. ``hub``), ``bending k`` /
         ``axial k`` for modes of ANCF beams (by the tangential share of the beam-node
         motion), else ``<Exudyn item> k``.
     """
@@ -136,11 +140,22 @@ def frozen_modes(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> FrozenM
     slope_nodes = _slope_nodes(orbit)
     counts: dict = {}
     labels = []
+    n_drives = 0 if lin.B is None else lin.B.shape[2]
+    drive_modes: dict = {}
+    if n_drives:
+        # the n_drives lowest frozen modes without PD are the motions the drives control
+        # (rigid-body modes about the released drives, possibly gravity-stiffened); each
+        # is named after the drive with the largest participation (c_d^T phi)^2
+        c = lin.B[0]
+        free = list(range(min(n_drives, Phi.shape[1])))
+        for name_idx in range(n_drives):
+            part = [(float((c[:, name_idx] @ Phi[:, j]) ** 2), j) for j in free if j not in drive_modes]
+            if part:
+                drive_modes[max(part)[1]] = orbit.drive_names[name_idx]
     for j in range(Phi.shape[1]):
         phi = Phi[:, j]
-        shares = _drive_shares(lin, Mz, phi)
-        if shares.size and float(np.max(shares)) > 0.5:
-            labels.append(f"drive {orbit.drive_names[int(np.argmax(shares))]}")
+        if j in drive_modes:
+            labels.append(drive_modes[j])
             continue
         dq = N0 @ phi
         kind = None
@@ -231,7 +246,14 @@ def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floqu
     return out
 
 
-def _dominant(floquet_result: Any, modes: list) -> complex:
+def _dominant(floquet_result: Any, modes: list, drive_names: tuple) -> complex:
+    """Largest multiplier of a drive mode or the first bending mode (the modes a rigid /
+    one-mode model has, e.g. the paper's hub and bending 1); without such modes the
+    largest one not on the unit circle."""
+    main = set(drive_names) | {"bending 1"}
+    for mu, m in zip(floquet_result.multipliers, modes):
+        if m["mode"] in main and not m["undamped"]:
+            return complex(mu)
     for mu, m in zip(floquet_result.multipliers, modes):
         if not m["undamped"]:
             return complex(mu)
@@ -249,6 +271,7 @@ def analyze(
     n_steps: Optional[int] = DEFAULT_PROPAGATOR_STEPS,
     orbit: Optional[PeriodicOrbit] = None,
     verify_orbit: bool = True,
+    small_multipliers: str = "flag",
     **options: Any,
 ) -> ModelFloquetResult:
     """Orbit, constraint-correct linearisation and labelled Floquet multipliers of a model.
@@ -272,6 +295,8 @@ def analyze(
         Reuse an orbit (must be for ``omega``).
     verify_orbit : bool
         Shooting check of the orbit in Exudyn.
+    small_multipliers : {"flag", "qr"}
+        Passed to :func:`stability.floquet`.
     **options
         Keyword options of the model's ``build``.
 
@@ -299,15 +324,16 @@ def analyze(
     lin = linearize_orbit(orbit, kp, kd)
     timings["linearization"] = time.perf_counter() - tic
     tic = time.perf_counter()
+    sm = small_multipliers if method != "paper" else "flag"
     if method == "magnus2":
-        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
     else:
-        res = floquet(lin, method=method, n_steps=n_steps)
+        res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     timings["floquet"] = time.perf_counter() - tic
     tic = time.perf_counter()
     modes = label_multipliers(lin, orbit, res)
     timings["labels"] = time.perf_counter() - tic
-    dom = _dominant(res, modes)
+    dom = _dominant(res, modes, orbit.drive_names)
     logger.info("Floquet of %s at omega=%.4g: spectral radius %.6f, dominant |rho| %.6f", orbit.model.name, omega,
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,

@@ -18,6 +18,7 @@ current configuration time).
 from __future__ import annotations
 
 import logging
+import re
 from typing import Any
 
 import numpy as np
@@ -46,8 +47,11 @@ class ExudynSystem:
     n : int
         ODE2 coordinates.
     m : int
-        Algebraic equations (constraints of the model file; the package's drive
-        constraints are not part of the system).
+        Active algebraic equations (constraints of the model file; the package's
+        drive constraints are not part of the system; Exudyn's "lambda = 0" rows
+        of free joint axes are dropped).
+    m_exudyn : int
+        Exudyn's number of algebraic equations.
     q_initial, v_initial : ndarray
         The model file's initial ODE2 coordinates and rates (orbit guess at t = 0).
     """
@@ -60,7 +64,8 @@ class ExudynSystem:
         self.mbs = built.mbs
         sd = self.mbs.systemData
         self.n = int(sd.ODE2Size())
-        self.m = int(sd.AEsize())
+        self.m_exudyn = int(sd.AEsize())
+        self.m = self.m_exudyn
         ini = exu.ConfigurationType.Initial
         self.q_initial = np.array(sd.GetODE2Coordinates(configuration=ini), dtype=float)
         self.v_initial = np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float)
@@ -71,9 +76,24 @@ class ExudynSystem:
         settings.linearSolver.solverType = exu.LinearSolverType.EigenDense
         settings.solution.file.write = False
         self._solver.InitializeSolver(self.mbs, settings)
-        self._zero_lambda = np.zeros(self.m)
+        self._zero_lambda = np.zeros(self.m_exudyn)
+        self._zero_jacobian = np.zeros((self.n + self.m_exudyn, self.n + self.m_exudyn))
         self._mass_constant: bool | None = None
         self._mass0: np.ndarray | None = None
+        self.active = np.arange(self.m_exudyn)
+        if self.m_exudyn:
+            # Exudyn keeps an equation "lambda_i = 0" for each axis a joint leaves free
+            # (e.g. ObjectJointGeneric's constrainedAxes = 0): such rows have no
+            # coordinate dependence; they are dropped (their multiplier is zero).
+            rng = np.random.default_rng(2024)
+            J0 = self._ae_jacobian_full(self.q_initial, 0.0)
+            J1 = self._ae_jacobian_full(self.q_initial + 1e-3 * rng.standard_normal(self.n), 0.0)
+            live = np.any(J0 != 0.0, axis=1) | np.any(J1 != 0.0, axis=1)
+            self.active = np.flatnonzero(live)
+            self.m = int(self.active.size)
+            if self.m < self.m_exudyn:
+                logger.debug("%d of %d algebraic equations are free axes (lambda = 0)", self.m_exudyn - self.m,
+                             self.m_exudyn)
 
     # ----------------------------------------------------------------- state
     def set_state(self, q: np.ndarray, v: np.ndarray, t: float) -> None:
@@ -81,7 +101,7 @@ class ExudynSystem:
         sd = self.mbs.systemData
         sd.SetODE2Coordinates(q, configuration=self._cur)
         sd.SetODE2Coordinates_t(v, configuration=self._cur)
-        if self.m:
+        if self.m_exudyn:
             sd.SetAECoordinates(self._zero_lambda, configuration=self._cur)
         sd.SetTime(float(t), self._cur)
 
@@ -103,6 +123,34 @@ class ExudynSystem:
             return self._mass0
         return self._mass_raw(q, t)
 
+    def force_jacobians(self, q: np.ndarray, v: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Exudyn's own ``K = -df/dq`` and ``C = -df/dq'`` (loads included), each ``(n, n)``.
+
+        Exudyn differentiates its items analytically where they implement it
+        and numerically otherwise; :func:`linearize.periodic_orbit.tangent_blocks`
+        checks the result against Richardson differences once per model.
+        """
+        self.set_state(q, v, t)
+        self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=-1.0, scalarFactor_ODE2_t=0.0,
+                                            scalarFactor_ODE1=0.0, computeLoadsJacobian=2)
+        K = np.array(self._solver.GetSystemJacobian(), dtype=float)[: self.n, : self.n]
+        self.set_state(q, v, t)
+        self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=-1.0,
+                                            scalarFactor_ODE1=0.0, computeLoadsJacobian=2)
+        C = np.array(self._solver.GetSystemJacobian(), dtype=float)[: self.n, : self.n]
+        return K, C
+
+    def reaction_columns(self) -> np.ndarray:
+        """Coordinates on which ``C_q`` can depend: the columns of ``C_q`` that are nonzero at the
+        initial state or at a generic perturbation of it (a joint's Jacobian depends only on the
+        coordinates of the nodes it connects)."""
+        if not self.m:
+            return np.zeros(0, dtype=int)
+        rng = np.random.default_rng(7)
+        J0 = self.constraint_jacobian(self.q_initial, 0.0)
+        J1 = self.constraint_jacobian(self.q_initial + 1e-3 * rng.standard_normal(self.n), 0.0)
+        return np.flatnonzero(np.any(J0 != 0.0, axis=0) | np.any(J1 != 0.0, axis=0))
+
     def mass_is_constant(self, q: np.ndarray) -> bool:
         """Whether ``M`` does not depend on ``q`` (tested once with a generic perturbation)."""
         if self._mass_constant is None:
@@ -121,20 +169,22 @@ class ExudynSystem:
             return np.zeros(0)
         self.set_state(q, np.zeros(self.n), t)
         self._solver.ComputeAlgebraicEquations(self.mbs, velocityLevel=False)
-        return np.array(self._solver.GetSystemResidual(), dtype=float)[self.n: self.n + self.m]
+        return np.array(self._solver.GetSystemResidual(), dtype=float)[self.n + self.active]
 
     def constraint_jacobian(self, q: np.ndarray, t: float) -> np.ndarray:
         """``C_q(q, t)``, shape ``(m, n)``."""
         if not self.m:
             return np.zeros((0, self.n))
+        return self._ae_jacobian_full(q, t)[self.active]
+
+    def _ae_jacobian_full(self, q: np.ndarray, t: float) -> np.ndarray:
+        """All of Exudyn's algebraic equations differentiated by ``q``, shape ``(m_exudyn, n)``."""
         self.set_state(q, np.zeros(self.n), t)
-        # ComputeJacobianODE2RHS zeroes the system Jacobian (factors 0: nothing added)
-        self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=0.0,
-                                            scalarFactor_ODE1=0.0)
+        self._solver.SetSystemJacobian(self._zero_jacobian)  # ComputeJacobianAE adds to it
         self._solver.ComputeJacobianAE(self.mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0,
                                        scalarFactor_ODE1=1.0, velocityLevel=False)
         J = np.array(self._solver.GetSystemJacobian(), dtype=float)
-        return J[self.n: self.n + self.m, : self.n].copy()
+        return J[self.n: self.n + self.m_exudyn, : self.n].copy()
 
     # ----------------------------------------------------------------- labels
     def coordinate_labels(self) -> list[str]:
@@ -153,7 +203,13 @@ class ExudynSystem:
             if not ltg:
                 continue
             names = owner.get(j, [])
-            label = names[0] if len(names) == 1 else mbs.GetNode(j).get("name", f"node{j}")
+            bases = {re.sub(r"[\s_]*\d+$", "", nm) for nm in names}
+            if len(names) == 1:
+                label = names[0]
+            elif len(bases) == 1 and not names[0].startswith("object"):
+                label = bases.pop()  # e.g. the elements "link 0", "link 1" of one beam share "link"
+            else:
+                label = mbs.GetNode(j).get("name", f"node{j}")
             for i in ltg:
                 labels[int(i)] = label
         return labels
@@ -167,6 +223,26 @@ class ExudynSystem:
             if node.get("nodeType") == "Point2DSlope1":
                 ltg = np.array(list(mbs.systemData.GetNodeLTGODE2(j)), dtype=int)
                 out.append((ltg, np.asarray(node["referenceCoordinates"], dtype=float)))
+        return out
+
+    def planar_pairs(self) -> list[tuple[int, int, float, float]]:
+        """Coordinate pairs that are planar vectors: ``(i_x, i_y, ref_x, ref_y)``.
+
+        Positions of ``Point2D``, ``Point2DSlope1`` and ``RigidBody2D`` nodes and the
+        slope vectors of ``Point2DSlope1`` nodes (ANCF cables); used to co-rotate the
+        independent-coordinate basis with the best-fit rotation of the system.
+        """
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            node = mbs.GetNode(j)
+            kind = node.get("nodeType")
+            ltg = list(mbs.systemData.GetNodeLTGODE2(j))
+            ref = np.asarray(node.get("referenceCoordinates", []), dtype=float)
+            if kind in ("Point2D", "RigidBody2D", "Point2DSlope1") and len(ltg) >= 2:
+                out.append((int(ltg[0]), int(ltg[1]), float(ref[0]), float(ref[1])))
+            if kind == "Point2DSlope1" and len(ltg) == 4:
+                out.append((int(ltg[2]), int(ltg[3]), float(ref[2]), float(ref[3])))
         return out
 
     def describe(self) -> dict[str, Any]:

@@ -18,7 +18,8 @@ and torques ``tau`` are unknown at ``K`` equispaced samples; rates and
 accelerations are spectral derivatives (``D1 q``, ``D2 q``).  Newton's method
 (damped, with a natural monotonicity test) solves the ``K (n + m + d)``
 equations at once, with the Jacobian blocks
-``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from central differences of
+``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from (Richardson-extrapolated)
+central differences of
 Exudyn's functions (:func:`tangent_blocks`; ``K_k`` contains the mass-matrix
 dependence and the constraint-reaction stiffness).  The guess is one period of
 Exudyn's own integrator from the model file's initial state with the drives
@@ -26,8 +27,7 @@ prescribed.  If Newton fails, natural continuation in ``omega`` from
 ``omega/2`` (the model is rebuilt at each ``omega``).
 
 Check in Exudyn itself (:attr:`PeriodicOrbit.shooting_residual`): one period of
-Exudyn's generalised-alpha integrator (spectral radius 1, no numerical
-damping) from the orbit's state at ``t = 0`` with the drives prescribed by
+Exudyn's generalised-alpha integrator (spectral radius 0.9) from the orbit's state at ``t = 0`` with the drives prescribed by
 ``CoordinateConstraint`` objects; the defect ``x(T) - x(0)`` is reported
 relative to the variation of the state along the orbit.
 """
@@ -44,7 +44,7 @@ import scipy.linalg
 
 from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
-from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
+from linearize.finite_difference import fd_steps
 from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
 from mbs_models.model_file import BuiltModel, ModelDefinition, build_model, resolve_model
 
@@ -87,11 +87,34 @@ CONTINUATION_MAX_SOLVES = 40
 SHOOTING_STEPS_PER_SAMPLE = 16
 #: The shooting check passes when the one-period defect, relative to the
 #: variation of the state along the orbit, is below this.  Generalised-alpha
-#: (rho_inf = 1, trapezoidal) has a global error ~ (omega_max h)^2 / 12 for the
+#: (second order) has a global error ~ (omega_max h)^2 / 12 for the
 #: fastest resolved motion; with 16 steps per sample of a 32-sample orbit the
 #: harmonics the orbit keeps (<= 16 omega) have omega h <= 2 pi / 32, i.e. an
 #: error <= 3e-3 of their amplitude; 1e-2 leaves a factor of 3.
 SHOOTING_TOLERANCE = 1e-2
+
+
+#: Newton tolerances of Exudyn's integrator in the guess and shooting runs.  The
+#: round-off floor of the residual grows with the mesh (axial stiffness EA/l_e);
+#: measured on the single link, 1e-8 is below it from 32 elements on (Exudyn's
+#: Newton then runs to its iteration limit at every step: 18679 iterations for
+#: 128 steps, 6.4 s, against 256 iterations, 0.15 s, at 1e-6).  1e-6 is enough:
+#: the step error it leaves is <= 1e-6 relative, over the 16 K = 512 steps of a
+#: run <= 5e-4 of the state's variation (linear accumulation, worst case), 20x
+#: below :data:`SHOOTING_TOLERANCE`; the guess is refined by the collocation
+#: Newton, whose tolerance is unchanged.
+NEWTON_RELATIVE_TOLERANCE = 1e-6
+NEWTON_ABSOLUTE_TOLERANCE = 1e-10
+
+
+#: Generalised-alpha spectral radius of the guess and shooting runs: index-3
+#: constraints need some numerical damping (rho_inf = 1 failed on the single
+#: link's clamp); 0.9 is the value the single-link simulations use (issue 4).
+SHOOTING_SPECTRAL_RADIUS = 0.9
+
+
+class ExudynRunError(RuntimeError):
+    """Exudyn's time integration failed."""
 
 
 class OrbitConvergenceError(RuntimeError):
@@ -110,7 +133,7 @@ class OrbitConvergenceError(RuntimeError):
 
 @dataclass(frozen=True)
 class TangentBlocks:
-    """Central-difference linearisation of the unconstrained-drive equations at the samples.
+    """Finite-difference linearisation of the unconstrained-drive equations at the samples.
 
     For ``r(q, q', q'', lambda, t) = M(q) q'' - f(q, q', t) + C_q(q, t)^T lambda``:
 
@@ -175,6 +198,8 @@ class PeriodicOrbit:
         Exudyn item name per ODE2 coordinate.
     slope_nodes : tuple
         ANCF slope nodes ``(ODE2 indices, reference coordinates)`` (for mode labels).
+    planar_pairs : tuple
+        Planar vector coordinates ``(i_x, i_y, ref_x, ref_y)`` (for the co-rotating basis).
     wall_time : float
     """
 
@@ -196,6 +221,7 @@ class PeriodicOrbit:
     tangent: TangentBlocks = field(repr=False)
     coordinate_labels: tuple = field(repr=False, default=())
     slope_nodes: tuple = field(repr=False, default=())
+    planar_pairs: tuple = field(repr=False, default=())
     wall_time: float = 0.0
 
     @property
@@ -232,12 +258,91 @@ class PeriodicOrbit:
 
 
 # --------------------------------------------------------------------------- tangent
-def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np.ndarray, A: np.ndarray,
-                   L: np.ndarray, *, step: float = CENTRAL_DIFFERENCE_STEP) -> TangentBlocks:
-    """Central-difference linearisation at the samples (see :class:`TangentBlocks`).
+#: Base step of the Richardson-extrapolated central differences of
+#: :func:`tangent_blocks`: the error of ``(4 D(h/2) - D(h)) / 3`` is
+#: ``O(h^4)`` truncation plus ``O(eps / h)`` round-off, balanced at
+#: ``h ~ eps^(1/5)`` for unit-size derivatives; the stiff beams have large
+#: higher derivatives, so the step is ``eps^(1/4)`` (1.2e-4, relative, times
+#: ``max(1, |q_j|)``): measured on the single link (2 elements), the hub
+#: multiplier moves by 4e-8 between eps^(1/5) and eps^(1/5)/4 and by 1e-10
+#: between eps^(1/5)/4 and eps^(1/5)/16.  Plain central
+#: differences (``O(h^2)``, step ``eps^(1/3)``) are not enough for stiff beams
+#: in absolute coordinates: the cubic axial-strain terms (EA/l_e^3 ~ 1e8) give
+#: a truncation error ~1e-3 N/m in the soft (rigid-rotation) directions, which
+#: moved the single link's hub multiplier by 1.4e-5 (measured).
+RICHARDSON_STEP = float(np.finfo(float).eps ** 0.25)
 
-    The step of coordinate ``j`` is ``step * max(1, |q_j|)``
-    (:func:`linearize.finite_difference.fd_steps`, ``step = eps**(1/3)``).
+
+def _richardson(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
+    """``d/ds fun(x + s e)`` at 0 by Richardson-extrapolated central differences."""
+    d1 = (fun(x + h * e) - fun(x - h * e)) / (2 * h)
+    d2 = (fun(x + 0.5 * h * e) - fun(x - 0.5 * h * e)) / h
+    return (4.0 * d2 - d1) / 3.0
+
+
+#: Exudyn's force Jacobians are accepted when Richardson differences along
+#: random directions agree to this, relative to ``||K|| ||d||`` (Richardson's
+#: own error is ~1e-12 relative; a forward-difference Jacobian with Exudyn's
+#: default step 1e-7 would be off by ~1e-7).
+JACOBIAN_CHECK_TOLERANCE = 1e-8
+JACOBIAN_CHECK_DIRECTIONS = 2
+
+
+def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
+    n = system.n
+    hq = fd_steps(q, step)
+    hv = fd_steps(v, step)
+
+    def force(x):
+        r = -system.rhs(x, v, t)
+        return r if const_mass else r + system.mass(x, t) @ a
+
+    def damping(y):
+        return -system.rhs(q, y, t)
+
+    K = np.empty((n, n))
+    C = np.empty((n, n))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = 1.0
+        K[:, j] = _richardson(force, q, e, hq[j])
+        C[:, j] = _richardson(damping, v, e, hv[j])
+    return K, C
+
+
+def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> bool:
+    """Check Exudyn's K, C against Richardson differences along random directions."""
+    K, C = system.force_jacobians(q, v, t)
+    if not const_mass:
+        return False  # the M(q) q'' term is not in Exudyn's Jacobian: differentiate everything
+    rng = np.random.default_rng(11)
+    hq = fd_steps(q, step)
+    hv = fd_steps(v, step)
+    for _ in range(JACOBIAN_CHECK_DIRECTIONS):
+        d = rng.standard_normal(system.n)
+        dk = _richardson(lambda x: -system.rhs(x, v, t), q, d * hq / step, step)
+        dc = _richardson(lambda y: -system.rhs(q, y, t), v, d * hv / step, step)
+        for J, ref, h in ((K, dk, hq), (C, dc, hv)):
+            scale = max(float(np.max(np.abs(J))) * float(np.max(np.abs(d * h / step))), 1e-300)
+            if float(np.max(np.abs(J @ (d * h / step) - ref))) > JACOBIAN_CHECK_TOLERANCE * scale:
+                logger.info("Exudyn's force Jacobian disagrees with differences (%.1e relative): "
+                            "using Richardson differences", float(np.max(np.abs(J @ (d * h / step) - ref))) / scale)
+                return False
+    return True
+
+
+def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np.ndarray, A: np.ndarray,
+                   L: np.ndarray, *, step: float = RICHARDSON_STEP, use_exudyn_jacobian: Optional[bool] = None
+                   ) -> TangentBlocks:
+    """Linearisation at the samples (see :class:`TangentBlocks`).
+
+    ``K_force`` and ``C`` are Exudyn's own Jacobians when they pass a check
+    against Richardson-extrapolated central differences along random
+    directions (:data:`JACOBIAN_CHECK_TOLERANCE`) and the mass matrix is
+    constant; otherwise Richardson differences of ``M(q) q'' - f``.  The
+    reaction stiffness ``d(C_q^T lambda)/dq`` is always Richardson differences
+    of Exudyn's ``C_q``, on the coordinates ``C_q`` depends on.  Step of
+    coordinate ``j``: ``step * max(1, |q_j|)`` (:data:`RICHARDSON_STEP`).
     """
     Kn, n, m = times.size, system.n, system.m
     Ms = np.empty((Kn, n, n))
@@ -246,37 +351,33 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     Cd = np.empty((Kn, n, n))
     Cqs = np.empty((Kn, m, n))
     const_mass = system.mass_is_constant(Q[0])
+    if use_exudyn_jacobian is None:
+        use_exudyn_jacobian = _exudyn_jacobians_ok(system, Q[0], V[0], A[0], float(times[0]), step, const_mass)
+    cols = system.reaction_columns()
     for k in range(Kn):
         q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
         Ms[k] = system.mass(q, t)
         Cqs[k] = system.constraint_jacobian(q, t)
-        hq = fd_steps(q, step)
-        hv = fd_steps(v, step)
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = hq[j]
-            fp = -system.rhs(q + e, v, t)
-            fm = -system.rhs(q - e, v, t)
-            if not const_mass:
-                fp += system.mass(q + e, t) @ a
-                fm += system.mass(q - e, t) @ a
-            Kf[k, :, j] = (fp - fm) / (2 * hq[j])
-            if m:
-                Kr[k, :, j] = (system.constraint_jacobian(q + e, t).T @ lam
-                               - system.constraint_jacobian(q - e, t).T @ lam) / (2 * hq[j])
-            e[j] = hv[j]
-            Cd[k, :, j] = (system.rhs(q, v - e, t) - system.rhs(q, v + e, t)) / (2 * hv[j])
+        if use_exudyn_jacobian:
+            Kf[k], Cd[k] = system.force_jacobians(q, v, t)
+        else:
+            Kf[k], Cd[k] = _force_fd(system, q, v, a, t, step, const_mass)
+        if m:
+            hq = fd_steps(q, step)
+
+            def reaction(x, lam=lam, t=t):
+                return system.constraint_jacobian(x, t).T @ lam
+
+            for j in cols:
+                e = np.zeros(n)
+                e[j] = 1.0
+                Kr[k, :, j] = _richardson(reaction, q, e, hq[j])
     return TangentBlocks(M=Ms, K_force=Kf, K_reaction=Kr, C=Cd, Cq=Cqs)
 
 
 # --------------------------------------------------------------------------- collocation
 #: Newton-matrix strategies of :func:`find_orbit`.
 SOLVERS = ("auto", "dense", "structured")
-
-
-def _central_difference(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
-    """``d/ds fun(x + s e)`` at 0 by a central difference (the rule of :func:`tangent_blocks`)."""
-    return (fun(x + h * e) - fun(x - h * e)) / (2 * h)
 
 
 class _Collocation:
@@ -299,17 +400,24 @@ class _Collocation:
             solver = "structured" if self.K * self.s > structured.STRUCTURED_THRESHOLD else "dense"
         self.solver = solver
         self.pattern = structured.coupling_pattern(self.system) if solver == "structured" else None
+        self._exudyn_jacobians: Optional[bool] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
-        """Per-sample blocks at ``X``: dense differences, or column-compressed ones
-        (:mod:`linearize.collocation_solver`) with the same rule and steps."""
+        """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
+        :func:`tangent_blocks` would difference every column (Exudyn's force Jacobians
+        fail their check or ``M`` depends on ``q``), column-compressed differences with
+        the same rule and steps (:mod:`linearize.collocation_solver`)."""
         Q, L, _ = self.split(X)
         V, A = self.D1 @ Q, self.D2 @ Q
         if self.pattern is None:
             return tangent_blocks(self.system, self.times, Q, V, A, L)
+        if self._exudyn_jacobians is None:
+            self._exudyn_jacobians = _exudyn_jacobians_ok(self.system, Q[0], V[0], A[0], float(self.times[0]),
+                                                          RICHARDSON_STEP, self.system.mass_is_constant(Q[0]))
+        if self._exudyn_jacobians:
+            return tangent_blocks(self.system, self.times, Q, V, A, L, use_exudyn_jacobian=True)
         sb = structured.compressed_blocks(self.system, self.times, Q, V, A, L, self.pattern,
-                                          derivative=_central_difference,
-                                          steps=lambda x: fd_steps(x, CENTRAL_DIFFERENCE_STEP))
+                                          derivative=_richardson, steps=lambda x: fd_steps(x, RICHARDSON_STEP))
         return TangentBlocks(M=sb.M, K_force=sb.K_force, K_reaction=sb.K_reaction, C=sb.C, Cq=sb.Cq)
 
     def newton_solver(self, X: np.ndarray):
@@ -387,6 +495,27 @@ def _weights(col: _Collocation, X: np.ndarray, qscale: float) -> np.ndarray:
     return w
 
 
+#: Chord steps after convergence (reusing the last factorisation) while each
+#: lowers the residual tenfold: the orbit then sits near the round-off floor,
+#: not just below the tolerance, for the cost of a few residual evaluations.
+POLISH_STEPS = 3
+
+
+def _polish(col: _Collocation, X: np.ndarray, solve, res: float, qscale: float, history: list) -> np.ndarray:
+    if solve is None:
+        return X
+    for _ in range(POLISH_STEPS):
+        out, _ = col.residual(X)
+        trial = X + solve(-out.reshape(-1)).reshape(X.shape)
+        out_t, fscale = col.residual(trial)
+        res_t = col.relative(out_t, fscale, qscale)
+        if not (res_t <= 0.1 * res):
+            break
+        X, res = trial, res_t
+        history.append(res)
+    return X
+
+
 def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
@@ -400,7 +529,7 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
         if not math.isfinite(res):
             return X, history, False, tb
         if res <= tol:
-            return X, history, True, tb
+            return _polish(col, X, solve, res, qscale, history), history, True, tb
         if it > STAGNATION_ITERATIONS and res > history[0]:
             return X, history, False, tb
         if solve is None or len(history) < 2 or history[-1] > 0.1 * history[-2]:
@@ -442,11 +571,11 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
     s.timeIntegration.startTime = 0.0
     s.timeIntegration.endTime = float(t_end)
     s.timeIntegration.numberOfSteps = int(steps)
-    s.timeIntegration.generalizedAlpha.spectralRadius = 1.0
+    s.timeIntegration.generalizedAlpha.spectralRadius = SHOOTING_SPECTRAL_RADIUS
     s.timeIntegration.verboseMode = 0
     s.timeIntegration.automaticStepSize = False
-    s.timeIntegration.newton.relativeTolerance = 1e-10
-    s.timeIntegration.newton.absoluteTolerance = 1e-12
+    s.timeIntegration.newton.relativeTolerance = NEWTON_RELATIVE_TOLERANCE
+    s.timeIntegration.newton.absoluteTolerance = NEWTON_ABSOLUTE_TOLERANCE
     s.solution.file.write = False
     s.solution.file.writeInitialValues = False
     s.show.statistics = False
@@ -466,12 +595,16 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
 
         mbs.SetPostStepUserFunction(post)
     try:
-        mbs.SolveDynamic(s)
+        ok = mbs.SolveDynamic(s)
+    except Exception as exc:  # noqa: BLE001 - Exudyn raises its own error types
+        raise ExudynRunError(f"Exudyn's integrator failed ({' '.join(str(exc).split())})") from None
     finally:
         if record_times is not None:
             mbs.SetPostStepUserFunction(0)
     qT = np.array(sd.GetODE2Coordinates())
     vT = np.array(sd.GetODE2Coordinates_t())
+    if ok is False or not (np.all(np.isfinite(qT)) and np.all(np.isfinite(vT))):
+        raise ExudynRunError("Exudyn's integrator did not complete the period")
     rec = None
     if record_times is not None:
         h = t_end / steps
@@ -484,17 +617,24 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     """One Exudyn period from the model file's initial state, drives prescribed, sampled."""
     sysm = col.system
     built_p = build_model(model, col.built.omega, prescribe_drives=True)
-    _, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
-                         record_times=col.times)
     X = np.zeros((col.K, col.s))
-    X[:, :col.n] = Qs
+    try:
+        _, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
+                             record_times=col.times)
+        X[:, :col.n] = Qs
+    except ExudynRunError as exc:
+        logger.info("orbit guess: %s; starting from the initial state at every sample", exc)
+        X[:, :col.n] = sysm.q_initial
     return X
 
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
-    qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
+    try:
+        qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
+    except ExudynRunError:
+        return math.inf
     x0 = np.concatenate([Q[0], V[0]])
     xT = np.concatenate([qT, vT])
     variation = max(float(np.max(np.abs(Q - Q[0]))), float(np.max(np.abs(V - V[0]))), 1e-300)
@@ -597,7 +737,7 @@ def find_orbit(
         torques=U, drive_names=tuple(d.name for d in built.drives), drive_vectors=col.B, residual=residual,
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
-        slope_nodes=tuple(col.system.slope_nodes()), wall_time=time.perf_counter() - tic,
+        slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)

@@ -192,3 +192,10 @@ def test_interleaved_products_match_separate_products():
             ref = E @ ref
         np.testing.assert_allclose(got[:, :, k], ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
         np.testing.assert_allclose(ordered_product(X), ref, rtol=1e-13, atol=1e-13 * np.abs(ref).max())
+
+
+def test_chart_grid_guard(capsys):
+    """Issue 13.7: ``chart --grid 100000`` (1e10 evaluations) is refused with one line, exit 2."""
+    assert cli_main(["chart", "--grid", "100000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "grid points" in err

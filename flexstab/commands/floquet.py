@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, non_negative_float
+from flexstab.options import dump_json, add_model_options, gain_list, is_model_file, non_negative_float
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -17,10 +17,16 @@ def register(sub) -> None:
         help="Floquet multipliers about the fundamental motion",
         description="Floquet multipliers and stability verdict of the linearised manipulator.",
     )
-    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced", help="default: reduced (paper Eqs. 20-25)")
+    p.add_argument("--model", default="reduced", metavar="MODEL",
+                   help="reduced (default; paper Eqs. 20-25), exudyn (hand-derived Exudyn link), a built-in "
+                        "model file (single-link) or a model file PATH.py (see README, 'Bring your own model')")
     add_model_options(p)
-    p.add_argument("--kp", type=non_negative_float, default=0.0, help="proportional gain on the hub (N m/rad)")
-    p.add_argument("--kd", type=non_negative_float, default=0.0, help="derivative gain on the hub (N m s/rad)")
+    p.add_argument("--kp", type=gain_list, default=(0.0,), metavar="KP",
+                   help="proportional gain(s): one value, or one per drive a,b,... (N m/rad)")
+    p.add_argument("--kd", type=gain_list, default=(0.0,), metavar="KD",
+                   help="derivative gain(s): one value, or one per drive c,d,... (N m s/rad)")
+    p.add_argument("--samples", type=int, default=None,
+                   help="collocation samples per period of a model file's orbit (even; default 32)")
     p.add_argument("--method", default=None,
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
@@ -45,6 +51,13 @@ def floquet_report(args: argparse.Namespace) -> dict:
     method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
+    if args.model not in ("reduced", "exudyn"):
+        return _model_file_report(args, cfg, omega, method)
+    if len(args.kp) != 1 or len(args.kd) != 1:
+        raise ValueError(f"--model {args.model} has one drive (the hub): give one --kp and one --kd value")
+    args.kp, args.kd = args.kp[0], args.kd[0]
+    if args.samples is not None:
+        raise ValueError("--samples applies to model files only")
     out: dict = {"model": args.model}
     if args.model == "reduced":
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
@@ -58,7 +71,7 @@ def floquet_report(args: argparse.Namespace) -> dict:
         res = floquet(model, method=method, small_multipliers=args.small_multipliers)
         out["constants"] = args.constants
     else:
-        from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
+        from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
 
         elements = args.elements if args.elements is not None else cfg.elements
         ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
@@ -78,11 +91,46 @@ def floquet_report(args: argparse.Namespace) -> dict:
     return out
 
 
+def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str) -> dict:
+    """Floquet analysis of a model file (``--model PATH.py`` or a built-in model file)."""
+    from linearize.analysis import analyze
+    from linearize.periodic_orbit import DEFAULT_SAMPLES
+    from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
+
+    if is_model_file(args.model):
+        model = load_model_file(args.model)
+        options: dict = {}
+        if args.elements is not None or args.bending_damping or args.axial_damping:
+            raise ValueError("--elements, --bending-damping and --axial-damping apply to built-in models only")
+    elif args.model in BUILTIN_MODELS:
+        options = {"elements": args.elements if args.elements is not None else cfg.elements,
+                   "bending_damping": args.bending_damping, "axial_damping": args.axial_damping}
+        if args.model == "single-link":
+            options["params"] = cfg.manipulator
+        model = builtin_model(args.model)
+    else:
+        raise ValueError(f"unknown model {args.model!r}: use reduced, exudyn, "
+                         f"{', '.join(sorted(BUILTIN_MODELS))} or a model file PATH.py")
+    samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
+    res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
+                  small_multipliers=args.small_multipliers, **options)
+    out = {"model": args.model}
+    out.update(res.summary())
+    out["model"] = args.model
+    out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
+    out.update(res.floquet.to_dict())
+    return out
+
+
+def _gains(v) -> str:
+    return ", ".join(f"{x:.6g}" for x in v) if isinstance(v, (list, tuple)) else f"{v:.6g}"
+
+
 def _table(d: dict) -> str:
     modes = d.get("modes")
     lines = [
         f"model: {d['model']}    omega = {d['omega']:.6g} rad/s ({d['omega'] / math.pi:.6g} pi)    T = {d['period']:.6g} s",
-        f"kp = {d['kp']:.6g}    kd = {d['kd']:.6g}    method = {d['method']} ({d['n_steps']} steps)",
+        f"kp = {_gains(d['kp'])}    kd = {_gains(d['kd'])}    method = {d['method']} ({d['n_steps']} steps)",
         "",
         f"{'#':>3}  {'Re rho':>14}  {'Im rho':>14}  {'|rho|':>14}  digits" + ("  mode" if modes else ""),
     ]
@@ -113,7 +161,13 @@ def _table(d: dict) -> str:
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
     ]
-    if d["model"] == "exudyn":
+    if "drives" in d:
+        lines += [
+            f"drives: {', '.join(d['drives']) or '(none)'}; dominant multiplier |rho| = {d['dominant_modulus']:.8g}",
+            f"orbit residual {d['orbit_residual']:.1e} (shooting check {d['shooting_residual']:.1e}), "
+            f"{d['samples']} samples, {d['ode2']} Exudyn coordinates -> {d['independent_coordinates']} independent",
+        ]
+    elif d["model"] == "exudyn":
         lines += [
             f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
             f" ({d['dominant_mode']}); {d['undamped_multipliers']} multipliers of undamped structural modes",

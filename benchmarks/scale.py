@@ -1,0 +1,238 @@
+#!/usr/bin/env python3
+"""Scale of the generic path: orbit, linearisation and Floquet of the single link at 4 ... 64 elements.
+
+Issue 12 item 4.  For each mesh, in a fresh subprocess (so that each mesh's
+peak memory is its own): the periodic orbit (:func:`linearize.periodic_orbit.find_orbit`,
+``solver="auto"``: structured Newton above the threshold), the constraint-correct
+linearisation with the Table 3 gains (:func:`linearize.constrained.linearize_orbit`),
+the dense Floquet multipliers (:func:`stability.floquet`, ``magnus2``, as
+:func:`linearize.analysis.analyze` runs it) and the dominant ones matrix-free
+(:func:`stability.implicit_floquet`, same propagator).  Per stage: wall and CPU
+seconds (CPU is the honest figure on a shared machine) and the peak of numpy /
+Python allocations (``tracemalloc``); per mesh the peak resident set size of the
+process (``ru_maxrss``, Exudyn's C++ memory included).  The growth exponent of
+each stage is the least-squares slope of log(CPU seconds) against log(elements).
+
+Usage::
+
+    python3 benchmarks/scale.py                      # 4 8 16 32 64, writes results/scale.json
+    python3 benchmarks/scale.py --elements 4 8 --dense-max 8
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import resource
+import signal
+import subprocess
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+#: Table 3 gains at Omega = 2 pi (paper) and the case.
+KP, KD, OMEGA = 37.1617, 29.2410, 2.0 * math.pi
+STAGES = ("orbit", "linearization", "floquet_dense", "floquet_implicit")
+
+
+class StageTimeout(Exception):
+    """A stage exceeded its time limit."""
+
+
+def _alarm(signum, frame):
+    raise StageTimeout()
+
+
+class _Stage:
+    def __init__(self, out: dict, name: str, limit: float = 0.0) -> None:
+        self.out, self.name, self.limit = out, name, limit
+
+    def __enter__(self):
+        if self.limit > 0:
+            signal.signal(signal.SIGALRM, _alarm)
+            signal.alarm(int(math.ceil(self.limit)))
+        tracemalloc.reset_peak()
+        self.w, self.c = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc):
+        signal.alarm(0)
+        self.out[self.name] = {
+            "wall_s": time.perf_counter() - self.w,
+            "cpu_s": time.process_time() - self.c,
+            "python_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20,
+            "ok": exc[0] is None,
+        }
+        if exc[0] is StageTimeout:
+            self.out[self.name]["timeout_s"] = self.limit
+            return True  # recorded as not finished; the next stages run
+        return False
+
+
+def _cplx(z) -> list:
+    return [float(z.real), float(z.imag)]
+
+
+def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
+           floquet_limit: float = 0.0) -> dict:
+    """One mesh: all stages in this process; returns the record."""
+    import numpy as np
+
+    from linearize.analysis import UNDAMPED_TOLERANCE
+    from linearize.constrained import linearize_orbit
+    from linearize.periodic_orbit import find_orbit
+    from stability import floquet, implicit_floquet
+
+    tracemalloc.start()
+    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "stages": {}}
+    st = rec["stages"]
+    with _Stage(st, "orbit"):
+        orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
+    rec.update(ode2=orbit.size, orbit_residual=float(orbit.residual), orbit_tolerance=float(orbit.tolerance),
+               shooting_residual=float(orbit.shooting_residual), newton_iterations=int(orbit.iterations))
+    with _Stage(st, "linearization"):
+        lin = linearize_orbit(orbit, KP, KD)
+    rec["states"] = 2 * int(lin.size)
+    dense_mult = None
+    if dense:
+        res = None
+        with _Stage(st, "floquet_dense", floquet_limit):
+            res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+    if dense and res is not None:
+        dense_mult = np.asarray(res.multipliers)
+        damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
+        rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
+                        "dominant_damped": _cplx(damped[0]) if damped else None,
+                        "error_estimate": float(getattr(res, "error_estimate", math.nan)),
+                        "top": [_cplx(z) for z in dense_mult[:k]]}
+    if implicit:
+        imp = None
+        with _Stage(st, "floquet_implicit", floquet_limit):
+            imp = implicit_floquet(lin, k=k, n_steps=n_steps, method="magnus2")
+    if implicit and imp is not None:
+        mult = np.asarray(imp.multipliers)
+        rec["implicit"] = {"dominant": _cplx(mult[0]), "top": [_cplx(z) for z in mult],
+                           "certified": [bool(c) for c in imp.certified],
+                           "residuals": [float(r) for r in imp.residuals],
+                           "error_estimate": float(imp.error_estimate), "matvecs": int(imp.n_matvecs)}
+        if dense_mult is not None:
+            # each certified implicit multiplier against the nearest dense one
+            diffs = [float(np.min(np.abs(dense_mult - z))) for z, c in zip(mult, imp.certified) if c]
+            rec["implicit"]["max_diff_to_dense"] = max(diffs) if diffs else math.nan
+    rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rec["total_cpu_s"] = sum(v["cpu_s"] for v in st.values())
+    rec["total_wall_s"] = sum(v["wall_s"] for v in st.values())
+    return rec
+
+
+def growth_exponents(records: list) -> dict:
+    """Least-squares slope of log(CPU s) vs log(elements) per stage (meshes where it ran)."""
+    import numpy as np
+
+    out = {}
+    for stage in STAGES + ("total",):
+        xs, ys = [], []
+        for r in records:
+            if stage == "total":
+                v = r.get("total_cpu_s")
+            else:
+                v = r.get("stages", {}).get(stage, {}).get("cpu_s")
+            if v and v > 0:
+                xs.append(math.log(r["elements"]))
+                ys.append(math.log(v))
+        out[stage] = float(np.polyfit(xs, ys, 1)[0]) if len(xs) >= 2 else math.nan
+    return out
+
+
+def _fmt(x, spec=".2f") -> str:
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
+
+
+def markdown(records: list, exps: dict) -> str:
+    head = ("| elements | ODE2 / states | orbit CPU s (wall) | lin. CPU s | Floquet dense CPU s | "
+            "Floquet implicit CPU s | total CPU s (wall) | peak RSS MB | orbit residual | dominant multiplier | "
+            "abs(rho_dom) | implicit vs dense |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for r in records:
+        if "error" in r:
+            lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (head.count("|") - 3))
+            continue
+        st = r["stages"]
+        dom = r.get("dense", r.get("implicit", {})).get("dominant")
+        g = lambda s, key="cpu_s": st.get(s, {}).get(key)  # noqa: E731
+        lines.append(
+            f"| {r['elements']} | {r['ode2']} / {r['states']} | {_fmt(g('orbit'))} ({_fmt(g('orbit', 'wall_s'))}) | "
+            f"{_fmt(g('linearization'))} | {_fmt(g('floquet_dense'))} | {_fmt(g('floquet_implicit'))} | "
+            f"{_fmt(r['total_cpu_s'])} ({_fmt(r['total_wall_s'])}) | {_fmt(r['peak_rss_mb'], '.0f')} | "
+            f"{_fmt(r['orbit_residual'], '.1e')} | "
+            + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
+            + f" | {_fmt(r.get('implicit', {}).get('max_diff_to_dense'), '.1e')} |")
+    lines.append("")
+    lines.append("Growth exponent (CPU s ~ elements^p, least squares): "
+                 + ", ".join(f"{s} p = {_fmt(v)}" for s, v in exps.items()))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--elements", type=int, nargs="+", default=[4, 8, 16, 32, 64])
+    ap.add_argument("--samples", type=int, default=32)
+    ap.add_argument("--steps", type=int, default=512, help="magnus2 sub-intervals (as analyze())")
+    ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
+    ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
+    ap.add_argument("--no-implicit", action="store_true")
+    ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
+    ap.add_argument("--floquet-limit", type=float, default=300.0,
+                    help="wall seconds per Floquet stage before it is recorded as not finished")
+    ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
+    ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker is not None:
+        rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
+                     args.floquet_limit)
+        print(json.dumps(rec))
+        return 0
+    records = []
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for e in args.elements:
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
+               "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
+               "--floquet-limit", str(args.floquet_limit)]
+        if args.no_implicit:
+            cmd.append("--no-implicit")
+        try:
+            p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, env=env)
+            if p.returncode != 0:
+                last = (p.stderr.strip().splitlines() or ["no output"])[-1]
+                rec = {"elements": e, "error": last}
+            else:
+                rec = json.loads(p.stdout.strip().splitlines()[-1])
+        except subprocess.TimeoutExpired:
+            rec = {"elements": e, "error": f"timeout after {args.timeout:.0f} s"}
+        records.append(rec)
+        print(f"elements {e}: " + (rec["error"] if "error" in rec else
+                                   f"total CPU {rec['total_cpu_s']:.2f} s, wall {rec['total_wall_s']:.2f} s, "
+                                   f"peak RSS {rec['peak_rss_mb']:.0f} MB"), file=sys.stderr, flush=True)
+    ok = [r for r in records if "error" not in r]
+    exps = growth_exponents(ok)
+    table = markdown(records, exps)
+    print(table)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"case": {"model": "single-link", "omega": OMEGA, "kp": KP, "kd": KD,
+                                        "samples": args.samples, "n_steps": args.steps},
+                               "records": records, "growth_exponents": exps, "table": table}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
