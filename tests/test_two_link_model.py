@@ -104,6 +104,7 @@ def _solver(mbs):
     s = exu.MainSolverImplicitSecondOrder()
     settings = exu.SimulationSettings()
     settings.linearSolver.solverType = exu.LinearSolverType.EigenDense
+    settings.solution.file.write = False  # no solution/ folder in the working directory
     s.InitializeSolver(mbs, settings)
     return s
 
