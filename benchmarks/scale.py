@@ -72,8 +72,11 @@ class _Stage:
             "ok": exc[0] is None,
         }
         if exc[0] is StageTimeout:
-            self.out[self.name]["timeout_s"] = self.limit
+            self.out[self.name]["error"] = f"not finished within {self.limit:.0f} s"
             return True  # recorded as not finished; the next stages run
+        if exc[0] is not None and self.name.startswith("floquet"):
+            self.out[self.name]["error"] = " ".join(f"{exc[0].__name__}: {exc[1]}".split())[:300]
+            return True  # a Floquet method that cannot run is a result; the other one still runs
         return False
 
 
@@ -167,7 +170,10 @@ def markdown(records: list, exps: dict) -> str:
             continue
         st = r["stages"]
         dom = r.get("dense", r.get("implicit", {})).get("dominant")
-        g = lambda s, key="cpu_s": st.get(s, {}).get(key)  # noqa: E731
+        def g(s, key="cpu_s"):
+            v = st.get(s, {})
+            return None if "error" in v else v.get(key)
+
         lines.append(
             f"| {r['elements']} | {r['ode2']} / {r['states']} | {_fmt(g('orbit'))} ({_fmt(g('orbit', 'wall_s'))}) | "
             f"{_fmt(g('linearization'))} | {_fmt(g('floquet_dense'))} | {_fmt(g('floquet_implicit'))} | "
