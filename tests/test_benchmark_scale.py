@@ -28,7 +28,7 @@ def bench():
 
 
 def _records(p: float, c: float = 0.01):
-    return [{"elements": e, "total_cpu_s": c * e**p,
+    return [{"elements": e, "total_cpu_s": c * e**p, "pipeline_complete": True,
              "stages": {"orbit": {"cpu_s": c * e**p}, "linearization": {"cpu_s": 2 * c * e**1.0}}}
             for e in (4, 8, 16, 32, 64)]
 
@@ -40,6 +40,10 @@ def test_growth_exponent_recovers_power_laws(bench):
     assert abs(exps["linearization"] - 1.0) < 1e-12
     assert math.isnan(exps["floquet_dense"])  # no data: no exponent, not 0
     assert abs(bench.growth_exponents(_records(3.0))["orbit"] - 2.5) > 0.4
+    # a stage that did not finish (memory, time limit) does not enter its fit
+    recs = _records(2.5)
+    recs[-1]["stages"]["orbit"] = {"cpu_s": 1e6, "error": "not finished within 60 s"}
+    assert abs(bench.growth_exponents(recs)["orbit"] - 2.5) < 1e-12
 
 
 @pytest.mark.slow
