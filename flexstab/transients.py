@@ -307,7 +307,9 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
         fontsize=12,
     )
     fig.text(0.01, 0.005, _caption(case, res, with_forcing), fontsize=8, va="bottom", ha="left", wrap=True)
-    fig.tight_layout(rect=(0, 0.085, 1, 0.965))
+    # fixed margins for this 12 x 7.8 in, 2 x 2 layout (tight_layout measured every text twice:
+    # 40 % of the figure's time); the caption sits below 0.085, the title above 0.90
+    fig.subplots_adjust(left=0.07, right=0.985, top=0.895, bottom=0.16, hspace=0.28, wspace=0.22)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
