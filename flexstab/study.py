@@ -295,7 +295,11 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
             cases += list(paper_case_pair(k))
         else:
             cases += [Case(None, w, gains_source="no control"), Case(None, w, kp, kd, gains_source=source)]
-    doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator, cases=cases)
+    from flexstab.executor import make_executor
+
+    # the cases are independent: two processes (the figures are half the stage's time)
+    with make_executor("process" if len(cases) > 1 else "serial", max_workers=2) as ex:
+        doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator, cases=cases, executor=ex)
     figs = [c["figure_file"] for c in doc["cases"]]
     rows = []
     for c in doc["cases"]:
