@@ -36,6 +36,7 @@ multiplier is above the noise floor, on the multipliers themselves.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -44,6 +45,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
+from scipy.linalg.lapack import dgebal, dgeev
 
 from stability import _compiled
 from stability.expm import expm_soa, expm_stack, mm_soa
@@ -239,8 +241,6 @@ class _Spectrum:
 def _eigvals(Phi: np.ndarray) -> np.ndarray:
     """Eigenvalues of a real square matrix (LAPACK ``dgeev`` directly: 4x faster than
     ``np.linalg.eigvals`` for the 4x4 monodromy matrix; the same routine)."""
-    from scipy.linalg.lapack import dgeev
-
     if Phi.dtype == np.float64 and Phi.ndim == 2:
         wr, wi, _, _, info = dgeev(Phi, compute_vl=0, compute_vr=0)
         if info == 0:
@@ -480,6 +480,16 @@ def _magnus_solve(
     return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
 
 
+@functools.lru_cache(maxsize=64)
+def _gauss_times(nodes: tuple, period: float, Ns: tuple) -> np.ndarray:
+    """Gauss points of ``N`` equal sub-intervals of ``[0, period]`` for each ``N`` in ``Ns``, concatenated
+    (cached: a loop over gains or parameters asks for the same points again; read-only)."""
+    node = np.asarray(nodes)
+    times = np.concatenate([((np.arange(N)[:, None] + node[None, :]) * (period / N)).ravel() for N in Ns])
+    times.flags.writeable = False
+    return times
+
+
 def _magnus_solves_small(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, Ns: list[int], keep_factors: bool,
     strict: bool,
@@ -496,7 +506,7 @@ def _magnus_solves_small(
     n = wrapped.n
     nodes = np.asarray(scheme.nodes)
     hs = [period / N for N in Ns]
-    times = np.concatenate([((np.arange(N)[:, None] + nodes[None, :]) * h).ravel() for N, h in zip(Ns, hs)])
+    times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
     P = wrapped.evaluate(times)
     if USE_COMPILED and not keep_factors and scheme.order in (4, 6):
@@ -866,12 +876,10 @@ def _samples(wrapped: PeriodicMatrixFunction, period: float) -> np.ndarray:
 
 def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
     """Diagonal scaling from LAPACK's balancing (``dgebal``) of ``mean |P(t)|``; ``None`` if not worth it."""
-    from scipy.linalg.lapack import dgebal
-
     if samples.shape[-1] < 2:
         return None
-    A = np.mean(np.abs(samples), axis=0)
-    if np.count_nonzero(A - np.diag(np.diag(A))) == 0:
+    A = np.abs(samples).sum(axis=0)  # the balancing of mean |P| (invariant under the factor 1/m)
+    if np.count_nonzero(A) == np.count_nonzero(np.diagonal(A)):
         return None  # diagonal (or zero): nothing to balance
     *_, scale, info = dgebal(A, scale=1, permute=0)
     if info != 0 or not np.isfinite(scale).all() or np.all(scale == 1.0):
