@@ -313,7 +313,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
     from flexstab.executor import make_executor
-    from mbs_models.exudyn_floquet import ExudynPlant, exudyn_floquet
+    from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune

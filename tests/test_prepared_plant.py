@@ -13,9 +13,9 @@ import pickle
 import pytest
 
 from linearize import linearize_along_orbit
-from mbs_models.exudyn_floquet import ExudynPlant, PreparedExudynPlant
+from linearize.link_floquet import ExudynPlant, PreparedExudynPlant
 from mbs_models.exudyn_link import ExudynLinkConfig
-from mbs_models.orbit import find_periodic_orbit
+from linearize.link_orbit import find_periodic_orbit
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_tuning_on_the_prepared_plant_equals_the_plant(plant2):
 
 def test_cli_builds_prepared_exudyn_plants(monkeypatch):
     """``tune --model exudyn`` and ``chart --model exudyn`` get a prepared plant from ``exudyn_plant``."""
-    import mbs_models.exudyn_floquet as ef
+    import linearize.link_floquet as ef
     from flexstab.commands import tune
 
     seen = {}

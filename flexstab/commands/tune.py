@@ -42,7 +42,7 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
         from mbs_models.reduced import ReducedModel
 
         return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
-    from mbs_models.exudyn_floquet import exudyn_plant  # the Exudyn linearisation
+    from linearize.link_floquet import exudyn_plant  # the Exudyn linearisation
 
     # prepared: the linearisation is interpolated, solved and balanced once, not per gain pair
     return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True)

@@ -1,7 +1,7 @@
 """Floquet analysis of the Exudyn link: linearisation route and direct Exudyn monodromy.
 
 Pipeline (:func:`exudyn_floquet`): periodic orbit
-(:func:`~mbs_models.orbit.find_periodic_orbit`) -> finite-difference
+(:func:`~linearize.link_orbit.find_periodic_orbit`) -> finite-difference
 linearisation in independent coordinates
 (:func:`~linearize.linearize_along_orbit`) -> monodromy of
 ``x' = P(t) x`` -> multipliers, each classified by the structural mode its
@@ -46,7 +46,7 @@ import scipy.linalg
 
 from linearize import LinearizedPeriodicSystem, linearize_along_orbit
 from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-from mbs_models.orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
+from linearize.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
 from mbs_models.parameters import ManipulatorParameters
 
 __all__ = [
@@ -305,7 +305,7 @@ def exudyn_floquet(
     ------
     ValueError
         On invalid arguments.
-    mbs_models.orbit.OrbitConvergenceError
+    linearize.link_orbit.OrbitConvergenceError
         If the periodic orbit is not found.
     """
     if reference not in ("periodic", "rigid"):
