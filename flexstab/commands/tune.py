@@ -17,7 +17,8 @@ def register(sub) -> None:
         help="tune the PD gains so that max|rho| reaches a target (Taguchi)",
         description="Iterative Taguchi tuning of (kp, kd) to max|rho| = rho_d (paper Eq. 34).",
     )
-    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced")
+    p.add_argument("--model", default="reduced", metavar="MODEL",
+                   help="reduced (default), exudyn, a built-in model file (single-link) or a model file PATH.py")
     add_model_options(p)
     p.add_argument("--target", type=positive_float, default=None, help="rho_d (default 0.3, or from --config)")
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None, help="default 0 60")
@@ -38,6 +39,29 @@ def register(sub) -> None:
 
 def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     """The plant object (``with_gains(kp, kd)``) for the chosen model."""
+    if model not in ("reduced", "exudyn"):
+        from flexstab.options import is_model_file
+        from linearize.analysis import model_plant
+        from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
+
+        if is_model_file(model):
+            if elements is not None:
+                raise ValueError("--elements applies to built-in models only")
+            definition, options = load_model_file(model), {}
+        elif model in BUILTIN_MODELS:
+            definition = builtin_model(model)
+            options = {"elements": elements or cfg.elements}
+            if model == "single-link":
+                options["params"] = cfg.manipulator
+        else:
+            raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
+                             f"or a model file PATH.py")
+        plant = model_plant(definition, omega, **options)
+        if len(plant.drives) != 1:
+            raise ValueError(f"the model has {len(plant.drives)} drives ({', '.join(plant.drives) or 'none'}); "
+                             f"tuning tunes one drive's (kp, kd) for now: the multi-factor Taguchi tuning of "
+                             f"2 x drives gains is not available yet")
+        return plant
     if model == "reduced":
         from mbs_models.reduced import ReducedModel
 
@@ -125,9 +149,15 @@ def tune_report(args: argparse.Namespace) -> dict:
     objective = GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
     kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
+    if args.model not in ("reduced", "exudyn"):
+        if args.scheduler:
+            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
+        kind = "serial"  # the plant holds a model loaded from a file: not picklable
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
+    if hasattr(plant, "drives"):
+        out["drives"] = list(plant.drives)
     out.update(res.to_dict())
     if hasattr(plant, "spectral_measure"):
         # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
@@ -137,7 +167,8 @@ def tune_report(args: argparse.Namespace) -> dict:
         finer = dataclasses.replace(getattr(plant, "plant", plant), n_steps=2 * plant.n_steps)
         out["verified_spectral_radius"] = finer.spectral_measure(res.kp, res.kd)
         out["verified_error_estimate"] = None
-        out["elements"] = args.elements or cfg.elements
+        if args.model in ("exudyn", "single-link"):
+            out["elements"] = args.elements or cfg.elements
     else:
         check = floquet(plant.with_gains(res.kp, res.kd))
         out["verified_spectral_radius"] = check.spectral_radius
