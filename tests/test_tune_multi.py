@@ -98,3 +98,34 @@ def test_range_on_single_drive_model(capsys):
     """One drive: the factors are kp, kd; a per-drive name is rejected before any computation."""
     assert cli_main(["tune", "--range", "kp1=0,10"]) == 2
     assert "unknown factor 'kp1'; the factors are kp, kd" in capsys.readouterr().err
+
+
+def test_one_drive_model_file_keeps_kp_kd(tmp_path, capsys):
+    """One drive (the rigid bar of test_model_file: no gravity, no damping): J_O phi'' + kd phi' + kp phi = 0
+    has constant coefficients, so max|rho| = max|eig(expm(A T))| exactly."""
+    import scipy.linalg
+
+    from test_model_file import _bar
+
+    path = _bar(tmp_path)
+    rc = cli_main(["tune", "--model", str(path), "--omega", "2pi", "--target", "0.3", "--kp-range", "0", "20",
+                   "--kd-range", "0", "5", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == 0 and d["converged"] and d["drives"] == ["joint"] and d["names"] == ["kp", "kd"]
+    assert isinstance(d["kp"], float) and isinstance(d["kd"], float)
+
+    def rho(kp, kd):
+        J = 0.1 + 1.0 * 0.5**2  # inertia about the pivot (COM 0.5 m away)
+        A = np.array([[0.0, 1.0], [-kp / J, -kd / J]])
+        return float(np.max(np.abs(np.linalg.eigvals(scipy.linalg.expm(A * 2 * math.pi / OMEGA)))))
+
+    # the tuning stops at 1e-3 rho_d; magnus2 on a constant-coefficient system is exact up to round-off
+    # and the collocated orbit is exact (rigid, no gravity) up to its Newton tolerance: margin 1e-6
+    assert abs(rho(d["kp"], d["kd"]) - 0.3) <= 1e-3 * 0.3 + 1e-6
+    assert abs(rho(d["kp"], 1.05 * d["kd"]) - 0.3) > 1e-2 * 0.3  # the check can fail
+
+
+def test_model_without_drives_one_line(capsys):
+    assert cli_main(["tune", "--model", str(HERE / "models" / "vertical_pendulum.py"), "--omega", "80"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "has no drives" in err, err

@@ -56,9 +56,10 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
             definition, options = load_model_file(model), {}
         elif model in BUILTIN_MODELS:
             definition = builtin_model(model)
-            options = {"elements": elements or cfg.elements}
-            if model == "single-link":
-                options["params"] = cfg.manipulator
+            if model == "single-link":  # the configured link and its mesh
+                options = {"elements": elements or cfg.elements, "params": cfg.manipulator}
+            else:  # other built-ins (two-link) keep their own default mesh unless --elements is given
+                options = {"elements": elements} if elements is not None else {}
         else:
             raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
                              f"or a model file PATH.py")
@@ -247,6 +248,10 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["verified_error_estimate"] = None
         if args.model in ("exudyn", "single-link"):
             out["elements"] = args.elements or cfg.elements
+        elif args.model == "two-link":
+            from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+            out["elements"] = args.elements or DEFAULT_ELEMENTS
     else:
         check = floquet(plant.with_gains(kp, kd))
         out["verified_spectral_radius"] = check.spectral_radius
