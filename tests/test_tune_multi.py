@@ -129,3 +129,25 @@ def test_model_without_drives_one_line(capsys):
     assert cli_main(["tune", "--model", str(HERE / "models" / "vertical_pendulum.py"), "--omega", "80"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "has no drives" in err, err
+
+
+def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
+    """A second-order response r_n = r + c / n^2: the chosen n has (4/3)|r_n - r_2n| = c / n^2 <= tol / 4."""
+    from dataclasses import dataclass
+
+    from flexstab.commands.tune import MAX_TUNING_STEPS, propagator_steps
+    from taguchi.tuning import TuningConfig
+
+    @dataclass(frozen=True)
+    class Fake:
+        c: float
+        n_steps: int = 256
+
+        def spectral_measure(self, kp, kd):
+            assert len(kp) == len(kd) == 2
+            return 0.3 + self.c / self.n_steps**2
+
+    cfg = TuningConfig(target=0.3, ranges=((0, 1),) * 4)  # tolerance 3e-4
+    for c, n in ((1.0, 256), (100.0, 2048)):  # c / n^2 <= 7.5e-5: 1 / 256^2 = 1.5e-5; 100 / 1024^2 = 9.5e-5 > 7.5e-5
+        assert propagator_steps(Fake(c), cfg).n_steps == n
+    assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
