@@ -151,3 +151,34 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
     for c, n in ((1.0, 256), (100.0, 2048)):  # c / n^2 <= 7.5e-5: 1 / 256^2 = 1.5e-5; 100 / 1024^2 = 9.5e-5 > 7.5e-5
         assert propagator_steps(Fake(c), cfg).n_steps == n
     assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
+
+
+def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails(monkeypatch, capsys):
+    """A plant whose response carries a second-order propagator error c / n^2 (c = 30): 256 steps err by
+    4.6e-4 > tol 3e-4, so the tuning is repeated with 512 (1.1e-4, estimate above tol / 4) and 1024 steps
+    (2.9e-5); the final gains are within tol + 2.9e-5 of rho_d in the exact response (n -> infinity)."""
+    from dataclasses import dataclass
+
+    import flexstab.commands.tune as tune
+
+    def exact(kp, kd):
+        return 1.0 / (1.0 + 0.1 * (sum(kp) + sum(kd)))
+
+    @dataclass(frozen=True)
+    class Fake:
+        n_steps: int = 256
+        drives: tuple = ("a", "b")
+
+        def spectral_measure(self, kp, kd):
+            return exact(kp, kd) + 30.0 / self.n_steps**2
+
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake())
+    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)  # no check at the range centre
+    rc = cli_main(["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10",
+                   "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == 0
+    assert [p["propagator_steps"] for p in d["propagator_passes"]] == [256, 512, 1024]
+    assert d["propagator_steps"] == 1024
+    assert d["evaluations"] == sum(p["evaluations"] for p in d["propagator_passes"])
+    assert abs(exact(d["kp"], d["kd"]) - 0.3) <= d["tolerance"] + 30.0 / 1024**2

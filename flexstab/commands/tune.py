@@ -2,13 +2,17 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, positive_float, resolve_omega
 
-__all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges"]
+logger = logging.getLogger(__name__)
+
+__all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
+           "propagator_steps", "MAX_TUNING_STEPS"]
 
 
 def register(sub) -> None:
@@ -257,12 +261,35 @@ def tune_report(args: argparse.Namespace) -> dict:
         if args.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
         kind = "serial"  # the plant holds a model loaded from a file: not picklable
+    passes: list = []
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
-        res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
+        while True:
+            res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
+            if not model_file:
+                break
+            # the step-doubling check at the tuned gains: second order, error of n steps ~ 4/3 |r_n - r_2n|;
+            # too large -> tune again from the initial ranges with 2n steps (the budget is per pass)
+            import dataclasses
+
+            kp, kd = _pairs(res.gains, n_drives)
+            finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
+            r2 = finer.spectral_measure(kp, kd)
+            passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
+                           "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
+            if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
+                    or finer.n_steps > MAX_TUNING_STEPS):
+                break
+            logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
+                        res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
+            plant = finer
+            objective = DrivesObjective(plant)
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)
     out.update(res.to_dict())
+    if passes:  # every pass's Floquet evaluations, and the step-doubling history
+        out["evaluations"] = sum(p["evaluations"] for p in passes)
+        out["propagator_passes"] = passes
     kp, kd = _pairs(res.gains, n_drives)
     out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
     if hasattr(plant, "spectral_measure"):
