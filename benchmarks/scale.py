@@ -25,6 +25,7 @@ import json
 import math
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -42,22 +43,40 @@ KP, KD, OMEGA = 37.1617, 29.2410, 2.0 * math.pi
 STAGES = ("orbit", "linearization", "floquet_dense", "floquet_implicit")
 
 
+class StageTimeout(Exception):
+    """A stage exceeded its time limit."""
+
+
+def _alarm(signum, frame):
+    raise StageTimeout()
+
+
 class _Stage:
-    def __init__(self, out: dict, name: str) -> None:
-        self.out, self.name = out, name
+    def __init__(self, out: dict, name: str, limit: float = 0.0) -> None:
+        self.out, self.name, self.limit = out, name, limit
 
     def __enter__(self):
+        if self.limit > 0:
+            signal.signal(signal.SIGALRM, _alarm)
+            signal.alarm(int(math.ceil(self.limit)))
         tracemalloc.reset_peak()
         self.w, self.c = time.perf_counter(), time.process_time()
         return self
 
     def __exit__(self, *exc):
+        signal.alarm(0)
         self.out[self.name] = {
             "wall_s": time.perf_counter() - self.w,
             "cpu_s": time.process_time() - self.c,
             "python_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20,
             "ok": exc[0] is None,
         }
+        if exc[0] is StageTimeout:
+            self.out[self.name]["error"] = f"not finished within {self.limit:.0f} s"
+            return True  # recorded as not finished; the next stages run
+        if exc[0] is not None and self.name.startswith("floquet"):
+            self.out[self.name]["error"] = " ".join(f"{exc[0].__name__}: {exc[1]}".split())[:300]
+            return True  # a Floquet method that cannot run is a result; the other one still runs
         return False
 
 
@@ -65,10 +84,12 @@ def _cplx(z) -> list:
     return [float(z.real), float(z.imag)]
 
 
-def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int) -> dict:
+def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
+           floquet_limit: float = 0.0, fallback_steps: int = 0) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
+    from linearize.analysis import UNDAMPED_TOLERANCE
     from linearize.constrained import linearize_orbit
     from linearize.periodic_orbit import find_orbit
     from stability import floquet, implicit_floquet
@@ -85,15 +106,29 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     rec["states"] = 2 * int(lin.size)
     dense_mult = None
     if dense:
-        with _Stage(st, "floquet_dense"):
+        res = None
+        with _Stage(st, "floquet_dense", floquet_limit):
             res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+        if res is None and fallback_steps and "GB of work arrays" in st["floquet_dense"].get("error", ""):
+            # the engine holds all sub-interval propagators at once: retry with fewer (coarser) steps
+            first = st.pop("floquet_dense")
+            with _Stage(st, "floquet_dense", floquet_limit):
+                res = floquet(lin, method="magnus2", n_steps=fallback_steps, accuracy="moduli")
+            st["floquet_dense"]["n_steps"] = fallback_steps
+            st["floquet_dense"]["first_attempt"] = first
+    if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
+        damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
         rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
+                        "dominant_damped": _cplx(damped[0]) if damped else None,
                         "error_estimate": float(getattr(res, "error_estimate", math.nan)),
+                        "n_steps": int(st["floquet_dense"].get("n_steps", n_steps)),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
     if implicit:
-        with _Stage(st, "floquet_implicit"):
+        imp = None
+        with _Stage(st, "floquet_implicit", floquet_limit):
             imp = implicit_floquet(lin, k=k, n_steps=n_steps, method="magnus2")
+    if implicit and imp is not None:
         mult = np.asarray(imp.multipliers)
         rec["implicit"] = {"dominant": _cplx(mult[0]), "top": [_cplx(z) for z in mult],
                            "certified": [bool(c) for c in imp.certified],
@@ -104,8 +139,11 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
             diffs = [float(np.min(np.abs(dense_mult - z))) for z, c in zip(mult, imp.certified) if c]
             rec["implicit"]["max_diff_to_dense"] = max(diffs) if diffs else math.nan
     rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    rec["total_cpu_s"] = sum(v["cpu_s"] for v in st.values())
-    rec["total_wall_s"] = sum(v["wall_s"] for v in st.values())
+    # the pipeline as analyze() runs it: orbit + linearisation + dense Floquet
+    pipeline = [st[s] for s in ("orbit", "linearization", "floquet_dense") if s in st and "error" not in st[s]]
+    rec["pipeline_complete"] = len(pipeline) == 3
+    rec["total_cpu_s"] = sum(v["cpu_s"] for v in pipeline)
+    rec["total_wall_s"] = sum(v["wall_s"] for v in pipeline)
     return rec
 
 
@@ -118,9 +156,10 @@ def growth_exponents(records: list) -> dict:
         xs, ys = [], []
         for r in records:
             if stage == "total":
-                v = r.get("total_cpu_s")
+                v = r.get("total_cpu_s") if r.get("pipeline_complete") else None
             else:
-                v = r.get("stages", {}).get(stage, {}).get("cpu_s")
+                rec = r.get("stages", {}).get(stage, {})
+                v = None if "error" in rec else rec.get("cpu_s")
             if v and v > 0:
                 xs.append(math.log(r["elements"]))
                 ys.append(math.log(v))
@@ -132,28 +171,38 @@ def _fmt(x, spec=".2f") -> str:
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
+def _cell(st: dict, stage: str) -> str:
+    v = st.get(stage)
+    if v is None:
+        return "not run"
+    if "error" in v:
+        e = v["error"]
+        return "refused (memory)" if "GB of work arrays" in e else ("> limit" if "not finished" in e else "failed")
+    steps = f" [{v['n_steps']} steps]" if "n_steps" in v else ""
+    return f"{v['cpu_s']:.2f}{steps}"
+
+
 def markdown(records: list, exps: dict) -> str:
-    head = ("| elements | ODE2 / states | orbit CPU s (wall) | lin. CPU s | Floquet dense CPU s | "
-            "Floquet implicit CPU s | total CPU s (wall) | peak RSS MB | orbit residual | dominant multiplier | "
-            "|rho_dom| | implicit vs dense |")
-    lines = [head, "|" + "---|" * head.count("|")[:-1] if False else "|" + "---|" * (head.count("|") - 1)]
+    cols = ["elements", "ODE2 / states", "orbit CPU s (wall)", "lin. CPU s", "Floquet dense CPU s",
+            "Floquet implicit CPU s", "pipeline CPU s (wall)", "peak RSS MB", "orbit residual (tol 1e-6)",
+            "dominant multiplier (largest off the unit circle)", "modulus", "implicit vs dense"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in records:
         if "error" in r:
-            lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (head.count("|") - 3))
+            lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (len(cols) - 2))
             continue
         st = r["stages"]
-        dom = r.get("dense", r.get("implicit", {})).get("dominant")
-        g = lambda s, key="cpu_s": st.get(s, {}).get(key)  # noqa: E731
+        dom = r.get("dense", {}).get("dominant_damped")
+        total = f"{r['total_cpu_s']:.2f} ({r['total_wall_s']:.2f})" + ("" if r.get("pipeline_complete") else " no Floquet")
         lines.append(
-            f"| {r['elements']} | {r['ode2']} / {r['states']} | {_fmt(g('orbit'))} ({_fmt(g('orbit', 'wall_s'))}) | "
-            f"{_fmt(g('linearization'))} | {_fmt(g('floquet_dense'))} | {_fmt(g('floquet_implicit'))} | "
-            f"{_fmt(r['total_cpu_s'])} ({_fmt(r['total_wall_s'])}) | {_fmt(r['peak_rss_mb'], '.0f')} | "
-            f"{_fmt(r['orbit_residual'], '.1e')} | "
+            f"| {r['elements']} | {r['ode2']} / {r['states']} | {st['orbit']['cpu_s']:.2f} ({st['orbit']['wall_s']:.2f}) | "
+            f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
+            f"{total} | {r['peak_rss_mb']:.0f} | {r['orbit_residual']:.1e} | "
             + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
             + f" | {_fmt(r.get('implicit', {}).get('max_diff_to_dense'), '.1e')} |")
     lines.append("")
-    lines.append("Growth exponent (CPU s ~ elements^p, least squares): "
-                 + ", ".join(f"{s} p = {_fmt(v)}" for s, v in exps.items()))
+    lines.append("Growth exponent p (CPU s ~ elements^p, least squares over the meshes where the stage finished): "
+                 + ", ".join(f"{s} {_fmt(v)}" for s, v in exps.items()))
     return "\n".join(lines)
 
 
@@ -165,20 +214,26 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
+    ap.add_argument("--fallback-steps", type=int, default=0,
+                    help="dense Floquet steps when --steps exceeds the engine's memory limit (0: none)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
+    ap.add_argument("--floquet-limit", type=float, default=300.0,
+                    help="wall seconds per Floquet stage before it is recorded as not finished")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
-        rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k)
+        rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
+                     args.floquet_limit, args.fallback_steps)
         print(json.dumps(rec))
         return 0
     records = []
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     for e in args.elements:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
-               "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max))]
+               "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
+               "--floquet-limit", str(args.floquet_limit), "--fallback-steps", str(args.fallback_steps)]
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

@@ -804,7 +804,7 @@ def measure_growth(
 
 # --------------------------------------------------------------------------- the built-in link
 #: Modes of the built-in link that are compared: those the paper's reduced model has (hub angle,
-#: first bending mode), as ``mbs_models.exudyn_floquet.PAPER_MODES``.
+#: first bending mode), as ``linearize.link_floquet.PAPER_MODES``.
 LINK_COMPARED_MODES = ("hub", "bending 1")
 
 #: A mode is compared only if generalised-alpha (trapezoidal, rho_inf = 1) resolves it at the finest
@@ -874,7 +874,7 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
 
 
 def _link_prediction(ex: Any, name: str, k: int, allowed: Optional[Sequence[str]], h_min: float = 0.0) -> Prediction:
-    """Prediction of an :class:`~mbs_models.exudyn_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`)."""
+    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`)."""
     return _refined_prediction(name, ex.floquet, ex.linearization, [m["mode"] for m in ex.modes], k, allowed,
                                [m["frequency_hz"] for m in ex.modes], h_min)
 
@@ -925,7 +925,7 @@ def validate_link_multipliers(
     ValueError
         On invalid arguments.
     """
-    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.exudyn_link import build_link_model
     from mbs_models.parameters import ManipulatorParameters
     from mbs_models.reduced import ReducedModel
