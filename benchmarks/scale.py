@@ -25,6 +25,7 @@ import json
 import math
 import os
 import resource
+import signal
 import subprocess
 import sys
 import time
@@ -42,22 +43,37 @@ KP, KD, OMEGA = 37.1617, 29.2410, 2.0 * math.pi
 STAGES = ("orbit", "linearization", "floquet_dense", "floquet_implicit")
 
 
+class StageTimeout(Exception):
+    """A stage exceeded its time limit."""
+
+
+def _alarm(signum, frame):
+    raise StageTimeout()
+
+
 class _Stage:
-    def __init__(self, out: dict, name: str) -> None:
-        self.out, self.name = out, name
+    def __init__(self, out: dict, name: str, limit: float = 0.0) -> None:
+        self.out, self.name, self.limit = out, name, limit
 
     def __enter__(self):
+        if self.limit > 0:
+            signal.signal(signal.SIGALRM, _alarm)
+            signal.alarm(int(math.ceil(self.limit)))
         tracemalloc.reset_peak()
         self.w, self.c = time.perf_counter(), time.process_time()
         return self
 
     def __exit__(self, *exc):
+        signal.alarm(0)
         self.out[self.name] = {
             "wall_s": time.perf_counter() - self.w,
             "cpu_s": time.process_time() - self.c,
             "python_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20,
             "ok": exc[0] is None,
         }
+        if exc[0] is StageTimeout:
+            self.out[self.name]["timeout_s"] = self.limit
+            return True  # recorded as not finished; the next stages run
         return False
 
 
@@ -65,10 +81,12 @@ def _cplx(z) -> list:
     return [float(z.real), float(z.imag)]
 
 
-def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int) -> dict:
+def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
+           floquet_limit: float = 0.0) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
+    from linearize.analysis import UNDAMPED_TOLERANCE
     from linearize.constrained import linearize_orbit
     from linearize.periodic_orbit import find_orbit
     from stability import floquet, implicit_floquet
@@ -85,15 +103,21 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     rec["states"] = 2 * int(lin.size)
     dense_mult = None
     if dense:
-        with _Stage(st, "floquet_dense"):
+        res = None
+        with _Stage(st, "floquet_dense", floquet_limit):
             res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+    if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
+        damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
         rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
+                        "dominant_damped": _cplx(damped[0]) if damped else None,
                         "error_estimate": float(getattr(res, "error_estimate", math.nan)),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
     if implicit:
-        with _Stage(st, "floquet_implicit"):
+        imp = None
+        with _Stage(st, "floquet_implicit", floquet_limit):
             imp = implicit_floquet(lin, k=k, n_steps=n_steps, method="magnus2")
+    if implicit and imp is not None:
         mult = np.asarray(imp.multipliers)
         rec["implicit"] = {"dominant": _cplx(mult[0]), "top": [_cplx(z) for z in mult],
                            "certified": [bool(c) for c in imp.certified],
@@ -135,8 +159,8 @@ def _fmt(x, spec=".2f") -> str:
 def markdown(records: list, exps: dict) -> str:
     head = ("| elements | ODE2 / states | orbit CPU s (wall) | lin. CPU s | Floquet dense CPU s | "
             "Floquet implicit CPU s | total CPU s (wall) | peak RSS MB | orbit residual | dominant multiplier | "
-            "|rho_dom| | implicit vs dense |")
-    lines = [head, "|" + "---|" * head.count("|")[:-1] if False else "|" + "---|" * (head.count("|") - 1)]
+            "abs(rho_dom) | implicit vs dense |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for r in records:
         if "error" in r:
             lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (head.count("|") - 3))
@@ -166,19 +190,23 @@ def main(argv=None) -> int:
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
+    ap.add_argument("--floquet-limit", type=float, default=300.0,
+                    help="wall seconds per Floquet stage before it is recorded as not finished")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
-        rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k)
+        rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
+                     args.floquet_limit)
         print(json.dumps(rec))
         return 0
     records = []
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     for e in args.elements:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
-               "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max))]
+               "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
+               "--floquet-limit", str(args.floquet_limit)]
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

@@ -208,7 +208,7 @@ def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] =
         ax.plot([0], [0], "ks", ms=4)
         ax.set_aspect("equal")
         ax.set_xlim(-1.15 * reach, 1.15 * reach)
-        ax.set_ylim(-1.15 * reach, 1.15 * reach)
+        ax.set_ylim(-0.4 * reach, 1.15 * reach)
         ax.set_title(f"t = {times[k] / orbit.period:.3f} T", fontsize=9)
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(picks):]:

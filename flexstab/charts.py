@@ -74,7 +74,7 @@ class ExudynOmegaRadius:
     elements: int = 4
 
     def __call__(self, point: dict) -> float:
-        from mbs_models.exudyn_floquet import exudyn_floquet
+        from linearize.link_floquet import exudyn_floquet
 
         r = exudyn_floquet(self.params, omega=point["omega"], kp=point["kp"], kd=point["kd"],
                            elements=self.elements, verify_orbit=False)

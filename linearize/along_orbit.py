@@ -14,8 +14,8 @@ from linearize.fourier import sample_times
 from linearize.system import LinearizedPeriodicSystem
 from mbs_models.exudyn_link import ExudynLinkModel, build_link_model
 
-if TYPE_CHECKING:  # mbs_models.orbit imports linearize helpers: avoid the cycle
-    from mbs_models.orbit import PeriodicOrbit
+if TYPE_CHECKING:  # linearize.link_orbit imports linearize helpers: avoid the cycle
+    from linearize.link_orbit import PeriodicOrbit
 
 __all__ = ["linearize_along_orbit", "coordinate_names"]
 
@@ -45,8 +45,8 @@ def linearize_along_orbit(
     Parameters
     ----------
     orbit : PeriodicOrbit
-        Reference motion (:func:`~mbs_models.orbit.find_periodic_orbit`, or
-        :func:`~mbs_models.orbit.rigid_reference` for the undeformed motion).
+        Reference motion (:func:`~linearize.link_orbit.find_periodic_orbit`, or
+        :func:`~linearize.link_orbit.rigid_reference` for the undeformed motion).
     hub : {"free", "prescribed"}
         ``"free"``: the hub angle is coordinate 0 and the PD gains act on it;
         ``"prescribed"``: the hub follows ``q_a^R(t)`` exactly, only the beam

@@ -16,7 +16,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pytest
 
 from mbs_models.exudyn_link import ExudynLinkConfig
-from mbs_models.orbit import find_periodic_orbit
+from linearize.link_orbit import find_periodic_orbit
 
 from _model_bounds import model_difference_bound  # tests/ helper
 

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from linearize import LinearizedPeriodicSystem, central_difference_jacobians, linearize_along_orbit
-from mbs_models.exudyn_floquet import (
+from linearize.link_floquet import (
     UNDAMPED_TOLERANCE,
     classify_multipliers,
     direct_monodromy,
@@ -25,7 +25,7 @@ from mbs_models.exudyn_floquet import (
 )
 from mbs_models.reduced import ReducedModel
 from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-from mbs_models.orbit import find_periodic_orbit
+from linearize.link_orbit import find_periodic_orbit
 from stability import floquet
 
 from _model_bounds import model_difference_bound  # tests/ helper

@@ -174,7 +174,7 @@ def test_config_rejects_bad_values(kwargs):
 @pytest.fixture(scope="module")
 def orbit8():
     from mbs_models.exudyn_link import ExudynLinkConfig
-    from mbs_models import find_periodic_orbit
+    from linearize.link_orbit import find_periodic_orbit
     from mbs_models.parameters import ManipulatorParameters
 
     return find_periodic_orbit(ManipulatorParameters(), ExudynLinkConfig(elements=ELEMENTS, drive="free", omega=EIGHT_PI),
@@ -205,7 +205,7 @@ def test_complex_pair_agrees_in_modulus_and_phase():
 
 @pytest.mark.slow
 def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gains(orbit8, tmp_path):
-    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
 
     ok = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                    orbit=orbit8)
@@ -235,7 +235,7 @@ def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gain
 
 @pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_left(orbit8):
-    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.exudyn_link import build_link_model
 
     ex = exudyn_floquet(omega=EIGHT_PI, elements=ELEMENTS, samples=SAMPLES, orbit=orbit8)
@@ -367,3 +367,21 @@ def test_cli_model_file_bad_input(argv, capsys):
     assert rc == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith("flexstab validate: error:")
+
+
+def test_analytic_unconverged_steps_give_no_verdict():
+    # a step error as large as the multipliers: two levels far apart are no measurement, even though
+    # the prediction lies inside the (huge) bar
+    A = _oscillators()
+    n = A.shape[0] // 2
+    x0 = np.zeros(2 * n)
+    pred = prediction_from_monodromy("analytic", scipy.linalg.expm(A * T_ANALYTIC), k=2)
+    norm = energy_norm(np.eye(n), np.eye(n))
+
+    def factory(h):
+        Phi_h = scipy.linalg.expm(A * (1.0 + 60.0 * h**2) * T_ANALYTIC)  # second order: finer level inside the bar
+        return lambda x, hh: Phi_h @ x
+
+    r = measure_multipliers(factory, x0, pred, norm, MultiplierCheckConfig(step=0.05, refinements=1))
+    assert np.all(np.abs(r.measured - pred.multipliers) <= r.errors)  # inside the bar ...
+    assert not r.step_converged and not r.agrees and not r.agrees_dominant  # ... but not measured

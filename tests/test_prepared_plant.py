@@ -13,9 +13,9 @@ import pickle
 import pytest
 
 from linearize import linearize_along_orbit
-from mbs_models.exudyn_floquet import ExudynPlant, PreparedExudynPlant
+from linearize.link_floquet import ExudynPlant, PreparedExudynPlant
 from mbs_models.exudyn_link import ExudynLinkConfig
-from mbs_models.orbit import find_periodic_orbit
+from linearize.link_orbit import find_periodic_orbit
 
 
 @pytest.fixture(scope="module")
@@ -35,3 +35,60 @@ def test_prepared_plant_equals_the_plant(plant2):
     assert again.spectral_measure(10.0, 5.0) == pytest.approx(plant2.spectral_measure(10.0, 5.0), rel=1e-9)
     with pytest.raises(ValueError, match="kp"):
         fast.floquet(-1.0, 0.0)
+
+
+def _richardson_magnus2(plant: ExudynPlant, kp: float, kd: float) -> float:
+    """Error estimate of ``plant.spectral_measure`` (magnus2, order 2, ``N`` steps): ``|r_2N - r_N| / (2^2 - 1)``."""
+    import dataclasses
+
+    fine = dataclasses.replace(plant, n_steps=2 * plant.n_steps).spectral_measure(kp, kd)
+    return abs(fine - plant.spectral_measure(kp, kd)) / 3.0
+
+
+def test_tuning_on_the_prepared_plant_equals_the_plant(plant2):
+    """Taguchi tuning through the prepared plant (what ``tune``/``chart``/``study`` use on the Exudyn
+    model) ends at the plain plant's gains, and its multiplier agrees within the Floquet error estimate."""
+    from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+    cfg = TuningConfig(target=0.3, kp_range=(0.0, 60.0), kd_range=(0.0, 40.0), max_evaluations=20)
+    plain = taguchi_tune(GainObjective(plant2), cfg)
+    fast = taguchi_tune(GainObjective(plant2.prepared()), cfg)
+    est = _richardson_magnus2(plant2, plain.kp, plain.kd)
+    assert 0 < est < 1e-2  # a meaningful estimate at 64 steps (it is the tolerance below)
+    # the responses agree to ~1e-12 << est, so every Taguchi decision (and the tuned gains) is the same
+    assert (fast.kp, fast.kd) == pytest.approx((plain.kp, plain.kd), rel=1e-12, abs=1e-12)
+    assert abs(fast.spectral_radius - plain.spectral_radius) <= est
+    # rejects a wrong plant: gains off by 5 % move the multiplier by more than the estimate
+    wrong = plant2.prepared().spectral_measure(1.05 * plain.kp, plain.kd)
+    assert abs(wrong - plain.spectral_radius) > est
+
+
+def test_cli_builds_prepared_exudyn_plants(monkeypatch):
+    """``tune --model exudyn`` and ``chart --model exudyn`` get a prepared plant from ``exudyn_plant``."""
+    import linearize.link_floquet as ef
+    from flexstab.commands import tune
+
+    seen = {}
+
+    def fake(params=None, *, omega, elements, prepared=False, **kw):
+        seen["prepared"] = prepared
+        return "plant"
+
+    monkeypatch.setattr(ef, "exudyn_plant", fake)
+
+    class Cfg:
+        manipulator = None
+        elements = 2
+
+    assert tune.build_plant("exudyn", Cfg(), 1.0, "auto") == "plant"
+    assert seen["prepared"] is True
+
+
+def test_workspace_built_once_per_process(plant2):
+    """Unpickled copies (one per process-pool task) share the process's workspace."""
+    fast = plant2.prepared()
+    ws = fast.workspace
+    copy = pickle.loads(pickle.dumps(fast))
+    assert copy.workspace is ws
+    other = plant2.prepared()  # a different plant object builds its own
+    assert other.workspace is not ws

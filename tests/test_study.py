@@ -12,7 +12,7 @@ from flexstab.cli import main as cli_main
 from flexstab.config import StudyConfig
 from flexstab.study import StudyOptions, render_report, run_study
 from mbs_models.exudyn_link import ExudynLinkConfig
-from mbs_models.orbit import find_periodic_orbit
+from linearize.link_orbit import find_periodic_orbit
 
 from mbs_models.parameters import ManipulatorParameters
 

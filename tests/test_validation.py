@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from mbs_models import exudyn_link
-from mbs_models.exudyn_floquet import exudyn_floquet
+from linearize.link_floquet import exudyn_floquet
 from validation.closed_loop import (
     AGREEMENT_TOLERANCE,
     PAPER_PERTURBATION,

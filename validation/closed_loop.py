@@ -5,7 +5,7 @@ feed-forward + PD (:func:`~mbs_models.exudyn_link.build_link_model`, drive
 ``"free"``) twice with the same integrator and the same steps:
 
 * the **reference** run from the periodic orbit's state at ``t = 0`` (the
-  orbit of :func:`~mbs_models.orbit.find_periodic_orbit`, whose feed-forward
+  orbit of :func:`~linearize.link_orbit.find_periodic_orbit`, whose feed-forward
   torque makes it the closed-loop orbit for any gains);
 * the **perturbed** run from the same state with the hub velocity raised by
   ``perturbation`` (paper Eqs. 26/35: ``y_1' (0) = 0.25 pi`` rad/s; in the
@@ -23,7 +23,7 @@ and the per-period ratio is fitted by least squares on ``ln s_k`` against
 out, is left out).  It is compared with the dominant multiplier predicted by
 (a) the paper's reduced model (:class:`~mbs_models.reduced.ReducedModel`) and
 (b) the Exudyn linearisation along the orbit
-(:func:`~mbs_models.exudyn_floquet.exudyn_floquet`).
+(:func:`~linearize.link_floquet.exudyn_floquet`).
 
 Maths
 -----
@@ -167,7 +167,7 @@ class ValidationResult:
         Spectral radius of the reduced model (paper constants).
     predicted_multiplier_exudyn : float
         ``|rho|`` of the dominant multiplier of the Exudyn linearisation
-        (paper's modes, see :class:`~mbs_models.exudyn_floquet.ExudynFloquetResult`).
+        (paper's modes, see :class:`~linearize.link_floquet.ExudynFloquetResult`).
     predicted_mode_exudyn : str
         Its mode label (``"hub"``, ...).
     spectral_radius_exudyn : float
@@ -454,7 +454,7 @@ def validate_closed_loop(
     ValueError
         On invalid arguments (non-positive periods or elements, non-finite
         omega, negative gains, ...).
-    mbs_models.orbit.OrbitConvergenceError
+    linearize.link_orbit.OrbitConvergenceError
         If the periodic orbit cannot be found (there is nothing to validate).
 
     Examples
@@ -482,7 +482,7 @@ def validate_closed_loop(
     if not isinstance(params, ManipulatorParameters):
         raise ValueError(f"params must be ManipulatorParameters, got {type(params).__name__}")
 
-    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

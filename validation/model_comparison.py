@@ -76,8 +76,8 @@ def compare_models(
     progress : callable, optional
         Called with a short text before each case.
     """
-    from mbs_models.exudyn_floquet import direct_monodromy, exudyn_floquet
-    from mbs_models import find_periodic_orbit, rigid_reference
+    from linearize.link_floquet import direct_monodromy, exudyn_floquet
+    from linearize.link_orbit import find_periodic_orbit, rigid_reference
     from mbs_models.exudyn_link import ExudynLinkConfig
     from mbs_models.reduced import ReducedModel
     from stability import floquet

@@ -40,7 +40,9 @@ Method
    the compared multipliers (|rho| ~ 0.05-0.4) die out against the undamped
    modes (|rho| ~ 1) within a few periods.
 4. **Step convergence.**  The same at ``h, h/2, h/4`` (``refinements``
-   halvings).  Reported value: the finest step.  Error bar ``step_error``:
+   halvings).  Reported value: the Richardson extrapolation of the three
+   levels with the observed ratio (the finest level when fewer levels or no
+   convergence).  Error bar ``step_error``:
    with three levels, Richardson with the observed ratio
    ``q = |mu_h - mu_h/2| / |mu_h/2 - mu_h/4|``: ``1.25 |mu_h/2 - mu_h/4| / (q - 1)``
    (the error of the finest value for a method converging as ``q^-j``, with
@@ -272,7 +274,7 @@ def _select(multipliers: np.ndarray, labels: Sequence[str], allowed: Optional[Se
     mu = np.asarray(multipliers)
     cand = [i for i in np.argsort(-np.abs(mu), kind="stable")
             if abs(mu[i]) >= MULTIPLIER_FLOOR and abs(abs(mu[i]) - 1.0) >= undamped_tol
-            and (allowed is None or labels[i] in allowed)]
+            and (labels[i] in allowed if allowed is not None else not labels[i].endswith("(unresolved)"))]
     chosen: list = []
     for i in cand:
         if len(chosen) >= k:
@@ -416,7 +418,8 @@ class MultiplierValidation:
     ----------
     prediction : Prediction
     measured : ndarray, complex, shape (k,)
-        Measured multipliers at the finest step, ordered as the prediction.
+        Measured multipliers, ordered as the prediction: Richardson-extrapolated
+        from three converging step levels, else the finest step.
     levels : ndarray, complex, shape (levels, k)
         Measured multipliers per step ``config.steps``.
     galerkin : ndarray, complex, shape (k,)
@@ -441,6 +444,10 @@ class MultiplierValidation:
     config : MultiplierCheckConfig
     orbit : PeriodicOrbit or None
         The orbit the runs started from (built-in link; reusable for other gains).
+    converged : ndarray of bool, shape (k,)
+        Step refinement converging, per multiplier.
+    agrees_dominant : bool
+        The verdict restricted to the dominant multiplier (or pair).
     """
 
     prediction: Prediction
@@ -462,6 +469,8 @@ class MultiplierValidation:
     info: dict
     config: MultiplierCheckConfig
     orbit: Any = field(default=None, repr=False)
+    converged: Optional[np.ndarray] = None
+    agrees_dominant: bool = False
 
     @property
     def confirms(self) -> list:
@@ -490,7 +499,8 @@ class MultiplierValidation:
                     "step_error": self.step_error[i],
                     "amplitude_error": self.amplitude_error[i],
                     "error_bar": self.errors[i],
-                    "agrees": bool(d <= self.errors[i]),
+                    "step_converged": bool(self.converged[i]) if self.converged is not None else None,
+                    "agrees": bool(d <= self.errors[i] and (self.converged is None or self.converged[i])),
                     "levels": [[z.real, z.imag] for z in self.levels[:, i]],
                     "galerkin": [self.galerkin[i].real, self.galerkin[i].imag],
                 })
@@ -516,6 +526,7 @@ class MultiplierValidation:
             "diverged_at": self.diverged_at,
             "reason": self.reason,
             "agrees": self.agrees,
+            "agrees_dominant": self.agrees_dominant,
             "growth": None if self.growth is None else self.growth.to_dict(),
             "integrator": f"generalised-alpha, spectralRadius = {self.config.spectral_radius:g}"
                           + (" (no numerical damping)" if self.config.spectral_radius == 1.0 else ""),
@@ -568,34 +579,45 @@ def _eigs_matched(A: np.ndarray, target: np.ndarray) -> np.ndarray:
     return out
 
 
+#: A multiplier counts as measured only if its step error bar is below this fraction of its modulus.
+MEASURED_FRACTION = 0.1
+
 #: Safety factor of the three-level step error (Roache's grid convergence index, observed order).
 #: Measured need: Kapitza pendulum, h = T/128 ... T/512, ratio 4.25: the plain Richardson estimate
 #: (1.06e-5) was 10 % below the true error of the finest level against Mathieu (1.17e-5).
 GCI_SAFETY = 1.25
 
 
-def _step_error(levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Richardson error bar of the finest level (see the module docstring, item 4)."""
+def _step_error(levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step error bar, observed ratio, per-multiplier convergence and the reported value.
+
+    See the module docstring, item 4.  With three converging levels the reported value is the
+    Richardson extrapolation ``mu_h/4 + (mu_h/4 - mu_h/2) / (q - 1)`` and the bar is the GCI of
+    the finest level (an upper estimate for the extrapolated value); otherwise the finest level.
+    """
     m, k = levels.shape
     ratio = np.full(k, math.nan)
     if m == 1:
-        return np.full(k, math.nan), ratio, False
+        return np.full(k, math.nan), ratio, np.zeros(k, dtype=bool), levels[-1].copy()
     d1 = np.abs(levels[-2] - levels[-1])
     if m == 2:
-        return d1, ratio, True
+        return d1, ratio, np.ones(k, dtype=bool), levels[-1].copy()
     d0 = np.abs(levels[-3] - levels[-2])
     err = np.empty(k)
-    ok = True
+    ok = np.ones(k, dtype=bool)
+    value = levels[-1].copy()
     for i in range(k):
         q = d0[i] / d1[i] if d1[i] > 0 else math.inf
         ratio[i] = q
         if q >= 1.1:
             # Roache's grid convergence index: safety factor 1.25 on the observed-order estimate
             err[i] = GCI_SAFETY * d1[i] / (q - 1.0) if math.isfinite(q) else 0.0
+            if math.isfinite(q):
+                value[i] = levels[-1, i] + (levels[-1, i] - levels[-2, i]) / (q - 1.0)
         else:
             err[i] = 10.0 * max(d0[i], d1[i])
-            ok = False
-    return err, ratio, ok
+            ok[i] = False
+    return err, ratio, ok, value
 
 
 def measure_multipliers(
@@ -671,10 +693,14 @@ def measure_multipliers(
         measured = np.empty(0, dtype=complex)
         step_err = amp_err = errors = obs = np.full(k, math.nan)
         step_ok = False
+        conv = np.zeros(k, dtype=bool)
         galerkin = np.full(k, math.nan + 0j)
     else:
-        measured = L[-1]
-        step_err, obs, step_ok = _step_error(L)
+        step_err, obs, conv, measured = _step_error(L)
+        # a bar that is not small against the multiplier is no measurement of it (e.g. two levels
+        # far apart): not converged, whatever the number of levels
+        conv = conv & (step_err <= MEASURED_FRACTION * np.maximum(np.abs(measured), np.abs(pred)))
+        step_ok = bool(np.all(conv))
         amp_err = np.where(np.isfinite(amp_change), 4.0 / 3.0 * amp_change, 0.0)
         errors = np.nan_to_num(step_err, nan=0.0) + amp_err + prediction.errors
     amp = {
@@ -697,7 +723,10 @@ def measure_multipliers(
             matched, dist, cons = alt.multipliers[:k], math.nan, False
         alts.append(Alternative(alt.name, matched, dist, cons))
     # a verdict needs a converged measurement: no agreement claimed on a bar that is not an error estimate
-    agrees = bool(measured.size and not diverged and step_ok and np.all(np.abs(measured - pred) <= errors))
+    within = (np.abs(measured - pred) <= errors) & conv if measured.size else np.zeros(k, dtype=bool)
+    agrees = bool(measured.size and not diverged and np.all(within))
+    top = np.abs(pred) >= (1.0 - 1e-9) * float(np.max(np.abs(pred)))
+    agrees_dominant = bool(measured.size and not diverged and np.all(within[top]))
     timings["measurement"] = time.perf_counter() - tic
     info.setdefault("period", period)
     info["timings"] = {**info.get("timings", {}), **timings}
@@ -705,7 +734,7 @@ def measure_multipliers(
         prediction=prediction, measured=measured, levels=L, galerkin=galerkin, step_error=step_err,
         amplitude_error=amp_err, errors=errors, observed_ratio=obs, step_converged=step_ok,
         amplitude_check=amp, alternatives=tuple(alts), diverged=diverged, diverged_at=at, reason=reason,
-        agrees=agrees, growth=None, info=info, config=config,
+        agrees=agrees, growth=None, info=info, config=config, converged=conv, agrees_dominant=agrees_dominant,
     )
 
 
@@ -775,7 +804,7 @@ def measure_growth(
 
 # --------------------------------------------------------------------------- the built-in link
 #: Modes of the built-in link that are compared: those the paper's reduced model has (hub angle,
-#: first bending mode), as ``mbs_models.exudyn_floquet.PAPER_MODES``.
+#: first bending mode), as ``linearize.link_floquet.PAPER_MODES``.
 LINK_COMPARED_MODES = ("hub", "bending 1")
 
 #: A mode is compared only if generalised-alpha (trapezoidal, rho_inf = 1) resolves it at the finest
@@ -838,7 +867,7 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
 
 
 def _link_prediction(ex: Any, name: str, k: int, allowed: Optional[Sequence[str]], h_min: float = 0.0) -> Prediction:
-    """Prediction of an :class:`~mbs_models.exudyn_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`)."""
+    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`)."""
     return _refined_prediction(name, ex.floquet, ex.linearization, [m["mode"] for m in ex.modes], k, allowed,
                                [m["frequency_hz"] for m in ex.modes], h_min)
 
@@ -889,7 +918,7 @@ def validate_link_multipliers(
     ValueError
         On invalid arguments.
     """
-    from mbs_models.exudyn_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
     from mbs_models.exudyn_link import build_link_model
     from mbs_models.parameters import ManipulatorParameters
     from mbs_models.reduced import ReducedModel
@@ -1135,7 +1164,9 @@ def validate_model_multipliers(
             name += f" with kp = {predicted_gains[0]}, kd = {predicted_gains[1]}"
         res = tested.floquet
         prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
-                                         config.compare, None)
+                                         config.compare, None,
+                                         [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
+                                         config.steps[-1])
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)

@@ -79,11 +79,11 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
         json.dumps([cfg.manipulator.to_dict(), args.constants], sort_keys=True).encode()
     ).hexdigest()[:8]
     if exudyn:
-        from mbs_models.exudyn_floquet import exudyn_plant
+        from linearize.link_floquet import exudyn_plant
 
         elements = getattr(args, "elements", None) or cfg.elements
         tag = f"w{omega:.6g}_exudyn{elements}_{fingerprint}"
-        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements)
+        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements, prepared=True)
         task = PlantRadius(plant, float(omega))
         omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
         objective = GainObjective(plant)

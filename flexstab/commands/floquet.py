@@ -71,7 +71,7 @@ def floquet_report(args: argparse.Namespace) -> dict:
         res = floquet(model, method=method, small_multipliers=args.small_multipliers)
         out["constants"] = args.constants
     else:
-        from mbs_models.exudyn_floquet import exudyn_floquet  # provided by the Exudyn layer
+        from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
 
         elements = args.elements if args.elements is not None else cfg.elements
         ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,

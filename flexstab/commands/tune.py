@@ -42,9 +42,10 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
         from mbs_models.reduced import ReducedModel
 
         return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
-    from mbs_models.exudyn_floquet import exudyn_plant  # the Exudyn linearisation
+    from linearize.link_floquet import exudyn_plant  # the Exudyn linearisation
 
-    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements)
+    # prepared: the linearisation is interpolated, solved and balanced once, not per gain pair
+    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True)
 
 
 def robust_report(args: argparse.Namespace) -> dict:
@@ -129,10 +130,11 @@ def tune_report(args: argparse.Namespace) -> dict:
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     out.update(res.to_dict())
     if hasattr(plant, "spectral_measure"):
-        # Exudyn: re-check the dominant damped multiplier with twice the propagator steps
+        # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
+        # unprepared plant (an independent path to P(t): gains written into K, C and interpolated)
         import dataclasses
 
-        finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
+        finer = dataclasses.replace(getattr(plant, "plant", plant), n_steps=2 * plant.n_steps)
         out["verified_spectral_radius"] = finer.spectral_measure(res.kp, res.kd)
         out["verified_error_estimate"] = None
         out["elements"] = args.elements or cfg.elements

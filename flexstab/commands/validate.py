@@ -257,13 +257,15 @@ def _text(d: dict) -> str:
         f"amplitude check (a = {a['amplitude']:g} -> {a['half']:g}, h = {a['step']:g} s): change "
         f"{', '.join(f(c) for c in (a['change'] or []))} -> {'passed' if a['passed'] else 'NOT passed'}",
         f"step convergence: observed ratio {', '.join(f(q) for q in (d['observed_ratio'] or []))}"
-        f" ({'converging' if d['step_converged'] else 'NOT converging'})",
+        f" ({'converging' if d['step_converged'] else 'NOT converging'}); measured = Richardson extrapolation"
+        f" when three levels converge, else the finest step",
     ]
     for alt in d["alternatives"]:
         verdict = ("no measurement" if alt["distance"] is None
                    else ("consistent with" if alt["consistent"] else "excluded by") + " the measurement")
         lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> {verdict}")
-    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'}; the measurement confirms: {', '.join(d['confirms']) or 'none'}")
+    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'} (dominant: {'yes' if d['agrees_dominant'] else 'no'}); "
+                 f"the measurement confirms: {', '.join(d['confirms']) or 'none'}")
     g = d.get("growth")
     if g:
         lines.append(
