@@ -323,7 +323,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
-    from linearize.link_floquet import ExudynPlant, PreparedExudynPlant, exudyn_floquet
+    from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -334,11 +334,12 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
     # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
     # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
-    plant = PreparedExudynPlant(ExudynPlant(ef.linearization.with_gains(0.0, 0.0)))
+    plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
     uncontrolled = plant.spectral_measure(0.0, 0.0)
     tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                         max_evaluations=100 if opts.quick else 300)
-    tuned = taguchi_tune(GainObjective(plant), tcfg)  # in this process: the workspace is built once
+    # in this process (the study's second process runs beside the others): one workspace, no pool
+    tuned = taguchi_tune(GainObjective(plant), tcfg)
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
