@@ -925,7 +925,7 @@ def validate_link_multipliers(
     ValueError
         On invalid arguments.
     """
-    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet
     from mbs_models.exudyn_link import build_link_model
     from mbs_models.parameters import ManipulatorParameters
     from mbs_models.reduced import ReducedModel
