@@ -356,6 +356,8 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
+        # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
+        "orbit_shooting_residual": float(ef.orbit.shooting_residual),
         "uncontrolled_dominant": uncontrolled,
         "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
         "reference_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),
