@@ -23,12 +23,13 @@ def main(argv=None) -> int:
     ap.add_argument("--elements", type=int, default=None, help="elements per link (default: the model's)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--target", type=float, default=0.3)
+    ap.add_argument("--steps", type=int, default=2048, help="magnus2 sub-intervals (analysis and tuning loop)")
     ap.add_argument("--compare", action="store_true", help="also Nelder-Mead and differential evolution")
     ap.add_argument("--direct", action="store_true", help="also the direct Exudyn monodromy (2 elements)")
     args = ap.parse_args(argv)
 
     from flexstab.executor import make_executor
-    from flexstab.two_link import MODEL, TUNING_RANGES, dominant_damped, tune_four_gains, tuning_objective
+    from flexstab.two_link import MODEL, TUNING_RANGES, LabelledGainObjective, dominant_damped, tune_four_gains
     from linearize.analysis import analyze
     from linearize.constrained import linearize_orbit
     from linearize.periodic_orbit import find_orbit
@@ -37,25 +38,26 @@ def main(argv=None) -> int:
     from taguchi.tuning import TuningConfig
 
     opts = {} if args.elements is None else {"elements": args.elements}
+    fopts = {"method": "magnus2", "n_steps": args.steps, "error_estimate": False}
     model = builtin_model(MODEL, **opts)
     rows = []
     for k in (2, 4):
         omega = k * math.pi
         t0 = time.perf_counter()
-        res = analyze(model, omega)
+        res = analyze(model, omega, n_steps=args.steps)
         t_analyze = time.perf_counter() - t0
         lin0 = linearize_orbit(res.orbit, 0.0, 0.0)
         with make_executor("process", max_workers=args.workers) as ex:
             list(ex.map(abs, range(args.workers)))  # start the workers before the clock
             t0 = time.perf_counter()
-            tuned = tune_four_gains(lin0, args.target, executor=ex)
+            tuned = tune_four_gains(lin0, args.target, orbit=res.orbit, executor=ex, floquet_options=fopts)
             t_tune = time.perf_counter() - t0
         row = {"omega": omega, "analyze_s": t_analyze, "timings": res.timings,
                "dominant_uncontrolled": abs(res.dominant_multiplier),
                "tuning_s": t_tune, "tuning_evaluations": tuned.evaluations, "tuned_gains": list(tuned.gains),
                "tuned_rho": tuned.spectral_radius, "converged": tuned.converged}
         if args.compare:
-            obj = tuning_objective(lin0)
+            obj = LabelledGainObjective(lin0, res.orbit, fopts)
             cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
             row["direct"] = [direct_tune(obj, cfg, m).to_dict() for m in ("nelder-mead", "differential-evolution")]
         if args.direct:

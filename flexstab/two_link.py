@@ -147,10 +147,14 @@ class GainSlices:
                 "shoulder": self.shoulder.tolist(), "elbow": self.elbow.tolist(), "fixed": list(self.fixed)}
 
 
-def gain_slices(lin: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES, points: int = 9,
-                executor: Any = None) -> GainSlices:
-    """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1)."""
-    obj = tuning_objective(lin)
+def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: Sequence = TUNING_RANGES,
+                points: int = 9, executor: Any = None, floquet_options: Optional[dict] = None) -> GainSlices:
+    """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1).
+
+    With ``orbit`` the response is the labelled dominant multiplier (:class:`LabelledGainObjective`).
+    """
+    obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
+           else tuning_objective(lin, floquet_options))
     grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
     grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
     out = []

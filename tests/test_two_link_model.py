@@ -104,6 +104,7 @@ def _solver(mbs):
     s = exu.MainSolverImplicitSecondOrder()
     settings = exu.SimulationSettings()
     settings.linearSolver.solverType = exu.LinearSolverType.EigenDense
+    settings.solution.file.write = False  # no solution/ folder in the working directory
     s.InitializeSolver(mbs, settings)
     return s
 
@@ -194,7 +195,9 @@ def _analytic_hz(count, **kw):
 
 def _locked_hz(elements):
     _, mbs, _ = _system(elements=elements, lock=True, gravity=0.0)
-    hz, _ = mbs.ComputeODE2Eigenvalues(convert2Frequencies=True)
+    settings = exu.SimulationSettings()
+    settings.solution.file.write = False
+    hz, _ = mbs.ComputeODE2Eigenvalues(simulationSettings=settings, convert2Frequencies=True)
     return np.sort(np.asarray(hz))[:2]
 
 
