@@ -39,6 +39,18 @@ never mixes runs (:func:`render_report` raises otherwise).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.
+
+Processes
+---------
+With ``jobs=2`` (default) the Exudyn chain (:data:`EXUDYN_LANE`: ``exudyn`` then
+``validation``, which reads the gains ``exudyn`` tuned) runs in a second
+process, forked once from the main thread with matplotlib and pydoe already
+imported (only that process imports Exudyn), while this process runs the other
+stages in order; the transient cases and the chart points run in process pools
+of their own.  Every record is written by this process as its stage finishes,
+with the stage's wall time and CPU time (``time.process_time`` of the process
+that ran it plus ``RUSAGE_CHILDREN`` of its pools).  A new stage that runs
+Exudyn belongs in :data:`EXUDYN_LANE`.
 """
 from __future__ import annotations
 
@@ -344,6 +356,8 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
+        # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
+        "orbit_shooting_residual": float(ef.orbit.shooting_residual),
         "uncontrolled_dominant": uncontrolled,
         "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
         "reference_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),
