@@ -110,7 +110,13 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
         with _Stage(st, "floquet_dense", floquet_limit):
             res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
         if res is None and fallback_steps and "GB of work arrays" in st["floquet_dense"].get("error", ""):
-            # the engine holds all sub-interval propagators at once: retry with fewer (coarser) steps
+            # the engine holds all sub-interval propagators at once: retry with the largest power
+            # of two of steps within its memory limit (fallback_steps < 0) or the given count
+            if fallback_steps < 0:
+                from stability.floquet import MEMORY_LIMIT, WORK_ARRAYS
+
+                fit = MEMORY_LIMIT / (WORK_ARRAYS * 8.0 * lin.size**2 * 4)  # magnus2: one node; 2r states
+                fallback_steps = 2 ** int(math.floor(math.log2(max(fit, 2.0))))
             first = st.pop("floquet_dense")
             with _Stage(st, "floquet_dense", floquet_limit):
                 res = floquet(lin, method="magnus2", n_steps=fallback_steps, accuracy="moduli")
@@ -215,7 +221,8 @@ def main(argv=None) -> int:
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
     ap.add_argument("--fallback-steps", type=int, default=0,
-                    help="dense Floquet steps when --steps exceeds the engine's memory limit (0: none)")
+                    help="dense Floquet steps when --steps exceeds the engine's memory limit "
+                         "(0: none, -1: the largest power of two within it)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
     ap.add_argument("--floquet-limit", type=float, default=300.0,
                     help="wall seconds per Floquet stage before it is recorded as not finished")

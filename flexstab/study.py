@@ -39,6 +39,18 @@ never mixes runs (:func:`render_report` raises otherwise).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.
+
+Processes
+---------
+With ``jobs=2`` (default) the Exudyn chain (:data:`EXUDYN_LANE`: ``exudyn`` then
+``validation``, which reads the gains ``exudyn`` tuned) runs in a second
+process, forked once from the main thread with matplotlib and pydoe already
+imported (only that process imports Exudyn), while this process runs the other
+stages in order; the transient cases and the chart points run in process pools
+of their own.  Every record is written by this process as its stage finishes,
+with the stage's wall time and CPU time (``time.process_time`` of the process
+that ran it plus ``RUSAGE_CHILDREN`` of its pools).  A new stage that runs
+Exudyn belongs in :data:`EXUDYN_LANE`.
 """
 from __future__ import annotations
 
@@ -323,7 +335,7 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
-    from linearize.link_floquet import ExudynPlant, PreparedExudynPlant, exudyn_floquet
+    from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -334,15 +346,18 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
     # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
     # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
-    plant = PreparedExudynPlant(ExudynPlant(ef.linearization.with_gains(0.0, 0.0)))
+    plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
     uncontrolled = plant.spectral_measure(0.0, 0.0)
     tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                         max_evaluations=100 if opts.quick else 300)
-    tuned = taguchi_tune(GainObjective(plant), tcfg)  # in this process: the workspace is built once
+    # in this process (the study's second process runs beside the others): one workspace, no pool
+    tuned = taguchi_tune(GainObjective(plant), tcfg)
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
+        # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
+        "orbit_shooting_residual": float(ef.orbit.shooting_residual),
         "uncontrolled_dominant": uncontrolled,
         "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
         "reference_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),

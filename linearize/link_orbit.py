@@ -1,5 +1,9 @@
 """The T-periodic motion of the Exudyn link with the hub on its fundamental motion.
 
+Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
+``tests/test_model_file.py``), which is the package's route for any model.
+
 The undeformed rigid motion is *not* a solution of the ANCF equations:
 centrifugal and gravity loads prestress and bend the link.  The true periodic
 solution with the hub angle prescribed, ``q_a(t) = q_a^R(t)``, is found here,
