@@ -72,8 +72,11 @@ class _Stage:
             "ok": exc[0] is None,
         }
         if exc[0] is StageTimeout:
-            self.out[self.name]["timeout_s"] = self.limit
+            self.out[self.name]["error"] = f"not finished within {self.limit:.0f} s"
             return True  # recorded as not finished; the next stages run
+        if exc[0] is not None and self.name.startswith("floquet"):
+            self.out[self.name]["error"] = " ".join(f"{exc[0].__name__}: {exc[1]}".split())[:300]
+            return True  # a Floquet method that cannot run is a result; the other one still runs
         return False
 
 
@@ -82,7 +85,7 @@ def _cplx(z) -> list:
 
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
-           floquet_limit: float = 0.0) -> dict:
+           floquet_limit: float = 0.0, fallback_steps: int = 0) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -106,12 +109,26 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
         res = None
         with _Stage(st, "floquet_dense", floquet_limit):
             res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
+        if res is None and fallback_steps and "GB of work arrays" in st["floquet_dense"].get("error", ""):
+            # the engine holds all sub-interval propagators at once: retry with the largest power
+            # of two of steps within its memory limit (fallback_steps < 0) or the given count
+            if fallback_steps < 0:
+                from stability.floquet import MEMORY_LIMIT, WORK_ARRAYS
+
+                fit = MEMORY_LIMIT / (WORK_ARRAYS * 8.0 * lin.size**2 * 4)  # magnus2: one node; 2r states
+                fallback_steps = 2 ** int(math.floor(math.log2(max(fit, 2.0))))
+            first = st.pop("floquet_dense")
+            with _Stage(st, "floquet_dense", floquet_limit):
+                res = floquet(lin, method="magnus2", n_steps=fallback_steps, accuracy="moduli")
+            st["floquet_dense"]["n_steps"] = fallback_steps
+            st["floquet_dense"]["first_attempt"] = first
     if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
         damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
         rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
                         "dominant_damped": _cplx(damped[0]) if damped else None,
                         "error_estimate": float(getattr(res, "error_estimate", math.nan)),
+                        "n_steps": int(st["floquet_dense"].get("n_steps", n_steps)),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
     if implicit:
         imp = None
@@ -128,8 +145,11 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
             diffs = [float(np.min(np.abs(dense_mult - z))) for z, c in zip(mult, imp.certified) if c]
             rec["implicit"]["max_diff_to_dense"] = max(diffs) if diffs else math.nan
     rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    rec["total_cpu_s"] = sum(v["cpu_s"] for v in st.values())
-    rec["total_wall_s"] = sum(v["wall_s"] for v in st.values())
+    # the pipeline as analyze() runs it: orbit + linearisation + dense Floquet
+    pipeline = [st[s] for s in ("orbit", "linearization", "floquet_dense") if s in st and "error" not in st[s]]
+    rec["pipeline_complete"] = len(pipeline) == 3
+    rec["total_cpu_s"] = sum(v["cpu_s"] for v in pipeline)
+    rec["total_wall_s"] = sum(v["wall_s"] for v in pipeline)
     return rec
 
 
@@ -142,9 +162,10 @@ def growth_exponents(records: list) -> dict:
         xs, ys = [], []
         for r in records:
             if stage == "total":
-                v = r.get("total_cpu_s")
+                v = r.get("total_cpu_s") if r.get("pipeline_complete") else None
             else:
-                v = r.get("stages", {}).get(stage, {}).get("cpu_s")
+                rec = r.get("stages", {}).get(stage, {})
+                v = None if "error" in rec else rec.get("cpu_s")
             if v and v > 0:
                 xs.append(math.log(r["elements"]))
                 ys.append(math.log(v))
@@ -156,28 +177,38 @@ def _fmt(x, spec=".2f") -> str:
     return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
+def _cell(st: dict, stage: str) -> str:
+    v = st.get(stage)
+    if v is None:
+        return "not run"
+    if "error" in v:
+        e = v["error"]
+        return "refused (memory)" if "GB of work arrays" in e else ("> limit" if "not finished" in e else "failed")
+    steps = f" [{v['n_steps']} steps]" if "n_steps" in v else ""
+    return f"{v['cpu_s']:.2f}{steps}"
+
+
 def markdown(records: list, exps: dict) -> str:
-    head = ("| elements | ODE2 / states | orbit CPU s (wall) | lin. CPU s | Floquet dense CPU s | "
-            "Floquet implicit CPU s | total CPU s (wall) | peak RSS MB | orbit residual | dominant multiplier | "
-            "abs(rho_dom) | implicit vs dense |")
-    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    cols = ["elements", "ODE2 / states", "orbit CPU s (wall)", "lin. CPU s", "Floquet dense CPU s",
+            "Floquet implicit CPU s", "pipeline CPU s (wall)", "peak RSS MB", "orbit residual (tol 1e-6)",
+            "dominant multiplier (largest off the unit circle)", "modulus", "implicit vs dense"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in records:
         if "error" in r:
-            lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (head.count("|") - 3))
+            lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (len(cols) - 2))
             continue
         st = r["stages"]
-        dom = r.get("dense", r.get("implicit", {})).get("dominant")
-        g = lambda s, key="cpu_s": st.get(s, {}).get(key)  # noqa: E731
+        dom = r.get("dense", {}).get("dominant_damped")
+        total = f"{r['total_cpu_s']:.2f} ({r['total_wall_s']:.2f})" + ("" if r.get("pipeline_complete") else " no Floquet")
         lines.append(
-            f"| {r['elements']} | {r['ode2']} / {r['states']} | {_fmt(g('orbit'))} ({_fmt(g('orbit', 'wall_s'))}) | "
-            f"{_fmt(g('linearization'))} | {_fmt(g('floquet_dense'))} | {_fmt(g('floquet_implicit'))} | "
-            f"{_fmt(r['total_cpu_s'])} ({_fmt(r['total_wall_s'])}) | {_fmt(r['peak_rss_mb'], '.0f')} | "
-            f"{_fmt(r['orbit_residual'], '.1e')} | "
+            f"| {r['elements']} | {r['ode2']} / {r['states']} | {st['orbit']['cpu_s']:.2f} ({st['orbit']['wall_s']:.2f}) | "
+            f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
+            f"{total} | {r['peak_rss_mb']:.0f} | {r['orbit_residual']:.1e} | "
             + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
             + f" | {_fmt(r.get('implicit', {}).get('max_diff_to_dense'), '.1e')} |")
     lines.append("")
-    lines.append("Growth exponent (CPU s ~ elements^p, least squares): "
-                 + ", ".join(f"{s} p = {_fmt(v)}" for s, v in exps.items()))
+    lines.append("Growth exponent p (CPU s ~ elements^p, least squares over the meshes where the stage finished): "
+                 + ", ".join(f"{s} {_fmt(v)}" for s, v in exps.items()))
     return "\n".join(lines)
 
 
@@ -189,6 +220,9 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
+    ap.add_argument("--fallback-steps", type=int, default=0,
+                    help="dense Floquet steps when --steps exceeds the engine's memory limit "
+                         "(0: none, -1: the largest power of two within it)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
     ap.add_argument("--floquet-limit", type=float, default=300.0,
                     help="wall seconds per Floquet stage before it is recorded as not finished")
@@ -198,7 +232,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
-                     args.floquet_limit)
+                     args.floquet_limit, args.fallback_steps)
         print(json.dumps(rec))
         return 0
     records = []
@@ -206,7 +240,7 @@ def main(argv=None) -> int:
     for e in args.elements:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
                "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
-               "--floquet-limit", str(args.floquet_limit)]
+               "--floquet-limit", str(args.floquet_limit), "--fallback-steps", str(args.fallback_steps)]
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

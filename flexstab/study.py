@@ -39,6 +39,18 @@ never mixes runs (:func:`render_report` raises otherwise).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.
+
+Processes
+---------
+With ``jobs=2`` (default) the Exudyn chain (:data:`EXUDYN_LANE`: ``exudyn`` then
+``validation``, which reads the gains ``exudyn`` tuned) runs in a second
+process, forked once from the main thread with matplotlib and pydoe already
+imported (only that process imports Exudyn), while this process runs the other
+stages in order; the transient cases and the chart points run in process pools
+of their own.  Every record is written by this process as its stage finishes,
+with the stage's wall time and CPU time (``time.process_time`` of the process
+that ran it plus ``RUSAGE_CHILDREN`` of its pools).  A new stage that runs
+Exudyn belongs in :data:`EXUDYN_LANE`.
 """
 from __future__ import annotations
 
@@ -47,11 +59,14 @@ import hashlib
 import json
 import logging
 import math
+import os
+import resource
+import threading
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Callable, Optional, Sequence
 
 from flexstab.config import StudyConfig
 from flexstab.report import figure, relative, table, text, to_html, to_markdown
@@ -85,6 +100,9 @@ class StudyOptions:
         (the CLI writes these lines to stderr when stderr is not a terminal).
     resume : bool
         Reuse finished stages whose inputs are unchanged (default True).
+    jobs : int
+        Processes (default 2): with 2, the Exudyn chain (:data:`EXUDYN_LANE`) runs in a second
+        process beside the other stages; 1 runs every stage in this process.
     """
 
     out: Path = Path("results")
@@ -94,6 +112,7 @@ class StudyOptions:
     scheduler: Optional[str] = None
     log: Optional[Callable[[str], None]] = None
     resume: bool = True
+    jobs: int = 2
 
 
 @dataclass(frozen=True)
@@ -288,7 +307,11 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
             cases += list(paper_case_pair(k))
         else:
             cases += [Case(None, w, gains_source="no control"), Case(None, w, kp, kd, gains_source=source)]
-    doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator, cases=cases)
+    from flexstab.executor import make_executor
+
+    # the cases are independent: two processes (the figures are half the stage's time)
+    with make_executor("process" if len(cases) > 1 else "serial", max_workers=2) as ex:
+        doc = make_transients(opts.out, quick=opts.quick, params=cfg.manipulator, cases=cases, executor=ex)
     figs = [c["figure_file"] for c in doc["cases"]]
     rows = []
     for c in doc["cases"]:
@@ -312,7 +335,6 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
-    from flexstab.executor import make_executor
     from linearize.link_floquet import ExudynPlant, exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
@@ -321,17 +343,21 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
     omega = cfg.omega
     kp_r, kd_r, source = _reference_gains(cfg, opts)
-    with make_executor("process" if not opts.quick else "serial", max_workers=2) as ex:
-        ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
-        plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
-        uncontrolled = plant.spectral_measure(0.0, 0.0)
-        tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
-                            max_evaluations=100 if opts.quick else 300)
-        tuned = taguchi_tune(GainObjective(plant), tcfg, executor=ex)
+    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
+    # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
+    # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
+    plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
+    uncontrolled = plant.spectral_measure(0.0, 0.0)
+    tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
+                        max_evaluations=100 if opts.quick else 300)
+    # in this process (the study's second process runs beside the others): one workspace, no pool
+    tuned = taguchi_tune(GainObjective(plant), tcfg)
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
+        # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
+        "orbit_shooting_residual": float(ef.orbit.shooting_residual),
         "uncontrolled_dominant": uncontrolled,
         "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
         "reference_gains_dominant_exudyn": float(abs(ef.dominant_multiplier)),
@@ -539,7 +565,8 @@ def render_report(out: Path) -> tuple[Path, Path]:
             p = out / f
             if not p.exists() or _file_sha(p) != sha:
                 raise RuntimeError(f"{out}: {f} changed after stage {name!r} wrote it; the report would mix runs")
-        head = f"Data: `{rec['json']}`; {rec['elapsed']:.1f} s"
+        head = f"Data: `{rec['json']}`; {rec['elapsed']:.1f} s" + (
+            f" (CPU {rec['cpu']:.1f} s)" if isinstance(rec.get("cpu"), (int, float)) else "")
         if entry.get("status") == "reused":
             head += f"; reused from the run finished at {rec['finished_at']} (inputs unchanged)"
             reused.append(title)
@@ -574,8 +601,50 @@ def _prepare_out(out: Path) -> None:
         raise ValueError(f"output folder {str(out)!r} cannot be written: {exc.strerror}") from None
 
 
+#: Stages that run in the second process when the study runs on two processes (``jobs=2``): the
+#: Exudyn chain (``validation`` reads the gains ``exudyn`` tuned).  Only that process imports Exudyn.
+EXUDYN_LANE = ("exudyn", "validation")
+
+
+def _cpu_now() -> float:
+    """CPU seconds of this process and of its finished (waited-for) child processes."""
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ch.ru_utime + ch.ru_stime
+
+
+def _execute(name: str, cfg: StudyConfig, opts: StudyOptions) -> tuple[dict, float, float]:
+    """Run stage ``name``; return its result, wall and CPU seconds (this process + its pools)."""
+    ts, cs = time.perf_counter(), _cpu_now()
+    r = STAGES[name](cfg, opts)
+    return r, time.perf_counter() - ts, _cpu_now() - cs
+
+
+def _preload(stages: Sequence[str]) -> None:
+    """Import before forking what both processes need (matplotlib, pydoe's verified arrays)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+
+    if any(s in stages for s in ("table3", "charts", "exudyn")):
+        from taguchi.arrays import available_arrays
+
+        available_arrays()  # loads and verifies the catalogue (imports pydoe -> scipy.stats) once
+
+
+def _lane_worker_init(parent_pid: int) -> None:
+    """Initializer of the study's second process: quiet, and ends with the parent."""
+    from flexstab.executor import exit_with_parent
+
+    exit_with_parent(parent_pid)
+
+
 def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOptions()) -> StudyResult:
     """Run the study's stages and write ``report.md`` / ``report.html`` to ``opts.out``.
+
+    With ``opts.jobs >= 2`` and stages on both sides, the Exudyn chain (:data:`EXUDYN_LANE`) runs
+    in a second process while this process runs the other stages in order; every stage record
+    is written here, as each stage finishes.
 
     Raises
     ------
@@ -583,6 +652,9 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         If the output folder cannot be created or an unknown stage is named.
     """
     t0 = time.perf_counter()
+    c0 = _cpu_now()
+    if isinstance(opts.jobs, bool) or not isinstance(opts.jobs, int) or opts.jobs < 1:
+        raise ValueError(f"jobs must be a positive integer, got {opts.jobs!r}")
     stages = opts.stages or tuple(STAGES)
     unknown = [s for s in stages if s not in STAGES]
     if unknown:
@@ -605,9 +677,13 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         (out / f).unlink(missing_ok=True)
     manifest = {"config": config_dict(cfg), "config_hash": chash, "code_hash": code, "quick": opts.quick,
                 "started_at": _now(), "status": "running", "stages": {}}
+    lock = threading.RLock()
+    entries: dict[str, dict] = {}
 
     def write_manifest() -> None:
-        (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
+        with lock:
+            manifest["stages"] = {k: entries[k] for k in stages if k in entries}  # report order = stage order
+            (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
 
     write_manifest()
     results: dict[str, dict] = {}
@@ -616,57 +692,140 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         from tqdm.auto import tqdm
 
         bar = tqdm(total=len(stages), desc="study", unit="stage")
-    for i, name in enumerate(stages, 1):
+    index = {name: i for i, name in enumerate(stages, 1)}
+
+    def tag(name: str) -> str:
+        return f"study: [{index[name]}/{len(stages)}] {name}"
+
+    def prepare(name: str) -> Optional[tuple[dict, str]]:
+        """Inputs of ``name``; ``None`` (and the stage recorded as reused) if its record is still valid."""
         inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
         if name == "validation":  # reads the gains tuned by the exudyn stage
             inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
         ihash = _sha(_canonical(inputs))
-        tag = f"study: [{i}/{len(stages)}] {name}"
-        if bar is not None:
-            bar.set_postfix_str(name)
         rec = _load_record(out, name)
         if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:
-            say(f"{tag} reused (inputs unchanged since {rec['finished_at']})")
-            results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"]}
-            manifest["stages"][name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
-        else:
-            _record_path(out, name).unlink(missing_ok=True)
-            say(f"{tag} started")
-            ts = time.perf_counter()
-            try:
-                r = STAGES[name](cfg, opts)
-            except Exception as exc:  # a failed stage is reported, the study goes on
-                el = time.perf_counter() - ts
-                logger.error("stage %s failed: %s", name, exc)
-                logger.debug("%s", traceback.format_exc())
-                err = f"{type(exc).__name__}: {exc}"
-                say(f"{tag} failed after {el:.1f} s: {err}")
-                results[name] = {"status": "failed", "error": err, "elapsed": el}
-                manifest["stages"][name] = {"status": "failed", "error": err, "inputs_hash": ihash, "elapsed": el}
-            else:
-                el = time.perf_counter() - ts
-                stamp = {"config_hash": chash, "inputs_hash": ihash, "stage": name}
-                _stamp_json(out / r["json"], stamp)
-                files = {f: _file_sha(out / f) for f in _stage_files(r)}
-                record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
-                          "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
-                          "blocks": r["blocks"], "files": files, "elapsed": el, "finished_at": _now()}
-                _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
-                say(f"{tag} finished in {el:.1f} s")
-                results[name] = {"status": "computed", "json": r["json"], "elapsed": el}
-                manifest["stages"][name] = {"status": "computed", "inputs_hash": ihash, "elapsed": el}
+            say(f"{tag(name)} reused (inputs unchanged since {rec['finished_at']})")
+            with lock:
+                results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"],
+                                 "cpu": rec.get("cpu")}
+                entries[name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
+            done(name)
+            return None
+        _record_path(out, name).unlink(missing_ok=True)
+        say(f"{tag(name)} started")
+        return inputs, ihash
+
+    def done(name: str) -> None:
         write_manifest()
         if bar is not None:
-            bar.update(1)
-    if bar is not None:
-        bar.close()
+            with lock:
+                bar.set_postfix_str(name)
+                bar.update(1)
+
+    def failed(name: str, ihash: str, exc: BaseException, el: float) -> None:
+        logger.error("stage %s failed: %s", name, exc)
+        logger.debug("%s", "".join(traceback.format_exception(exc)))
+        err = f"{type(exc).__name__}: {exc}"
+        say(f"{tag(name)} failed after {el:.1f} s: {err}")
+        with lock:
+            results[name] = {"status": "failed", "error": err, "elapsed": el}
+            entries[name] = {"status": "failed", "error": err, "inputs_hash": ihash, "elapsed": el}
+        done(name)
+
+    def finished(name: str, inputs: dict, ihash: str, r: dict, el: float, cpu: float) -> None:
+        stamp = {"config_hash": chash, "inputs_hash": ihash, "stage": name}
+        _stamp_json(out / r["json"], stamp)
+        files = {f: _file_sha(out / f) for f in _stage_files(r)}
+        record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
+                  "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
+                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now()}
+        _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
+        say(f"{tag(name)} finished in {el:.1f} s")
+        with lock:
+            results[name] = {"status": "computed", "json": r["json"], "elapsed": el, "cpu": cpu}
+            entries[name] = {"status": "computed", "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
+        done(name)
+
+    def run_here(name: str) -> None:
+        p = prepare(name)
+        if p is None:
+            return
+        ts = time.perf_counter()
+        try:
+            r, el, cpu = _execute(name, cfg, opts)
+        except Exception as exc:  # a failed stage is reported, the study goes on
+            failed(name, p[1], exc, time.perf_counter() - ts)
+        else:
+            finished(name, p[0], p[1], r, el, cpu)
+
+    lane = [s for s in stages if s in EXUDYN_LANE] if opts.jobs >= 2 else []
+    here = [s for s in stages if s not in lane]
+    if not here:  # nothing to overlap with
+        here, lane = lane, []
+    pool = None
+    helper = None
+    lane_error: list = []
+    if lane:
+        import concurrent.futures as cf
+        import multiprocessing
+
+        pool = cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                      initializer=_lane_worker_init, initargs=(os.getpid(),))
+        # start the process now, from this thread while it is the only one: a fork from the helper
+        # thread could copy a lock (the import lock) that the main thread holds at that moment
+        _preload(stages)  # imported once here, inherited by the forked process
+        pool.submit(int).result()
+        remote = replace(opts, progress=False, log=None)
+
+        def drive_lane() -> None:  # waits on the second process (no CPU here) and records its stages
+            try:
+                for name in lane:
+                    p = prepare(name)
+                    if p is None:
+                        continue
+                    ts = time.perf_counter()
+                    fut = pool.submit(_execute, name, cfg, remote)
+                    try:
+                        r, el, cpu = fut.result()
+                    except Exception as exc:
+                        failed(name, p[1], exc, time.perf_counter() - ts)
+                    else:
+                        finished(name, p[0], p[1], r, el, cpu)
+            except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread)
+                lane_error.append(exc)
+
+        helper = threading.Thread(target=drive_lane, name="flexstab-study-lane", daemon=True)
+        helper.start()
+    try:
+        for name in here:
+            run_here(name)
+        if helper is not None:
+            helper.join()
+    except BaseException:
+        if pool is not None:  # interrupted: stop the second process now, do not wait for its stage
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            pool = None
+        raise
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+        if bar is not None:
+            bar.close()
+    if lane_error:
+        raise lane_error[0]
     elapsed = time.perf_counter() - t0
-    manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed})
+    cpu = _cpu_now() - c0
+    manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed, "cpu": cpu})
     write_manifest()
     md, ht = render_report(out)
-    (out / "study.json").write_text(json.dumps({"elapsed": elapsed, "quick": opts.quick, "config_hash": chash,
-                                                "stages": results}, indent=2, default=str))
-    return StudyResult(out, md, ht, results, elapsed)
+    (out / "study.json").write_text(json.dumps({"elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
+                                                "jobs": opts.jobs, "config_hash": chash,
+                                                "stages": {k: results[k] for k in stages if k in results}},
+                                               indent=2, default=str))
+    return StudyResult(out, md, ht, {k: results[k] for k in stages if k in results}, elapsed)
 
 
 def _validation_gains_for_hash(cfg: StudyConfig, opts: StudyOptions) -> tuple:

@@ -39,7 +39,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Optional
+from typing import Any, Iterable, Optional
 
 import matplotlib
 
@@ -307,9 +307,26 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
         fontsize=12,
     )
     fig.text(0.01, 0.005, _caption(case, res, with_forcing), fontsize=8, va="bottom", ha="left", wrap=True)
-    fig.tight_layout(rect=(0, 0.085, 1, 0.965))
+    # fixed margins for this 12 x 7.8 in, 2 x 2 layout (tight_layout measured every text twice:
+    # 40 % of the figure's time); the caption sits below 0.085, the title above 0.90
+    fig.subplots_adjust(left=0.07, right=0.985, top=0.895, bottom=0.16, hspace=0.28, wspace=0.22)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+@dataclass(frozen=True)
+class _CaseTask:
+    """Picklable: compute and plot one case, return its summary."""
+
+    settings: Settings
+    with_forcing: bool
+    params: Optional[ManipulatorParameters]
+    out: Path
+
+    def __call__(self, case: Case) -> dict:
+        res = run_case(case, self.settings, self.with_forcing, self.params)
+        plot_case(res, self.out / res["summary"]["figure_file"], self.with_forcing)
+        return res["summary"]
 
 
 def make_transients(
@@ -321,10 +338,13 @@ def make_transients(
     settings: Optional[Settings] = None,
     params: Optional[ManipulatorParameters] = None,
     cases: Optional[Iterable[Case]] = None,
+    executor: Optional[Any] = None,
 ) -> dict:
     """Compute and plot the transient figures; write ``transients.json`` (or ``transients_forced.json``).
 
     ``cases`` replaces the paper's Figs. 2-9 (:data:`CASES`, selected by ``figures``) with the given cases.
+    ``executor`` (a :class:`concurrent.futures.Executor`) computes and plots the cases in parallel
+    (each case is independent; the results are the same as in one process).
 
     Returns
     -------
@@ -335,13 +355,13 @@ def make_transients(
     figures = tuple(figures) if figures else (QUICK_FIGURES if quick else tuple(c.figure for c in CASES))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
     t0 = time.perf_counter()
     selected = tuple(cases) if cases is not None else tuple(c for c in CASES if c.figure in figures)
-    for case in selected:
-        res = run_case(case, settings, with_forcing, params)
-        plot_case(res, out / res["summary"]["figure_file"], with_forcing)
-        rows.append(res["summary"])
+    task = _CaseTask(settings, with_forcing, params, out)
+    if executor is None or len(selected) < 2:
+        rows = [task(c) for c in selected]
+    else:
+        rows = list(executor.map(task, selected))
     doc = {
         "description": (
             "Transient response from x(0) = [0, 0, pi/4, 0] (paper Eqs. 26/35) of the linearised reduced "

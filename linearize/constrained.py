@@ -83,36 +83,46 @@ def _polar(W: np.ndarray) -> np.ndarray:
 
 
 def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
-    """Block rotations ``R(theta(t))`` of all planar vector coordinates, shape ``(K, n, n)``.
+    """Block rotations ``R(theta_i(t))`` of the planar vector coordinates, shape ``(K, n, n)``.
 
-    ``theta(t)`` is the mass-weighted best-fit rotation (2D Kabsch) that maps
-    the planar vectors (node positions about the origin, ANCF slopes) at
-    ``t = 0`` to those at ``t``; coordinates that are not planar vectors keep
-    the identity.  Any T-periodic orthogonal frame gives the same multipliers;
-    this one makes the stiff parts of ``K_z`` (axial stiffness of beams that
-    swing) nearly constant, which the exponential-midpoint propagator needs
-    for few steps.  Identity when the model has no planar vectors.
+    Each planar vector (node position, ANCF slope) is rotated by the angle its
+    node has turned since ``t = 0``: the slope direction of an ANCF node, the
+    angle of a rigid body, else the mass-weighted best-fit (2D Kabsch)
+    rotation of all planar vectors.  Coordinates that are not planar vectors
+    keep the identity.  Any T-periodic orthogonal frame gives the same
+    multipliers; in this one the stiff element stiffness of a swinging beam is
+    nearly constant (it turns only with the beam's curvature), which the
+    exponential-midpoint propagator needs for few steps.
     """
     Kn, n = orbit.q.shape
     F = np.broadcast_to(np.eye(n), (Kn, n, n)).copy()
     pairs = list(orbit.planar_pairs)
     if not pairs:
         return F
+    Q = orbit.q
     ix = np.array([p[0] for p in pairs])
     iy = np.array([p[1] for p in pairs])
     rx = np.array([p[2] for p in pairs])
     ry = np.array([p[3] for p in pairs])
-    w = np.abs(np.diagonal(orbit.tangent.M[0]))[ix] + np.abs(np.diagonal(orbit.tangent.M[0]))[iy]
-    x = orbit.q[:, ix] + rx
-    y = orbit.q[:, iy] + ry
-    cross = np.sum(w * (x[0] * y - y[0] * x), axis=1)
-    dot = np.sum(w * (x[0] * x + y[0] * y), axis=1)
-    theta = np.arctan2(cross, dot)
-    c, s = np.cos(theta), np.sin(theta)
-    F[:, ix, ix] = c[:, None]
-    F[:, ix, iy] = -s[:, None]
-    F[:, iy, ix] = s[:, None]
-    F[:, iy, iy] = c[:, None]
+    mdiag = np.abs(np.diagonal(orbit.tangent.M[0]))
+    w = mdiag[ix] + mdiag[iy]
+    x = Q[:, ix] + rx
+    y = Q[:, iy] + ry
+    fit = np.arctan2(np.sum(w * (x[0] * y - y[0] * x), axis=1), np.sum(w * (x[0] * x + y[0] * y), axis=1))
+    for p_idx, (a, b, _, _, ang) in enumerate(pairs):
+        if ang[0] == "slope":
+            _, i_sx, i_sy, r_sx, r_sy = ang
+            sx, sy = Q[:, i_sx] + r_sx, Q[:, i_sy] + r_sy
+            theta = np.unwrap(np.arctan2(sy, sx) - math.atan2(sy[0], sx[0]))
+        elif ang[0] == "rotation":
+            theta = Q[:, ang[1]] - Q[0, ang[1]]
+        else:
+            theta = fit
+        c, s_ = np.cos(theta), np.sin(theta)
+        F[:, a, a] = c
+        F[:, a, b] = -s_
+        F[:, b, a] = s_
+        F[:, b, b] = c
     return F
 
 

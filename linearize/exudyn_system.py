@@ -225,24 +225,32 @@ class ExudynSystem:
                 out.append((ltg, np.asarray(node["referenceCoordinates"], dtype=float)))
         return out
 
-    def planar_pairs(self) -> list[tuple[int, int, float, float]]:
-        """Coordinate pairs that are planar vectors: ``(i_x, i_y, ref_x, ref_y)``.
+    def planar_pairs(self) -> list[tuple]:
+        """Coordinate pairs that are planar vectors, with the angle that orients them.
 
-        Positions of ``Point2D``, ``Point2DSlope1`` and ``RigidBody2D`` nodes and the
-        slope vectors of ``Point2DSlope1`` nodes (ANCF cables); used to co-rotate the
-        independent-coordinate basis with the best-fit rotation of the system.
+        Returns tuples ``(i_x, i_y, ref_x, ref_y, angle)``: positions of
+        ``Point2D``, ``Point2DSlope1`` and ``RigidBody2D`` nodes and the slope
+        vectors of ``Point2DSlope1`` nodes (ANCF cables); ``angle`` is
+        ``("slope", i_sx, i_sy, ref_sx, ref_sy)`` (the node's slope direction),
+        ``("rotation", i_phi)`` (a rigid body's angle) or ``("fit",)`` (the
+        best-fit rotation of the whole system).  Used to co-rotate the
+        independent-coordinate basis node by node.
         """
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):
             node = mbs.GetNode(j)
             kind = node.get("nodeType")
-            ltg = list(mbs.systemData.GetNodeLTGODE2(j))
+            ltg = [int(i) for i in mbs.systemData.GetNodeLTGODE2(j)]
             ref = np.asarray(node.get("referenceCoordinates", []), dtype=float)
-            if kind in ("Point2D", "RigidBody2D", "Point2DSlope1") and len(ltg) >= 2:
-                out.append((int(ltg[0]), int(ltg[1]), float(ref[0]), float(ref[1])))
             if kind == "Point2DSlope1" and len(ltg) == 4:
-                out.append((int(ltg[2]), int(ltg[3]), float(ref[2]), float(ref[3])))
+                ang = ("slope", ltg[2], ltg[3], float(ref[2]), float(ref[3]))
+                out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ang))
+                out.append((ltg[2], ltg[3], float(ref[2]), float(ref[3]), ang))
+            elif kind == "RigidBody2D" and len(ltg) == 3:
+                out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ("rotation", ltg[2])))
+            elif kind == "Point2D" and len(ltg) == 2:
+                out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ("fit",)))
         return out
 
     def describe(self) -> dict[str, Any]:

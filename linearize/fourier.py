@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sample_times", "trig_interpolate", "differentiation_matrices"]
+__all__ = ["sample_times", "trig_interpolate", "TrigInterpolant", "differentiation_matrices"]
 
 
 def _check_samples(N: int) -> int:
@@ -53,6 +53,52 @@ def trig_interpolate(samples: np.ndarray, period: float, times: np.ndarray | flo
     flat = c.reshape(c.shape[0], -1)
     out = np.real(phase @ flat).reshape((t.size,) + y.shape[1:])
     return out[0] if scalar else out
+
+
+class TrigInterpolant:
+    """The interpolant of :func:`trig_interpolate` with its coefficients computed once.
+
+    For a callable evaluated at one time per call many thousands of times (an Exudyn load user
+    function: one call per Newton iteration of every step), :func:`trig_interpolate` repeats the
+    FFT of the samples at every call; here a scalar time costs ``N/2 + 1`` cosines and sines.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (N,)
+        Values at ``sample_times(period, N)`` (scalar-valued samples).
+    period : float
+        The period ``T``.
+    """
+
+    def __init__(self, samples: np.ndarray, period: float) -> None:
+        y = np.asarray(samples, dtype=float)
+        if y.ndim != 1:
+            raise ValueError(f"samples must be one-dimensional, got shape {y.shape}")
+        N = _check_samples(y.shape[0])
+        self.samples = y
+        self.period = float(period)
+        c = np.fft.rfft(y) / N
+        w = np.full(N // 2 + 1, 2.0)
+        w[0] = 1.0
+        w[-1] = 1.0
+        # Re(w_k c_k exp(i k theta)) = a_k cos(k theta) - b_k sin(k theta)
+        self._a = w * c.real
+        self._b = w * c.imag
+        self._k = np.arange(N // 2 + 1, dtype=float)
+        self._omega = 2.0 * np.pi / self.period
+
+    def __call__(self, t: float | np.ndarray) -> float | np.ndarray:
+        """Value at ``t`` (float for a scalar time, else an array of the shape of ``t``)."""
+        if np.ndim(t) == 0:
+            kt = self._k * (self._omega * float(t))
+            return float(self._a @ np.cos(kt) - self._b @ np.sin(kt))
+        return trig_interpolate(self.samples, self.period, t)
+
+    def __getstate__(self) -> dict:
+        return {"samples": self.samples, "period": self.period}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["samples"], state["period"])
 
 
 def differentiation_matrices(period: float, N: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,5 +1,9 @@
 """Floquet analysis of the Exudyn link: linearisation route and direct Exudyn monodromy.
 
+Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
+``tests/test_model_file.py``), which is the package's route for any model.
+
 Pipeline (:func:`exudyn_floquet`): periodic orbit
 (:func:`~linearize.link_orbit.find_periodic_orbit`) -> finite-difference
 linearisation in independent coordinates

@@ -1,5 +1,9 @@
 """The T-periodic motion of the Exudyn link with the hub on its fundamental motion.
 
+Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
+``tests/test_model_file.py``), which is the package's route for any model.
+
 The undeformed rigid motion is *not* a solution of the ANCF equations:
 centrifugal and gravity loads prestress and bend the link.  The true periodic
 solution with the hub angle prescribed, ``q_a(t) = q_a^R(t)``, is found here,
@@ -36,7 +40,7 @@ import numpy as np
 import scipy.linalg
 
 from linearize.finite_difference import central_difference_jacobians
-from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
+from linearize.fourier import TrigInterpolant, differentiation_matrices, sample_times, trig_interpolate
 from mbs_models.exudyn_link import ExudynLinkConfig, ExudynLinkModel, build_link_model
 from mbs_models.parameters import ManipulatorParameters
 
@@ -148,8 +152,16 @@ class PeriodicOrbit:
         )
 
     def hub_torque(self, t: float | np.ndarray) -> float | np.ndarray:
-        """Feed-forward hub torque ``tau_ff(t)`` in N m (periodic interpolation)."""
-        return trig_interpolate(self.hub_torques, self.period, t)
+        """Feed-forward hub torque ``tau_ff(t)`` in N m (periodic interpolation).
+
+        The interpolant's coefficients are computed at the first call and kept (this is the load
+        user function of every closed-loop Exudyn run: one call per Newton iteration).
+        """
+        f = self.__dict__.get("_hub_torque_interpolant")
+        if f is None:
+            f = TrigInterpolant(self.hub_torques, self.period)
+            object.__setattr__(self, "_hub_torque_interpolant", f)
+        return f(t)
 
     def tip_deflection(self) -> np.ndarray:
         """Tip deflection normal to the rigid line at the samples (m)."""

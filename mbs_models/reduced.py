@@ -381,7 +381,14 @@ class ReducedModel:
         return Pc + s[..., None, None] * Ps + w[..., None, None] * Pw
 
     def __call__(self, t: float) -> np.ndarray:
-        return self.evaluate(np.array([float(t)]))[0]
+        """``P(t)`` at one time: the formula of :meth:`evaluate` in scalar arithmetic (an ODE
+        right-hand side calls this ~10^5 times per transient; ~10x cheaper than ``evaluate``)."""
+        Pc, Ps, Pw = self._affine  # type: ignore[attr-defined]
+        motion = _DEFAULT_MOTION
+        wt = self.omega * float(t)
+        s = math.sin(motion.mean + motion.amplitude * math.sin(wt))
+        w = (motion.amplitude * self.omega * math.cos(wt)) ** 2
+        return Pc + s * Ps + w * Pw
 
     def forcing_first_order(self, t) -> np.ndarray:
         """``f(t) = [0, M^-1 h_L]`` of Eq. (5)."""

@@ -36,6 +36,7 @@ multiplier is above the noise floor, on the multipliers themselves.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -44,6 +45,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
+from scipy.linalg.lapack import dgebal, dgeev
 
 from stability import _compiled
 from stability.expm import expm_soa, expm_stack, mm_soa
@@ -239,8 +241,6 @@ class _Spectrum:
 def _eigvals(Phi: np.ndarray) -> np.ndarray:
     """Eigenvalues of a real square matrix (LAPACK ``dgeev`` directly: 4x faster than
     ``np.linalg.eigvals`` for the 4x4 monodromy matrix; the same routine)."""
-    from scipy.linalg.lapack import dgeev
-
     if Phi.dtype == np.float64 and Phi.ndim == 2:
         wr, wi, _, _, info = dgeev(Phi, compute_vl=0, compute_vr=0)
         if info == 0:
@@ -480,6 +480,16 @@ def _magnus_solve(
     return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
 
 
+@functools.lru_cache(maxsize=64)
+def _gauss_times(nodes: tuple, period: float, Ns: tuple) -> np.ndarray:
+    """Gauss points of ``N`` equal sub-intervals of ``[0, period]`` for each ``N`` in ``Ns``, concatenated
+    (cached: a loop over gains or parameters asks for the same points again; read-only)."""
+    node = np.asarray(nodes)
+    times = np.concatenate([((np.arange(N)[:, None] + node[None, :]) * (period / N)).ravel() for N in Ns])
+    times.flags.writeable = False
+    return times
+
+
 def _magnus_solves_small(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, Ns: list[int], keep_factors: bool,
     strict: bool,
@@ -496,7 +506,7 @@ def _magnus_solves_small(
     n = wrapped.n
     nodes = np.asarray(scheme.nodes)
     hs = [period / N for N in Ns]
-    times = np.concatenate([((np.arange(N)[:, None] + nodes[None, :]) * h).ravel() for N, h in zip(Ns, hs)])
+    times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
     P = wrapped.evaluate(times)
     if USE_COMPILED and not keep_factors and scheme.order in (4, 6):
@@ -596,6 +606,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         reference: Optional[ReferenceOptions] = None,
         accuracy: str = "moduli",
         keep_factors: bool = False,
+        probe: Optional[np.ndarray] = None,
     ) -> _Propagation:
         q = len(scheme.nodes)
         p = scheme.order
@@ -645,7 +656,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                     est = math.inf  # the half-step solve is meaningless: no certificate
         else:
             fine, changes, est = _adaptive(solve, solve_pair, pair_estimate, rtol, max_steps, scheme,
-                                           lambda: _start_steps(scheme, wrapped, period, max_steps))
+                                           lambda: _start_steps(scheme, wrapped, period, max_steps, probe))
         return _Propagation(fine.monodromy, fine.spectrum, fine.log_abs_det, fine.n_steps, evaluations,
                             est, changes, fine.factors, phase_estimate[0])
 
@@ -673,33 +684,62 @@ def _first_resolved(solve, N: int, max_steps: int, scheme: MagnusScheme) -> _Sol
     raise FloquetError(reason + hint)
 
 
-def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, max_steps: int) -> int:
+def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, max_steps: int,
+                 probe: Optional[np.ndarray] = None) -> int:
     """First sub-interval count: where the commutator part of the exponents is about :data:`START_COMMUTATOR`.
 
-    Measured at ``INITIAL_STEPS`` on up to :data:`PROBE_INTERVALS` sub-intervals
-    and scaled with ``N^-(p-1)`` (the commutator terms of a ``p``-th order
-    scheme are ``O(h^(p-1))`` relative to ``h ||P||`` once the steps resolve
-    ``P``); a power of two times ``INITIAL_STEPS``.  Costs a few evaluations of
-    ``P`` and spares the refinement the solves that are far too coarse.
+    Measured at ``INITIAL_STEPS`` on :data:`PROBE_INTERVALS` sub-intervals of
+    length ``T / INITIAL_STEPS`` spread over the period and scaled with
+    ``N^-(p-1)`` (the commutator terms of a ``p``-th order scheme are
+    ``O(h^(p-1))`` relative to ``h ||P||`` once the steps resolve ``P``); a
+    power of two times ``INITIAL_STEPS``.  ``probe`` is ``P`` (balanced) at the
+    Gauss nodes of those sub-intervals, shape ``(PROBE_INTERVALS, q, n, n)``,
+    when the caller already has it (:func:`_probe_and_samples`: one evaluation
+    serves balancing, the period check and this probe).
     """
     N = INITIAL_STEPS
     if scheme.order <= 2:
         return N
-    intervals = np.arange(0, N, max(1, N // PROBE_INTERVALS))
-    nodes = np.asarray(scheme.nodes)
-    n = wrapped.n
     h = period / N
-    Pg = wrapped.evaluate(((intervals[:, None] + nodes[None, :]) * h).ravel()).reshape(
-        len(intervals), len(nodes), n, n)
-    with np.errstate(over="ignore", invalid="ignore"):
-        corr = float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
-                                   axis=1)))
+    if probe is None:
+        probe, _ = _probe_and_samples(wrapped, period, scheme)
+    corr = _commutator_size(scheme, probe, h)
     if not math.isfinite(corr):
         return N
     while corr > START_COMMUTATOR and 2 * N <= max_steps:
         N *= 2
         corr /= 2.0 ** (scheme.order - 1)
     return N
+
+
+def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
+    """``max_k ||Omega_k - h Pbar_k||_1`` over the sub-intervals of ``Pg`` (shape ``(m, q, n, n)``)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        if USE_COMPILED and scheme.order in (4, 6) and Pg.shape[-1] <= SMALL_N:
+            return _compiled.magnus_solve(Pg, h, scheme.order)[2]
+        return float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
+                                   axis=1)))
+
+
+def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
+                       scheme: Optional[MagnusScheme]) -> tuple[Optional[np.ndarray], np.ndarray]:
+    """``P`` for the start-step probe and the balancing samples, from one evaluation.
+
+    The probe sub-intervals are every other one of ``INITIAL_STEPS`` equal
+    ones (``PROBE_INTERVALS`` of them, of length ``h = T / INITIAL_STEPS``,
+    starting at ``t_j = 2 j h``); the :data:`BALANCE_SAMPLES` balancing samples
+    are their midpoints ``t_j + h / 2``, equally spaced over the period (the
+    Magnus-6 middle Gauss node is one of them).  Returns
+    ``(probe (PROBE_INTERVALS, q, n, n) or None, samples (BALANCE_SAMPLES, n, n))``, unbalanced.
+    """
+    h = period / INITIAL_STEPS
+    starts = np.arange(0, INITIAL_STEPS, INITIAL_STEPS // BALANCE_SAMPLES) * h
+    if scheme is None or scheme.order <= 2:
+        return None, wrapped.evaluate(starts + 0.5 * h)
+    nodes = sorted(set(scheme.nodes) | {0.5})
+    P = wrapped.evaluate((starts[:, None] + h * np.array(nodes)[None, :]).ravel())
+    P = P.reshape(len(starts), len(nodes), *P.shape[1:])
+    return P[:, [nodes.index(c) for c in scheme.nodes]], P[:, nodes.index(0.5)]
 
 
 def _adaptive(solve, solve_pair, pair_estimate, rtol: float, max_steps: int, scheme: MagnusScheme,
@@ -774,6 +814,7 @@ def _paper_method(
     reference: Optional[ReferenceOptions] = None,
     accuracy: str = "moduli",
     keep_factors: bool = False,
+    probe: Optional[np.ndarray] = None,
 ) -> _Propagation:
     opts = reference or ReferenceOptions()
     Phi, nfev = paper_monodromy(wrapped, period, opts)
@@ -795,6 +836,8 @@ def _paper_method(
     return _Propagation(Phi, spec, _log_abs_det(Phi[None]), nfev, evaluations, est, changes,
                         phase_error_estimate=phase_est)
 
+
+_SCHEMES = {"magnus6": MAGNUS6, "magnus4": MAGNUS4, "magnus2": MAGNUS2}
 
 #: Registry of Floquet methods (name -> implementation).
 METHODS: dict[str, Callable[..., _Propagation]] = {
@@ -833,12 +876,10 @@ def _samples(wrapped: PeriodicMatrixFunction, period: float) -> np.ndarray:
 
 def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
     """Diagonal scaling from LAPACK's balancing (``dgebal``) of ``mean |P(t)|``; ``None`` if not worth it."""
-    from scipy.linalg.lapack import dgebal
-
     if samples.shape[-1] < 2:
         return None
-    A = np.mean(np.abs(samples), axis=0)
-    if np.count_nonzero(A - np.diag(np.diag(A))) == 0:
+    A = np.abs(samples).sum(axis=0)  # the balancing of mean |P| (invariant under the factor 1/m)
+    if np.count_nonzero(A) == np.count_nonzero(np.diagonal(A)):
         return None  # diagonal (or zero): nothing to balance
     *_, scale, info = dgebal(A, scale=1, permute=0)
     if info != 0 or not np.isfinite(scale).all() or np.all(scale == 1.0):
@@ -1049,18 +1090,21 @@ def floquet(
         raise ValueError(f"stability_tol must be finite and >= 0, got {stability_tol!r}")
     wrapped = PeriodicMatrixFunction(P, period)
     T = wrapped.period
-    samples = _samples(wrapped, T)
+    scheme = _SCHEMES.get(method) if n_steps is None else None
+    probe, samples = _probe_and_samples(wrapped, T, scheme)
     scale = _balancing_scale(samples) if balance else None
     time_scale = _check_period_scale(samples, T, scale)
     target = wrapped if scale is None else _Balanced(wrapped, scale)
+    if probe is not None and scale is not None:
+        probe = probe * (scale[None, :] / scale[:, None])
     # overflow, 0 * inf, log 0 and underflow are all detected and handled explicitly below
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
         return _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference,
-                             accuracy, small_multipliers, wrapped, T, scale, target, time_scale, t0)
+                             accuracy, small_multipliers, wrapped, T, scale, target, time_scale, t0, probe)
 
 
 def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference, accuracy,
-                  small_multipliers, wrapped, T, scale, target, time_scale, t0) -> FloquetResult:
+                  small_multipliers, wrapped, T, scale, target, time_scale, t0, probe=None) -> FloquetResult:
     """The evaluation part of :func:`floquet` (arguments validated, ``P`` wrapped and balanced)."""
     try:
         prop = METHODS[method](
@@ -1073,6 +1117,7 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
             reference=reference,
             accuracy=accuracy,
             keep_factors=small_multipliers == "qr",
+            probe=probe,
         )
     except FloquetError as exc:
         finest = time_scale / (n_steps or max_steps)

@@ -150,3 +150,15 @@ def test_inconsistent_newton_matrix_fails_loudly(monkeypatch, factor):
 def test_unknown_solver_is_rejected():
     with pytest.raises(ValueError, match="solver must be one of"):
         find_orbit(resolve_model(DOUBLE), OMEGA, samples=SAMPLES, verify=False, solver="gmres")
+
+
+def test_single_link_structured_equals_dense():
+    """ANCF link with a clamp (JointGeneric) and a drive: same orbit, same tolerance."""
+    opts = dict(samples=16, verify=False, elements=2)
+    dense = find_orbit("single-link", OMEGA, solver="dense", **opts)
+    struct = find_orbit("single-link", OMEGA, solver="structured", **opts)
+    assert struct.residual <= struct.tolerance and dense.residual <= dense.tolerance
+    # both Newtons stop at residuals ~1e-9 of the forces; the coordinates of two such
+    # solutions differ by <= cond * residual, far below 1e-9 of the 1 m link
+    assert np.max(np.abs(struct.q - dense.q)) <= 1e-9
+    assert np.max(np.abs(struct.torques - dense.torques)) <= 1e-7 * float(np.max(np.abs(dense.torques)))

@@ -205,7 +205,7 @@ def test_complex_pair_agrees_in_modulus_and_phase():
 
 @pytest.mark.slow
 def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gains(orbit8, tmp_path):
-    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet
 
     ok = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                    orbit=orbit8)
@@ -235,7 +235,7 @@ def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gain
 
 @pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_left(orbit8):
-    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet
     from mbs_models.exudyn_link import build_link_model
 
     ex = exudyn_floquet(omega=EIGHT_PI, elements=ELEMENTS, samples=SAMPLES, orbit=orbit8)

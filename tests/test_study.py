@@ -205,6 +205,31 @@ def test_study_json_and_manifest(study):
         assert doc["study"]["inputs_hash"] == m["stages"][name]["inputs_hash"]
 
 
+def test_stage_records_carry_wall_and_cpu_and_the_exudyn_stage_ran_beside(study):
+    """The fixture runs with the default jobs=2: exudyn in the second process, its CPU counted there."""
+    m = json.loads((study.out / "manifest.json").read_text())
+    for name in ("table2", "table3", "exudyn"):
+        rec = json.loads((study.out / f"{name}.stage.json").read_text())
+        assert rec["elapsed"] > 0 and rec["cpu"] >= 0
+        assert m["stages"][name]["cpu"] == rec["cpu"]
+    # the Exudyn stage does real work (orbit, linearisation, ~90 Floquet evaluations): a CPU time of ~0
+    # would mean the second process's time was not measured
+    assert json.loads((study.out / "exudyn.stage.json").read_text())["cpu"] > 0.5
+    assert list(m["stages"]) == ["table2", "table3", "exudyn"]  # report order = stage order
+
+
+@pytest.mark.parametrize("jobs", [0, -1, True, 1.5])
+def test_bad_jobs(jobs, tmp_path):
+    with pytest.raises(ValueError, match="jobs"):
+        run_study(StudyConfig(), StudyOptions(out=tmp_path, stages=("table2",), progress=False, jobs=jobs))
+
+
+def test_cli_jobs_zero_is_one_line_exit_2(tmp_path, capsys):
+    assert cli_main(["study", "--quick", "--stages", "table2", "--jobs", "0", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--jobs" in err[0]
+
+
 def test_resume_reuses_finished_stages_and_says_so(tmp_path):
     opts = StudyOptions(out=tmp_path, quick=True, stages=("table2",), progress=False)
     first = run_study(StudyConfig(), opts)

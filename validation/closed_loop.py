@@ -482,7 +482,7 @@ def validate_closed_loop(
     if not isinstance(params, ManipulatorParameters):
         raise ValueError(f"params must be ManipulatorParameters, got {type(params).__name__}")
 
-    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

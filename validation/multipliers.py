@@ -856,7 +856,14 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     pred = None
     for _ in range(PREDICTION_MAX_DOUBLINGS):
         n *= 2
-        fine = floquet(lin, method="magnus2", n_steps=n, error_estimate=False, accuracy="moduli")
+        try:
+            fine = floquet(lin, method="magnus2", n_steps=n, error_estimate=False, accuracy="moduli")
+        except (ArithmeticError, MemoryError, ValueError, RuntimeError) as exc:  # e.g. the engine's work-array limit
+            if pred is None:
+                raise
+            logger.warning("%s: propagator refinement stopped at %d steps (%s)", name, n // 2, exc)
+            n //= 2
+            break
         pred = prediction_from_monodromy(name, fine.monodromy, k=k, labels=labelled(fine.monodromy),
                                          allowed=allowed, refined=previous)
         if float(np.max(pred.errors)) <= PREDICTION_TOLERANCE * float(np.max(np.abs(pred.multipliers))):
@@ -918,7 +925,7 @@ def validate_link_multipliers(
     ValueError
         On invalid arguments.
     """
-    from linearize.link_floquet import exudyn_floquet  # (moving to linearize/; lazy name collides with the module)
+    from linearize.link_floquet import exudyn_floquet
     from mbs_models.exudyn_link import build_link_model
     from mbs_models.parameters import ManipulatorParameters
     from mbs_models.reduced import ReducedModel

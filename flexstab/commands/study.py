@@ -22,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--quick", action="store_true", help="one case, coarse grids (about a minute)")
     p.add_argument("--stages", default=None, help="comma-separated subset of the stages")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler for the sweeps")
+    p.add_argument("--jobs", type=int, default=2, metavar="N",
+                   help="processes: 2 (default) runs the Exudyn stages beside the others; 1 runs all in one")
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every stage (default: reuse finished stages whose inputs are unchanged)")
     p.set_defaults(func=run)
@@ -38,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
     if args.stages is not None and not args.stages.strip():
         raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
+    if args.jobs < 1:
+        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     tty = sys.stderr.isatty()
 
     def log_line(line: str) -> None:  # one line per stage event when stderr is a file or a pipe
@@ -45,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages, progress=tty,
                                       scheduler=args.scheduler, log=None if tty else log_line,
-                                      resume=not args.no_resume))
+                                      resume=not args.no_resume, jobs=args.jobs))
     failed = [k for k, v in res.stages.items() if v.get("status") == "failed"]
     print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
     for k in failed:

@@ -8,7 +8,7 @@ import sys
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, positive_float, resolve_omega
 
-__all__ = ["register", "run", "tune_report", "robust_report", "build_plant"]
+__all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges"]
 
 
 def register(sub) -> None:
@@ -17,11 +17,18 @@ def register(sub) -> None:
         help="tune the PD gains so that max|rho| reaches a target (Taguchi)",
         description="Iterative Taguchi tuning of (kp, kd) to max|rho| = rho_d (paper Eq. 34).",
     )
-    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced")
+    p.add_argument("--model", default="reduced", metavar="MODEL",
+                   help="reduced (default), exudyn, a built-in model file (single-link, two-link) or a model file "
+                        "PATH.py; a model with N drives tunes 2N gains (kp1, kd1, kp2, kd2, ...)")
     add_model_options(p)
     p.add_argument("--target", type=positive_float, default=None, help="rho_d (default 0.3, or from --config)")
-    p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None, help="default 0 60")
-    p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None, help="default 0 40")
+    p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="initial range of kp (of every drive's kp); default 0 60")
+    p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="initial range of kd (of every drive's kd); default 0 40")
+    p.add_argument("--range", action="append", default=None, dest="factor_range", metavar="NAME=LO,HI",
+                   help="initial range of one factor, e.g. kp2=0,10 (repeatable; factor names kp, kd for one "
+                        "drive, kp1, kd1, kp2, ... for several); overrides --kp-range/--kd-range for it")
     p.add_argument("--array", default=None, help="orthogonal array, e.g. L9 (default), L16(4^5), L25")
     p.add_argument("--tolerance", type=positive_float, default=None, help="default 1e-3 * rho_d")
     p.add_argument("--max-evaluations", type=int, default=600, metavar="N")
@@ -38,6 +45,28 @@ def register(sub) -> None:
 
 def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     """The plant object (``with_gains(kp, kd)``) for the chosen model."""
+    if model not in ("reduced", "exudyn"):
+        from flexstab.options import is_model_file
+        from linearize.analysis import model_plant
+        from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
+
+        if is_model_file(model):
+            if elements is not None:
+                raise ValueError("--elements applies to built-in models only")
+            definition, options = load_model_file(model), {}
+        elif model in BUILTIN_MODELS:
+            definition = builtin_model(model)
+            if model == "single-link":  # the configured link and its mesh
+                options = {"elements": elements or cfg.elements, "params": cfg.manipulator}
+            else:  # other built-ins (two-link) keep their own default mesh unless --elements is given
+                options = {"elements": elements} if elements is not None else {}
+        else:
+            raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
+                             f"or a model file PATH.py")
+        plant = model_plant(definition, omega, **options)
+        if not plant.drives:
+            raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
+        return plant
     if model == "reduced":
         from mbs_models.reduced import ReducedModel
 
@@ -101,6 +130,94 @@ def _print_robust(d: dict) -> None:
     print(f"robust tuning: {rob['status']}, {rob['evaluations']} evaluations; total {d['elapsed']:.1f} s")
 
 
+class DrivesObjective:
+    """``(kp1, kd1, kp2, kd2, ...) -> response`` of a plant with one (kp, kd) pair per drive.
+
+    The response is the plant's own ``spectral_measure(kp, kd)`` (for a model
+    file: the modulus of the dominant labelled multiplier, drive modes and the
+    first bending mode), called with one gain per drive.
+    """
+
+    def __init__(self, plant) -> None:
+        if not callable(getattr(plant, "spectral_measure", None)):
+            raise ValueError("plant must provide spectral_measure(kp, kd)")
+        self.plant = plant
+
+    def __call__(self, gains) -> float:
+        g = [float(v) for v in gains]
+        if len(g) % 2:
+            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
+        return float(self.plant.spectral_measure(g[0::2], g[1::2]))
+
+
+def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, ...], tuple]:
+    """Factor names and initial ranges of the tuning of ``n_drives`` (kp, kd) pairs.
+
+    ``kp_range``/``kd_range`` apply to every drive; each ``NAME=LO,HI`` of
+    ``specs`` replaces one factor's range.  Ranges are checked by
+    :class:`taguchi.tuning.TuningConfig`.
+
+    Raises
+    ------
+    ValueError
+        A malformed ``NAME=LO,HI``, an unknown or repeated factor name.
+    """
+    from taguchi.tuning import default_factor_names
+
+    names = default_factor_names(2 * n_drives)
+    ranges = [tuple(kp_range) if j % 2 == 0 else tuple(kd_range) for j in range(2 * n_drives)]
+    seen: set = set()
+    for spec in specs or ():
+        name, sep, rest = str(spec).partition("=")
+        name = name.strip()
+        parts = rest.split(",")
+        if not sep or len(parts) != 2:
+            raise ValueError(f"--range expects NAME=LO,HI like {names[-1]}=0,10, got {spec!r}")
+        if name not in names:
+            raise ValueError(f"--range {spec!r}: unknown factor {name!r}; the factors are {', '.join(names)}")
+        if name in seen:
+            raise ValueError(f"--range: factor {name!r} given twice")
+        seen.add(name)
+        try:
+            lo, hi = (float(v) for v in parts)
+        except ValueError:
+            raise ValueError(f"--range {spec!r}: LO and HI must be numbers") from None
+        ranges[names.index(name)] = (lo, hi)
+    return names, tuple(ranges)
+
+
+#: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
+MAX_TUNING_STEPS = 4096
+
+
+def propagator_steps(plant, tcfg):
+    """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
+
+    The response is evaluated at the centre of the initial ranges with ``n`` and
+    ``2n`` exponential-midpoint steps (second order: the error of ``n`` steps is
+    ``~4/3 |r_n - r_2n|``); ``n`` is doubled from ``plant.n_steps`` until that
+    estimate is below a quarter of the tolerance, or ``MAX_TUNING_STEPS``.
+    """
+    import dataclasses
+
+    centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
+    kp, kd = centre[0::2], centre[1::2]
+    n = plant.n_steps
+    r = plant.spectral_measure(kp, kd)
+    while 2 * n <= MAX_TUNING_STEPS:
+        r2 = dataclasses.replace(plant, n_steps=2 * n).spectral_measure(kp, kd)
+        if 4.0 / 3.0 * abs(r - r2) <= 0.25 * tcfg.effective_tolerance:
+            break
+        n, r = 2 * n, r2
+    return dataclasses.replace(plant, n_steps=n)
+
+
+def _pairs(gains, n_drives: int):
+    """``(kp, kd)`` of the tuned gains: scalars for one drive, one value per drive otherwise."""
+    g = [float(v) for v in gains]
+    return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
@@ -112,34 +229,59 @@ def tune_report(args: argparse.Namespace) -> dict:
     omega = resolve_omega(args, cfg)
     if args.max_evaluations < 1:
         raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
-    tcfg = TuningConfig(
-        target=args.target if args.target is not None else cfg.target,
-        kp_range=tuple(args.kp_range) if args.kp_range else cfg.kp_range,
-        kd_range=tuple(args.kd_range) if args.kd_range else cfg.kd_range,
-        array=args.array,
-        tolerance=args.tolerance,
-        max_evaluations=args.max_evaluations,
-    )
+    kp_range = tuple(args.kp_range) if args.kp_range else cfg.kp_range
+    kd_range = tuple(args.kd_range) if args.kd_range else cfg.kd_range
+    specs = getattr(args, "factor_range", None)
+    model_file = args.model not in ("reduced", "exudyn")
+
+    def tuning_config(n_drives: int, specs) -> TuningConfig:
+        names, ranges = factor_ranges(n_drives, kp_range, kd_range, specs)
+        return TuningConfig(target=args.target if args.target is not None else cfg.target, ranges=ranges,
+                            names=names, array=args.array, tolerance=args.tolerance,
+                            max_evaluations=args.max_evaluations)
+
+    # validate the options before the (possibly long) orbit; a model file's factor names
+    # (--range) are known once its drives are
+    tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
-    objective = GainObjective(plant)
+    n_drives = len(plant.drives) if model_file else 1
+    if model_file:
+        tcfg = tuning_config(n_drives, specs)
+        oa = tcfg.orthogonal_array()
+        plant = propagator_steps(plant, tcfg)
+    objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
     kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
+    if args.model not in ("reduced", "exudyn"):
+        if args.scheduler:
+            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
+        kind = "serial"  # the plant holds a model loaded from a file: not picklable
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
+    if hasattr(plant, "drives"):
+        out["drives"] = list(plant.drives)
     out.update(res.to_dict())
+    kp, kd = _pairs(res.gains, n_drives)
+    out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
     if hasattr(plant, "spectral_measure"):
         # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
         # unprepared plant (an independent path to P(t): gains written into K, C and interpolated)
         import dataclasses
 
         finer = dataclasses.replace(getattr(plant, "plant", plant), n_steps=2 * plant.n_steps)
-        out["verified_spectral_radius"] = finer.spectral_measure(res.kp, res.kd)
+        out["verified_spectral_radius"] = finer.spectral_measure(kp, kd)
         out["verified_error_estimate"] = None
-        out["elements"] = args.elements or cfg.elements
+        out["propagator_steps"] = plant.n_steps
+        if args.model in ("exudyn", "single-link"):
+            out["elements"] = args.elements or cfg.elements
+        elif args.model == "two-link":
+            from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+            out["elements"] = args.elements or DEFAULT_ELEMENTS
     else:
-        check = floquet(plant.with_gains(res.kp, res.kd))
+        check = floquet(plant.with_gains(kp, kd))
         out["verified_spectral_radius"] = check.spectral_radius
         out["verified_error_estimate"] = check.error_estimate
     if args.compare:
@@ -158,34 +300,56 @@ def run(args: argparse.Namespace) -> int:
     d = tune_report(args)
     if not d["converged"]:
         print(f"flexstab tune: not converged: {d['message']}", file=sys.stderr)
+    elif abs(d["verified_spectral_radius"] - d["target"]) > d["tolerance"]:
+        print(f"flexstab tune: warning: the re-check with twice the propagator steps gives max|rho| = "
+              f"{d['verified_spectral_radius']:.6g}, outside rho_d +- {d['tolerance']:.3g}", file=sys.stderr)
     if args.json:
         dump_json(d, sys.stdout)
         return 0 if d["converged"] else 1
     print(f"Omega = {d['omega']:.6g} rad/s, target rho_d = {d['target']:g}, array {d['array']}")
     print(f"status: {d['status']} -- {d['message']}")
-    print(f"kp = {d['kp']:.6g}   kd = {d['kd']:.6g}   max|rho| = {d['spectral_radius']:.6g}"
-          f" (re-checked: {d['verified_spectral_radius']:.6g})")
+    names = d["names"]
+    if len(names) == 2:
+        gains = f"kp = {d['gains'][0]:.6g}   kd = {d['gains'][1]:.6g}"
+        if d.get("drives"):
+            gains = f"drive {d['drives'][0]}: {gains}"
+        print(f"{gains}   max|rho| = {d['spectral_radius']:.6g} (re-checked: {d['verified_spectral_radius']:.6g})")
+    else:
+        for j, drive in enumerate(d.get("drives") or [f"{j + 1}" for j in range(len(names) // 2)]):
+            print(f"drive {drive}: {names[2 * j]} = {d['gains'][2 * j]:.6g}   "
+                  f"{names[2 * j + 1]} = {d['gains'][2 * j + 1]:.6g}")
+        print(f"max|rho| = {d['spectral_radius']:.6g} (re-checked: {d['verified_spectral_radius']:.6g})")
     print(f"{d['evaluations']} Floquet evaluations in {len(d['iterations'])} iterations, {d['elapsed']:.2f} s")
-    print("\n iter   kp range              kd range              best kp     best kd     max|rho|")
-    for it in d["iterations"]:
-        inc = it["incumbent"]
-        print(f" {it['index']:>4}   [{it['kp_range'][0]:8.4g}, {it['kp_range'][1]:8.4g}]  "
-              f"[{it['kd_range'][0]:8.4g}, {it['kd_range'][1]:8.4g}]  {inc['kp']:10.5g}  {inc['kd']:10.5g}  "
-              f"{inc['spectral_radius']:.6g}")
+    if len(names) == 2:
+        print("\n iter   kp range              kd range              best kp     best kd     max|rho|")
+        for it in d["iterations"]:
+            inc = it["incumbent"]
+            r0, r1 = it[f"{names[0]}_range"], it[f"{names[1]}_range"]
+            print(f" {it['index']:>4}   [{r0[0]:8.4g}, {r0[1]:8.4g}]  [{r1[0]:8.4g}, {r1[1]:8.4g}]  "
+                  f"{inc[names[0]]:10.5g}  {inc[names[1]]:10.5g}  {inc['spectral_radius']:.6g}")
+    else:
+        print("\n iter  " + "".join(f"{s + ' range':>22}" for s in names) + "   max|rho| (best: "
+              + ", ".join(names) + ")")
+        for it in d["iterations"]:
+            inc = it["incumbent"]
+            rng = "".join(f"  [{it[s + '_range'][0]:8.4g}, {it[s + '_range'][1]:8.4g}]" for s in names)
+            print(f" {it['index']:>4}  {rng}   {inc['spectral_radius']:.6g} ("
+                  + ", ".join(f"{inc[s]:.5g}" for s in names) + ")")
     last = d["iterations"][-1] if d["iterations"] else None
     if last:
         rt = last["response_table"]
         print(f"\nresponse table of the last experiment (mean S/N in dB per level; levels 1..{len(rt['level_means'][0])}):")
-        print(f"{'level':>7} {'kp':>12} {'kd':>12}")
+        print(f"{'level':>7}" + "".join(f"{s:>12}" for s in names))
         for k in range(len(rt["level_means"][0])):
-            print(f"{k + 1:>7} {rt['level_means'][0][k]:12.3f} {rt['level_means'][1][k]:12.3f}")
-        print(f"{'delta':>7} {rt['delta'][0]:12.3f} {rt['delta'][1]:12.3f}")
-        print(f"{'rank':>7} {rt['rank'][0]:12d} {rt['rank'][1]:12d}")
+            print(f"{k + 1:>7}" + "".join(f"{m[k]:12.3f}" for m in rt["level_means"]))
+        print(f"{'delta':>7}" + "".join(f"{v:12.3f}" for v in rt["delta"]))
+        print(f"{'rank':>7}" + "".join(f"{v:12d}" for v in rt["rank"]))
         c = last["contribution_percent"]
-        print(f"contribution (ANOVA on S/N): kp {c[0]:.1f} %, kd {c[1]:.1f} %, error {last['error_contribution_percent']:.1f} %")
+        print("contribution (ANOVA on S/N): " + ", ".join(f"{s} {v:.1f} %" for s, v in zip(names, c))
+              + f", error {last['error_contribution_percent']:.1f} %")
         print(f"predicted S/N at the best levels {last['predicted_sn']:.2f} dB, "
               f"confirmation run {last['confirmation']['sn']:.2f} dB")
     for dr in d.get("direct", []):
-        print(f"direct {dr['method']}: {dr['status']}, {dr['evaluations']} evaluations, "
-              f"{dr['elapsed']:.2f} s, kp = {dr['kp']:.6g}, kd = {dr['kd']:.6g}")
+        gains = ", ".join(f"{s} = {g:.6g}" for s, g in zip(dr["names"], dr["gains"]))
+        print(f"direct {dr['method']}: {dr['status']}, {dr['evaluations']} evaluations, {dr['elapsed']:.2f} s, {gains}")
     return 0 if d["converged"] else 1

@@ -7,9 +7,12 @@ its eigenvalues are compared with the predicted multipliers in modulus and
 phase within the measurement's error bar (:mod:`validation.multipliers`).
 
 Gains: ``--kp``/``--kd`` if given (a missing one is 0; one value per drive,
-comma-separated, or one value for all); if neither is given and Omega is one
-of the paper's cases (2pi, 4pi, 6pi, 8pi), the paper's printed Table 3 gains
-(the output says so); otherwise the loop is uncontrolled.
+comma-separated, or one value for all); if neither is given, the study's rule
+(:func:`flexstab.study` reference gains): the paper's printed Table 3 gains for
+the paper's manipulator at one of the paper's Omegas (2pi, 4pi, 6pi, 8pi),
+otherwise the gains Taguchi tunes on the reduced model of the configured
+manipulator at that Omega to the configured target (the output says which).
+The printed gains belong to the paper's link only.
 
 Numbers are parsed here rather than by ``argparse`` so that every bad value
 ends as one line and exit code 2.
@@ -66,8 +69,9 @@ def register(sub) -> None:
     p.add_argument("--out", metavar="DIR", default=None,
                    help="also write validation.json and validation.png (complex plane) to DIR")
     p.epilog = (
-        "Gains: if neither --kp nor --kd is given and Omega is 2pi, 4pi, 6pi or 8pi, the paper's "
-        "Table 3 gains are used; otherwise a missing gain is 0."
+        "Gains: if neither --kp nor --kd is given, the paper's Table 3 gains for the paper's manipulator at "
+        "2pi, 4pi, 6pi or 8pi, otherwise the gains Taguchi tunes on the reduced model (as flexstab study); "
+        "if one is given, a missing gain is 0."
     )
     p.set_defaults(func=run)
 
@@ -97,16 +101,29 @@ def _gains(name: str, text: Optional[str]) -> Optional[list]:
     return [_number(name, s.strip(), minimum=0.0) for s in parts]
 
 
-def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float]) -> tuple[float, float, str]:
-    """Gains to use and where they come from (see the module docstring)."""
+def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float], cfg=None) -> tuple[float, float, str]:
+    """Gains to use and where they come from (see the module docstring).
+
+    ``cfg`` (a :class:`~flexstab.config.StudyConfig`, default the paper's manipulator) decides
+    whether the printed Table 3 gains apply and gives the target and ranges of the tuning.
+    """
     if kp is None and kd is None:
+        from flexstab.config import StudyConfig
+        from flexstab.paper_tables import is_paper_manipulator
         from mbs_models.paper_data import table3_gains
 
+        cfg = cfg if cfg is not None else StudyConfig()
         hit = table3_gains(omega)
-        if hit is not None:
+        if hit is not None and is_paper_manipulator(cfg.manipulator):
             k, kp3, kd3 = hit
             return kp3, kd3, f"paper Table 3 gains for Omega = {k}pi"
-        return 0.0, 0.0, "uncontrolled (no gains given, Omega not a Table 3 case)"
+        from mbs_models.reduced import ReducedModel
+        from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+        res = taguchi_tune(GainObjective(ReducedModel(omega, params=cfg.manipulator)),
+                           TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range))
+        return res.kp, res.kd, (f"Taguchi on the reduced model (no gains given; rho_d = {cfg.target:g}, "
+                                f"max|rho| = {res.spectral_radius:.5f}, {res.status})")
     return (kp or 0.0), (kd or 0.0), "command line"
 
 
@@ -144,7 +161,7 @@ def validation_report(args: argparse.Namespace):
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ValueError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
-    kp, kd, source = resolve_gains(omega, kp, kd)
+    kp, kd, source = resolve_gains(omega, kp, kd, cfg)
     if growth is None:
         growth = 3 if (kp == 0.0 and kd == 0.0) else 0
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,

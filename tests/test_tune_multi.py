@@ -1,0 +1,153 @@
+"""``flexstab tune --model PATH.py`` with two drives: four gains (kp1, kd1, kp2, kd2) tuned by Taguchi (L9),
+the reached multiplier checked against the hand-derived linearisation of the double pendulum integrated
+by scipy (independent of the package), and one-line errors for bad ranges."""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.integrate
+
+from flexstab.cli import main as cli_main
+from test_constrained_linearisation import double_pendulum_matrices  # hand-derived, written without the package
+
+HERE = Path(__file__).parent
+DOUBLE = str(HERE / "models" / "double_pendulum.py")
+OMEGA = 2 * math.pi
+TARGET = 0.5
+# the tuning stops at |r_loop - rho_d| <= TUNING_TOL; see test_four_gains_reach_target for the budget
+TUNING_TOL = 5e-4 * TARGET
+ARGS = ["tune", "--model", DOUBLE, "--omega", "2pi", "--target", str(TARGET),
+        "--kp-range", "0", "20", "--kd-range", "0", "5"]
+
+
+def reference_spectral_radius(kp, kd) -> float:
+    """max|rho| of the hand-derived linearisation: the monodromy matrix by DOP853 (rtol 1e-10), all four
+    columns in one integration."""
+    T = 2 * math.pi / OMEGA
+
+    def rhs(t, x):
+        M, C, K = double_pendulum_matrices(t, OMEGA, kp, kd)
+        X = x.reshape(4, 4)
+        A = np.block([[np.zeros((2, 2)), np.eye(2)], [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+        return (A @ X).ravel()
+
+    sol = scipy.integrate.solve_ivp(rhs, (0.0, T), np.eye(4).ravel(), method="DOP853", rtol=1e-10, atol=1e-12)
+    return float(np.max(np.abs(np.linalg.eigvals(sol.y[:, -1].reshape(4, 4)))))
+
+
+@pytest.fixture(scope="module")
+def tuned():
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = cli_main(ARGS + ["--tolerance", repr(TUNING_TOL), "--json"])
+    return rc, json.loads(buf.getvalue())
+
+
+def test_four_gains_reach_target(tuned):
+    rc, d = tuned
+    assert rc == 0 and d["converged"]
+    assert d["drives"] == ["shoulder", "elbow"]
+    assert d["names"] == ["kp1", "kd1", "kp2", "kd2"] and len(d["gains"]) == 4
+    assert d["array"].startswith("L9")
+    assert d["kp"] == d["gains"][0::2] and d["kd"] == d["gains"][1::2]
+    assert d["evaluations"] >= 10 and len(d["iterations"]) >= 1
+    for lo_hi, g in zip((d["iterations"][0][f"{s}_range"] for s in d["names"]), d["gains"]):
+        assert lo_hi[0] <= g <= lo_hi[1]
+    ref = reference_spectral_radius(d["kp"], d["kd"])
+    # |ref - rho_d| <= |r_loop - rho_d| (<= TUNING_TOL = 5e-4 rho_d, the stopping rule)
+    #                 + |ref - r_loop| (magnus2, 256 steps, O(h^2): step doubling 256 -> 512 moves it by
+    #                   3e-7, so ~5e-7; collocation at 32 samples < 1e-6 (test_constrained_linearisation);
+    #                   DOP853 at rtol 1e-10 ~1e-9)  ->  < 1e-3 rho_d with a wide margin
+    assert abs(ref - d["spectral_radius"]) <= 1e-5
+    assert abs(ref - TARGET) <= 1e-3 * TARGET
+    # the check can fail: the tuned shoulder/elbow kd raised by 5 % misses rho_d by far more than 1e-3 rho_d
+    wrong = reference_spectral_radius(d["kp"], [1.05 * v for v in d["kd"]])
+    assert abs(wrong - TARGET) > 1e-2 * TARGET
+
+
+def test_text_output_lists_each_drive(capsys):
+    rc = cli_main(ARGS + ["--max-evaluations", "10"])
+    out = capsys.readouterr().out
+    assert rc == 1  # 10 evaluations: one L9 experiment and its confirmation run, not converged
+    assert re.search(r"^drive shoulder: kp1 = \S+ +kd1 = \S+$", out, re.M)
+    assert re.search(r"^drive elbow: kp2 = \S+ +kd2 = \S+$", out, re.M)
+    assert "10 Floquet evaluations" in out
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--kp-range", "5", "1"], "kp range is empty or inverted"),  # checked before the orbit
+    (["--range", "kd2=3,1"], "kd2 range is empty or inverted"),
+    (["--range", "kp3=0,1"], "unknown factor 'kp3'; the factors are kp1, kd1, kp2, kd2"),
+    (["--range", "kp1=0"], "--range expects NAME=LO,HI"),
+])
+def test_bad_range_one_line(capsys, extra, message):
+    rc = cli_main(ARGS + extra)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_range_on_single_drive_model(capsys):
+    """One drive: the factors are kp, kd; a per-drive name is rejected before any computation."""
+    assert cli_main(["tune", "--range", "kp1=0,10"]) == 2
+    assert "unknown factor 'kp1'; the factors are kp, kd" in capsys.readouterr().err
+
+
+def test_one_drive_model_file_keeps_kp_kd(tmp_path, capsys):
+    """One drive (the rigid bar of test_model_file: no gravity, no damping): J_O phi'' + kd phi' + kp phi = 0
+    has constant coefficients, so max|rho| = max|eig(expm(A T))| exactly."""
+    import scipy.linalg
+
+    from test_model_file import _bar
+
+    path = _bar(tmp_path)
+    rc = cli_main(["tune", "--model", str(path), "--omega", "2pi", "--target", "0.3", "--kp-range", "0", "20",
+                   "--kd-range", "0", "5", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == 0 and d["converged"] and d["drives"] == ["joint"] and d["names"] == ["kp", "kd"]
+    assert isinstance(d["kp"], float) and isinstance(d["kd"], float)
+
+    def rho(kp, kd):
+        J = 0.1 + 1.0 * 0.5**2  # inertia about the pivot (COM 0.5 m away)
+        A = np.array([[0.0, 1.0], [-kp / J, -kd / J]])
+        return float(np.max(np.abs(np.linalg.eigvals(scipy.linalg.expm(A * 2 * math.pi / OMEGA)))))
+
+    # the tuning stops at 1e-3 rho_d; magnus2 on a constant-coefficient system is exact up to round-off
+    # and the collocated orbit is exact (rigid, no gravity) up to its Newton tolerance: margin 1e-6
+    assert abs(rho(d["kp"], d["kd"]) - 0.3) <= 1e-3 * 0.3 + 1e-6
+    assert abs(rho(d["kp"], 1.05 * d["kd"]) - 0.3) > 1e-2 * 0.3  # the check can fail
+
+
+def test_model_without_drives_one_line(capsys):
+    assert cli_main(["tune", "--model", str(HERE / "models" / "vertical_pendulum.py"), "--omega", "80"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "has no drives" in err, err
+
+
+def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
+    """A second-order response r_n = r + c / n^2: the chosen n has (4/3)|r_n - r_2n| = c / n^2 <= tol / 4."""
+    from dataclasses import dataclass
+
+    from flexstab.commands.tune import MAX_TUNING_STEPS, propagator_steps
+    from taguchi.tuning import TuningConfig
+
+    @dataclass(frozen=True)
+    class Fake:
+        c: float
+        n_steps: int = 256
+
+        def spectral_measure(self, kp, kd):
+            assert len(kp) == len(kd) == 2
+            return 0.3 + self.c / self.n_steps**2
+
+    cfg = TuningConfig(target=0.3, ranges=((0, 1),) * 4)  # tolerance 3e-4
+    for c, n in ((1.0, 256), (100.0, 2048)):  # c / n^2 <= 7.5e-5: 1 / 256^2 = 1.5e-5; 100 / 1024^2 = 9.5e-5 > 7.5e-5
+        assert propagator_steps(Fake(c), cfg).n_steps == n
+    assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
