@@ -735,8 +735,11 @@ def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
     h = period / INITIAL_STEPS
     starts = np.arange(0, INITIAL_STEPS, INITIAL_STEPS // BALANCE_SAMPLES) * h
     if scheme is None or scheme.order <= 2:
-        return None, wrapped.evaluate(starts + 0.5 * h)
-    nodes = sorted(set(scheme.nodes) | {0.5})
+        # the starts k T / 8 are evaluated too (and discarded) so that P's own input checks (a mass
+        # matrix that vanishes at T/2, a NaN at t = 0) see the equispaced grid k T / 8 as well
+        both = wrapped.evaluate(np.concatenate([starts, starts + 0.5 * h]))
+        return None, both[len(starts):]
+    nodes = sorted(set(scheme.nodes) | {0.0, 0.5})
     P = wrapped.evaluate((starts[:, None] + h * np.array(nodes)[None, :]).ravel())
     P = P.reshape(len(starts), len(nodes), *P.shape[1:])
     return P[:, [nodes.index(c) for c in scheme.nodes]], P[:, nodes.index(0.5)]
