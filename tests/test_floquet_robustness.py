@@ -13,7 +13,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import example, HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from flexstab.cli import main as cli_main
@@ -34,11 +34,15 @@ ESTIMATE_FACTOR = 10.0
 def _agree(a, b) -> bool:
     """Moduli >= 1e-6 of the largest agree within the combined error estimates.
 
-    Bound: |rho_a - rho_b| / rho <= 10 (est_a + est_b) + 100 eps (rounding of the moduli).
+    Bound: |rho_a - rho_b| / rho <= 10 (est_a + est_b) + (N_a + N_b) n eps: the step-doubling
+    estimates bound the discretisation, and each of the N factors of a product of n x n
+    propagators rounds the dominant modulus by ~n eps relative (a fixed 100 eps was too small for
+    N = 1024: hypothesis found a 1.0191 multiplier 1e-13 apart with estimates of 5e-15).
     """
     keep = b.moduli >= 1e-6 * b.moduli[0]
     diff = np.max(np.abs(a.moduli[keep] / b.moduli[keep] - 1.0))
-    bound = ESTIMATE_FACTOR * (a.error_estimate + b.error_estimate) + 100 * np.finfo(float).eps
+    rounding = (a.n_steps + b.n_steps) * len(a.moduli) * np.finfo(float).eps
+    bound = ESTIMATE_FACTOR * (a.error_estimate + b.error_estimate) + rounding
     return bool(diff <= bound)
 
 
@@ -77,6 +81,7 @@ def test_agreement_check_rejects_a_wrong_answer():
 
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(length=0.99999, tip_mass=0.0, k=8, kp=0.0, kd=33.0)  # found by hypothesis: rounding-limited
 @given(
     length=st.floats(0.4, 1.4),
     tip_mass=st.floats(0.0, 0.6),
