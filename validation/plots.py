@@ -200,7 +200,16 @@ def plot_multiplier_plane(
         ax.set_aspect("equal")
         ax.axhline(0, color="0.85", lw=0.5)
         ax.axvline(0, color="0.85", lw=0.5)
-        verdict = "diverged" if r.diverged else ("agrees" if r.agrees else "DISAGREES")
+        if r.diverged:
+            verdict = "diverged"
+        elif r.agrees:
+            verdict = "agrees"
+        elif r.measured.size and not r.step_converged and r.agrees_dominant:
+            verdict = "dominant agrees; a smaller multiplier not converged in h"
+        elif r.measured.size and not r.step_converged:
+            verdict = "no verdict: step refinement not converging"
+        else:
+            verdict = "DISAGREES"
         ax.set_title(f"{title}\n{r.prediction.name}: {verdict}", fontsize=8)
         ax.set_xlabel("Re ρ")
         ax.set_ylabel("Im ρ")
