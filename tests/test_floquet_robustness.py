@@ -29,6 +29,8 @@ REFERENCE_STEPS = 1024
 #: a pair only when the observed error scaling agrees with the scheme's order
 #: within a factor 4 (floquet.CONSISTENCY), so allow 10x the sum of both estimates.
 ESTIMATE_FACTOR = 10.0
+#: The accuracy the default ``floquet()`` certifies (its ``rtol``).
+CERTIFIED_RTOL = 1e-9
 
 
 def _agree(a, b) -> bool:
@@ -38,11 +40,15 @@ def _agree(a, b) -> bool:
     estimates bound the discretisation, and each of the N factors of a product of n x n
     propagators rounds the dominant modulus by ~n eps relative (a fixed 100 eps was too small for
     N = 1024: hypothesis found a 1.0191 multiplier 1e-13 apart with estimates of 5e-15).
+    The adaptive result is certified to the requested ``rtol`` (default 1e-9); its Richardson
+    estimate can under-read the true error in the pre-asymptotic range (found by hypothesis:
+    0.941 m, no tip mass, 4 pi, kp 0, kd 11.11 -> true error 1.9e-11, estimate 6.7e-13, N = 128),
+    so the bound is never tighter than that certified ``rtol``.
     """
     keep = b.moduli >= 1e-6 * b.moduli[0]
     diff = np.max(np.abs(a.moduli[keep] / b.moduli[keep] - 1.0))
     rounding = (a.n_steps + b.n_steps) * len(a.moduli) * np.finfo(float).eps
-    bound = ESTIMATE_FACTOR * (a.error_estimate + b.error_estimate) + rounding
+    bound = max(ESTIMATE_FACTOR * a.error_estimate, CERTIFIED_RTOL) + ESTIMATE_FACTOR * b.error_estimate + rounding
     return bool(diff <= bound)
 
 
@@ -82,6 +88,7 @@ def test_agreement_check_rejects_a_wrong_answer():
 
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(length=0.99999, tip_mass=0.0, k=8, kp=0.0, kd=33.0)  # found by hypothesis: rounding-limited
+@example(length=0.9411410533042086, tip_mass=0.0, k=4, kp=0.0, kd=11.113936481144332)  # estimate under-reads
 @given(
     length=st.floats(0.4, 1.4),
     tip_mass=st.floats(0.0, 0.6),
