@@ -89,6 +89,7 @@ def test_agreement_check_rejects_a_wrong_answer():
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(length=0.99999, tip_mass=0.0, k=8, kp=0.0, kd=33.0)  # found by hypothesis: rounding-limited
 @example(length=0.9411410533042086, tip_mass=0.0, k=4, kp=0.0, kd=11.113936481144332)  # estimate under-reads
+@example(length=1.0, tip_mass=0.0, k=8, kp=0.0, kd=1.0)  # found in a CI run: estimate under-reads
 @given(
     length=st.floats(0.4, 1.4),
     tip_mass=st.floats(0.0, 0.6),
