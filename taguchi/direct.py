@@ -17,7 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import differential_evolution, minimize
 
-from taguchi.tuning import STATUS_BUDGET, STATUS_CONVERGED, TuningConfig
+from taguchi.tuning import STATUS_BUDGET, STATUS_CONVERGED, NamedGains, TuningConfig
 
 __all__ = ["DirectResult", "direct_tune", "DIRECT_METHODS"]
 
@@ -25,7 +25,7 @@ DIRECT_METHODS = ("nelder-mead", "differential-evolution")
 
 
 @dataclass(frozen=True)
-class DirectResult:
+class DirectResult(NamedGains):
     """Outcome of :func:`direct_tune` (fields as :class:`~taguchi.tuning.TaguchiResult`)."""
 
     gains: tuple[float, ...]
@@ -38,21 +38,6 @@ class DirectResult:
     method: str
     evaluations: int
     elapsed: float
-
-    @property
-    def kp(self) -> float:
-        """``kp`` of a single-drive tuning (use :attr:`gains` for several drives)."""
-        return self._named("kp")
-
-    @property
-    def kd(self) -> float:
-        """``kd`` of a single-drive tuning (use :attr:`gains` for several drives)."""
-        return self._named("kd")
-
-    def _named(self, key: str) -> float:
-        if key not in self.names:
-            raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
-        return self.gains[self.names.index(key)]
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary (one key per factor, plus ``gains`` and ``names``)."""

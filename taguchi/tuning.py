@@ -374,8 +374,28 @@ class TaguchiIteration:
         return out
 
 
+class NamedGains:
+    """``kp``/``kd`` of a single-drive tuning result with ``names`` and ``gains`` fields
+    (shared by :class:`TaguchiResult` and :class:`taguchi.direct.DirectResult`)."""
+
+    @property
+    def kp(self) -> float:
+        """``kp`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kp")
+
+    @property
+    def kd(self) -> float:
+        """``kd`` of a single-drive tuning (use :attr:`gains` for several drives)."""
+        return self._named("kd")
+
+    def _named(self, key: str) -> float:
+        if key not in self.names:
+            raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
+        return self.gains[self.names.index(key)]
+
+
 @dataclass(frozen=True)
-class TaguchiResult:
+class TaguchiResult(NamedGains):
     """Outcome of :func:`taguchi_tune`.
 
     Attributes
@@ -414,21 +434,6 @@ class TaguchiResult:
     array: str
     elapsed: float
     config: TuningConfig = field(repr=False, default_factory=TuningConfig)
-
-    @property
-    def kp(self) -> float:
-        """``kp`` of a single-drive tuning (use :attr:`gains` for several drives)."""
-        return self._named("kp")
-
-    @property
-    def kd(self) -> float:
-        """``kd`` of a single-drive tuning (use :attr:`gains` for several drives)."""
-        return self._named("kd")
-
-    def _named(self, key: str) -> float:
-        if key not in self.names:
-            raise AttributeError(f"this tuning has factors {', '.join(self.names)}, no {key!r}; use .gains")
-        return self.gains[self.names.index(key)]
 
     def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
         gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.gains))
