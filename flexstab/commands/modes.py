@@ -4,7 +4,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import sys
-from typing import Iterator
 
 from flexstab.options import dump_json
 
@@ -19,22 +18,6 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
     return value
-
-
-@contextlib.contextmanager
-def _exudyn_quiet(quiet: bool) -> Iterator[None]:
-    """Switch Exudyn's console output (solver banners) off while the block runs; restore it after."""
-    if not quiet:
-        yield
-        return
-    import exudyn as exu
-
-    previous = bool(exu.config.printToConsole)
-    exu.config.printToConsole = False
-    try:
-        yield
-    finally:
-        exu.config.printToConsole = previous
 
 
 def register(sub) -> None:
@@ -73,7 +56,9 @@ def modes_report(args: argparse.Namespace) -> dict:
     # analytic values exist for the bending modes; give as many as asked for
     # Exudyn prints its warnings (e.g. "more than 1000 coordinates, consider a sparse solver") through
     # Python's stdout: send them to stderr so that stdout holds only the table or the JSON object
-    with contextlib.redirect_stdout(sys.stderr), _exudyn_quiet(quiet=bool(getattr(args, "json", False))):
+    from validation.closed_loop import exudyn_console  # Exudyn is imported only by the commands that use it
+
+    with contextlib.redirect_stdout(sys.stderr), exudyn_console(quiet=bool(getattr(args, "json", False))):
         res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,
                                  analytic_count=args.count)
     out = res.to_dict()
