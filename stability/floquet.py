@@ -344,6 +344,8 @@ class _Solve:
     spectrum: _Spectrum
     log_abs_det: float
     factors: Optional[np.ndarray]
+    #: the companion solve with ``N / 3`` sub-intervals (magnus2, see :func:`_third_companion`)
+    third: Optional["_Solve"] = None
 
 
 #: First sub-interval count of the adaptive factor methods.  Magnus schemes
@@ -375,6 +377,11 @@ MEMORY_LIMIT = 1.5e9
 #: Number of ``(N, n, n)``-sized work arrays alive at once in a solve (P at the
 #: Gauss points, exponents, commutators, Pade terms).
 WORK_ARRAYS = 12
+#: Memory for the work arrays of one chunk of a streamed solve (systems larger than
+#: ``SMALL_N`` whose full stack of work arrays would exceed this are propagated in
+#: chunks of consecutive sub-intervals, so that memory is ``O(n^2)`` in ``N``; the
+#: chunks stay large enough that the per-call cost of evaluating ``P`` is shared).
+CHUNK_MEMORY = 4.0e8
 #: ``T * ||P||`` (balanced) beyond which the period is too long for double precision:
 #: ``ln rho = T lambda`` carries an absolute rounding error ``eps T |lambda|``,
 #: so at 1e12 not even the first digits of the phases are left (and moduli
@@ -437,16 +444,49 @@ def _memory_check(scheme: MagnusScheme, N: int, n: int) -> None:
         )
 
 
+def _stream_chunk(scheme: MagnusScheme, n: int) -> int:
+    """Sub-intervals per chunk of a streamed solve: the work arrays of one chunk within :data:`CHUNK_MEMORY`."""
+    return max(1, int(CHUNK_MEMORY // (WORK_ARRAYS * len(scheme.nodes) * n * n * 8.0)))
+
+
+def _third_companion(scheme: MagnusScheme, N: int, n: int) -> bool:
+    """Whether a fixed-``N`` solve also forms the ``N / 3`` solve from its own factors.
+
+    The exponential midpoint rule with ``N / 3`` sub-intervals of length ``3 h``
+    samples ``P`` at ``(3 j + 3/2) h``, the midpoint of fine sub-interval
+    ``3 j + 1``, and ``expm(3 h P) = expm(h P)^3``: its factors are the cubes of
+    every third fine factor, so the pair ``(N, N / 3)`` of the step-doubling
+    (here step-tripling) estimate costs two matrix products per coarse factor
+    instead of ``N / 2`` more exponentials.  Large systems only (``n > SMALL_N``),
+    where the exponentials dominate.
+    """
+    return scheme.order == 2 and n > SMALL_N and N % 3 == 0 and N >= 3
+
+
+def _cube_product(E: np.ndarray) -> np.ndarray:
+    """``C_m ... C_1`` with ``C_j = E_{3j+1}^3`` for factors ``E`` (time order, a multiple of 3 of them)."""
+    mid = E[1::3]
+    return ordered_product(mid @ mid @ mid)
+
+
 def _magnus_solve(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, keep_factors: bool,
-    strict: bool = True,
+    strict: bool = True, third: bool = False,
 ) -> _Solve:
     """One propagation with ``N`` sub-intervals; raises :class:`_Unresolved` if it means nothing.
 
     ``strict=False`` (a step count fixed by the caller) skips the
-    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.
+    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.  With a fixed
+    step count (``strict=False``), large systems whose ``N`` work arrays exceed
+    :data:`CHUNK_MEMORY` are propagated in chunks (:func:`_magnus_solve_streamed`)
+    unless the factors are to be kept; the adaptive refinement keeps
+    :data:`MEMORY_LIMIT` as its limit of effort (a stiff, fast system that no
+    step count resolves fails at the limit instead of refining to ``max_steps``).
     """
     n = wrapped.n
+    third = third and _third_companion(scheme, N, n)
+    if not strict and not keep_factors and n > SMALL_N and N > _stream_chunk(scheme, n):
+        return _magnus_solve_streamed(scheme, wrapped, period, N, strict, _stream_chunk(scheme, n), third)
     _memory_check(scheme, N, n)
     h = period / N
     nodes = np.asarray(scheme.nodes)
@@ -477,7 +517,73 @@ def _magnus_solve(
                 genuine_overflow=True,
             )
     log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
-    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
+    companion = None
+    if third:
+        Phi3 = _cube_product(E)
+        companion = _Solve(N // 3, Phi3, _spectrum(Phi3), 3.0 * float(np.sum(np.trace(Om[1::3], axis1=1, axis2=2))),
+                           None)
+    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None, companion)
+
+
+def _magnus_solve_streamed(
+    scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, strict: bool, chunk: int,
+    third: bool = False,
+) -> _Solve:
+    """:func:`_magnus_solve` with ``O(chunk n^2)`` memory: the factors of ``chunk`` consecutive sub-intervals
+    are formed, multiplied (pairwise) into one and applied to the running product ``Phi``, then dropped.
+
+    Maths: the same factors ``E_k = expm(Omega_k)`` and the same product
+    ``Phi = E_N ... E_1`` as the stored solve, associated differently:
+    ``Phi = (E_N ... E_{N-c+1}) ... (E_c ... E_1)``.  Each association of a
+    product of ``N`` factors ``n x n`` is exact up to the first-order rounding
+    bound ``|fl(Phi) - Phi| <= (N - 1) n eps |E_N| ... |E_1|`` (elementwise,
+    Higham 2002, Sec. 3.5), so the two results differ by at most twice that
+    (``tests/test_floquet_streamed.py`` checks it).
+    """
+    n = wrapped.n
+    h = period / N
+    nodes = np.asarray(scheme.nodes)
+    q = len(nodes)
+    if third:
+        chunk = max(3, chunk - chunk % 3)  # whole triples in every chunk
+    Phi = np.eye(n)
+    Phi3 = np.eye(n) if third else None
+    log_det = log_det3 = 0.0
+    om_max = 0.0
+    for start in range(0, N, chunk):
+        idx = np.arange(start, min(N, start + chunk))
+        times = (idx[:, None] + nodes[None, :]) * h
+        Pg = wrapped.evaluate(times.ravel()).reshape(idx.size, q, n, n)
+        with np.errstate(over="ignore", invalid="ignore"):
+            Om = magnus_exponents(scheme, Pg, h)
+            if strict and scheme.order > 2:
+                _commutator_limit(scheme, Om, Pg, h, N)
+            del Pg
+            om_max = max(om_max, float(np.abs(Om).sum(axis=1).max()))
+            log_det += float(np.sum(np.trace(Om, axis1=1, axis2=2)))
+            if third:
+                log_det3 += 3.0 * float(np.sum(np.trace(Om[1::3], axis1=1, axis2=2)))
+            E = expm_stack(Om)
+            del Om
+            if not np.isfinite(E).all():
+                raise _Unresolved(
+                    f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
+                    f"(h*||P|| up to {om_max:.3g})",
+                    genuine_overflow=True,
+                )
+            Phi = ordered_product(E) @ Phi
+            if third:
+                Phi3 = _cube_product(E) @ Phi3
+            del E
+            if not np.isfinite(Phi).all():
+                raise _Unresolved(
+                    f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
+                    f"within one period)",
+                    genuine_overflow=True,
+                )
+    logger.debug("%s: %d sub-intervals of %dx%d streamed in chunks of %d", scheme.name, N, n, n, chunk)
+    companion = _Solve(N // 3, Phi3, _spectrum(Phi3), log_det3, None) if third else None
+    return _Solve(N, Phi, _spectrum(Phi), log_det, None, companion)
 
 
 @functools.lru_cache(maxsize=64)
@@ -613,10 +719,10 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         evaluations = 0
         phase_estimate = [math.nan]  # of the last pair (reported, certified only with accuracy="multipliers")
 
-        def solve(N: int, strict: bool = True) -> _Solve:
+        def solve(N: int, strict: bool = True, third: bool = False) -> _Solve:
             nonlocal evaluations
             evaluations += q * N
-            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict)
+            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict, third)
 
         def solve_pair(N: int) -> tuple[_Solve, _Solve]:
             """Solves with ``N`` and ``2 N`` sub-intervals (one batch for small systems)."""
@@ -645,11 +751,14 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
 
         if n_steps is not None:
             try:
-                fine = solve(n_steps, strict=False)
+                fine = solve(n_steps, strict=False, third=error_estimate)
             except _Unresolved as exc:
                 raise FloquetError(f"{exc}; use more steps (n_steps) or method='magnus2'") from None
             changes, est = None, math.nan
-            if error_estimate and n_steps >= 2:
+            if error_estimate and fine.third is not None:
+                # the N / 3 solve came with the fine one (magnus2, large n): ratio 3, factor 3^2 - 1
+                changes, est, _ = pair_estimate(fine, fine.third)
+            elif error_estimate and n_steps >= 2:
                 try:
                     changes, est, _ = pair_estimate(fine, solve(n_steps // 2, strict=False))
                 except _Unresolved:
