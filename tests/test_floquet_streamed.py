@@ -196,3 +196,43 @@ def test_streamed_companion_equals_stored_companion():
     E = _factors(wrapped, MAGNUS2, N)[1::3]
     assert np.all(np.abs(streamed.third.monodromy - stored.third.monodromy) <= _rounding_bound(E @ E @ E))
     assert np.all(np.abs(streamed.monodromy - stored.monodromy) <= _rounding_bound(_factors(wrapped, MAGNUS2, N)))
+
+
+# --------------------------------------------------------------------------- the nested trace rule
+class _Counting:
+    """``P(t) = diag(f(t), 0)`` counting its evaluation times."""
+
+    def __init__(self, f):
+        self.f, self.times, self.period = f, 0, 1.0
+
+    def evaluate(self, t):
+        t = np.atleast_1d(t)
+        self.times += t.size
+        P = np.zeros((t.size, 2, 2))
+        P[:, 0, 0] = self.f(t)
+        return P
+
+    def __call__(self, t):
+        return self.evaluate(np.array([t]))[0]
+
+
+def test_trace_rule_stops_when_converged():
+    """Smooth integrand: int_0^1 exp(sin 2 pi t) dt = I0(1); the nested rule stops at 64 points,
+    within TRACE_RTOL of the integral of |tr P| (= the integral here)."""
+    from scipy.special import i0
+
+    P = _Counting(lambda t: np.exp(np.sin(2 * np.pi * t)))
+    value = fq._trace_integral(P, PeriodicMatrixFunction(P, 1.0), 1.0)
+    assert abs(value - i0(1.0)) <= fq.TRACE_RTOL * i0(1.0)
+    assert P.times - 1 <= fq.TRACE_MIN_POINTS  # (one evaluation at t = 0 checks P's shape)
+
+
+def test_trace_rule_refines_a_kinked_integrand():
+    """|sin pi t| has a kink: the trapezoidal error falls only like K^-2, successive sums never agree
+    to 1e-13, so the rule refines to its limit of TRACE_POINTS (no early stop on a wrong value)."""
+    P = _Counting(lambda t: np.abs(np.sin(np.pi * t)))
+    value = fq._trace_integral(P, PeriodicMatrixFunction(P, 1.0), 1.0)
+    assert P.times - 1 == fq.TRACE_POINTS
+    # Euler-Maclaurin: the K-point error is h^2 / 12 times the jump 2 pi of the derivative at the kink,
+    # pi / (6 K^2) absolute; a factor 2 for the higher terms
+    assert abs(value - 2 / np.pi) <= 2.0 * np.pi / (6 * fq.TRACE_POINTS**2)
