@@ -50,23 +50,10 @@ def register(sub) -> None:
 def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     """The plant object (``with_gains(kp, kd)``) for the chosen model."""
     if model not in ("reduced", "exudyn"):
-        from flexstab.options import is_model_file
+        from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
-        from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
 
-        if is_model_file(model):
-            if elements is not None:
-                raise ValueError("--elements applies to built-in models only")
-            definition, options = load_model_file(model), {}
-        elif model in BUILTIN_MODELS:
-            definition = builtin_model(model)
-            if model == "single-link":  # the configured link and its mesh
-                options = {"elements": elements or cfg.elements, "params": cfg.manipulator}
-            else:  # other built-ins (two-link) keep their own default mesh unless --elements is given
-                options = {"elements": elements} if elements is not None else {}
-        else:
-            raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
-                             f"or a model file PATH.py")
+        definition, options = resolve_model_definition(model, cfg, elements)
         plant = model_plant(definition, omega, **options)
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
