@@ -71,7 +71,8 @@ from typing import Callable, Optional, Sequence
 from flexstab.config import StudyConfig
 from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
-__all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash"]
+__all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash",
+           "validation_blocks"]
 
 logger = logging.getLogger(__name__)
 
@@ -444,6 +445,18 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
                           titles=[f"Ω = {cfg.omega / math.pi:.4g}π: kp = {kp:.4g}, kd = {kd:.4g}"],
                           suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
 
+    blocks = validation_blocks(d, f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: "
+                                  f"{source}).", check.steps, fig)
+    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
+            "files": [fig, "validation.json"]}
+
+
+def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> list:
+    """Report blocks of a nonlinear multiplier validation (``MultiplierValidation.to_dict()``).
+
+    ``what`` opens the paragraph (the model and its gains), ``steps`` are the generalised-alpha
+    steps, ``fig`` the complex-plane figure.
+    """
     def z(c):
         return "–" if c is None else f"{c[0]:+.6f}{c[1]:+.6f}i"
 
@@ -456,20 +469,20 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
         rows.append([m["mode"], z(m["predicted"]), z(m.get("measured")), e(m.get("abs_error")),
                      e(m.get("error_bar")), "yes" if m.get("agrees") else "no"])
     blocks = [
-        text(f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: {source}). The "
-             "one-period map of the nonlinear closed loop is measured on the subspace of the compared multipliers "
-             "(central differences of runs from the periodic orbit perturbed along the predicted Floquet vectors, "
-             "generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in check.steps) + " s); its "
+        text(what + " The one-period map of the nonlinear closed loop is measured on the subspace of the compared "
+             "multipliers (central differences of runs from the periodic orbit perturbed along the predicted Floquet "
+             "vectors, generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in steps) + " s); its "
              "eigenvalues are compared with the multipliers of the Exudyn linearisation within the measurement's "
              "error bar (Richardson step error + amplitude check + prediction refinement)."
              + (f" Diverged: {d['reason']}." if d["diverged"] else "")),
         table(["mode", "predicted", "measured", "absolute error", "error bar", "agrees"], rows),
-        text("Measured distance to the alternative predictions: "
-             + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."),
-        figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the unit circle."),
     ]
-    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
-            "files": [fig, "validation.json"]}
+    if alts:
+        blocks.append(text("Measured distance to the alternative predictions: "
+                           + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."))
+    blocks.append(figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the "
+                              "unit circle."))
+    return blocks
 
 
 #: Registry of the study's stages, in order.
