@@ -614,14 +614,15 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, e
         return Xf, history, True, tb
     if second_guess is not None:
         logger.debug("orbit: full-step Newton from the simulated guess stopped at %.2e; quasi-static guess",
-                     history[-1])
+                     history[-1] if history else math.nan)
         X2 = second_guess(col)
         if X2 is not None:
             Xf, h2, ok, tb = _full_step_newton(col, X2, tol, max_iterations)
             history += h2
             if ok:
                 return Xf, history, True, tb
-    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess", history[-1])
+    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess",
+                 history[-1] if history else math.nan)
     X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up)
     return X, history + h2, ok, tb
 
@@ -741,58 +742,85 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     return X
 
 
-#: Quasi-static guess: Newton iterations per sample and the relative residual they must reach.
+#: Quasi-static guess: Newton iterations per static solve, the relative residual they must
+#: reach, and how often the step from one sample time to the next may be halved.
 QUASI_STATIC_ITERATIONS = 10
 QUASI_STATIC_TOLERANCE = 1e-8
+QUASI_STATIC_HALVINGS = 6
+
+
+def _static_solve(col: _Collocation, y: np.ndarray, t: float, use: Optional[bool]):
+    """Newton for the static equilibrium at time ``t`` with the drives at ``r(t)`` from
+    ``y = (q, lambda, tau)``; returns ``(y, use)`` or ``(None, use)``."""
+    sysm = col.system
+    n, m = col.n, col.m
+    zero = np.zeros(n)
+    r_t = np.array([dr.evaluate(t)[0] for dr in col.built.drives], dtype=float)
+    J = np.zeros((col.s, col.s))
+    J[:n, n + m:] = -col.B
+    J[n + m:, :n] = col.B.T
+    y = y.copy()
+    for _ in range(QUASI_STATIC_ITERATIONS):
+        q, lam, tau = y[:n], y[n:n + m], y[n + m:]
+        f = sysm.rhs(q, zero, t)
+        r = -f - col.B @ tau
+        g = np.zeros(0)
+        if m:
+            r = r + sysm.constraint_jacobian(q, t).T @ lam
+            g = sysm.constraints(q, t)
+        geo = np.concatenate([g, col.B.T @ q - r_t])
+        res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
+                  float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
+        if not math.isfinite(res):
+            return None, use
+        if res <= QUASI_STATIC_TOLERANCE:
+            return y, use
+        tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
+                            use_exudyn_jacobian=use, accurate=False)
+        use = tb.exudyn_jacobian
+        J[:n, :n] = tb.K[0]
+        J[:n, n:n + m] = tb.Cq[0].T
+        J[n:n + m, :n] = tb.Cq[0]
+        y = y + np.linalg.solve(J, -np.concatenate([r, geo]))
+    return None, use
 
 
 def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
     """The drives' motions with the model in static equilibrium at every sample (no inertia).
 
-    At each sample ``t_k`` (in order, each started from the previous one and the first
-    from the model file's initial state) Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau
-    = 0``, ``C(q, t_k) = 0``, ``B^T q = r(t_k)``.  For a driven flexible arm this is the rigid
-    motion with the static (gravity) deflection, a guess in the right configuration at every
-    sample, which the simulated period (with the free vibration its start excites) need not
-    be.  Returns ``None`` when a sample does not converge (e.g. no static equilibrium).
+    At each sample ``t_k`` Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau = 0``,
+    ``C(q, t_k) = 0``, ``B^T q = r(t_k)``, marching in time from the model file's initial
+    state (natural continuation: each solve starts from the previous one; a step that
+    does not converge is halved, at most :data:`QUASI_STATIC_HALVINGS` times).  For a
+    driven flexible arm this is the rigid motion with the static (gravity) deflection, a
+    guess in the right configuration at every sample, which the simulated period (with
+    the free vibration its start excites) need not be.  Returns ``None`` when no
+    equilibrium is found (e.g. a model without a static equilibrium).
     """
-    sysm = col.system
     n, m, d = col.n, col.m, col.d
-    q = np.array(sysm.q_initial, dtype=float)
-    lam, tau = np.zeros(m), np.zeros(d)
-    zero = np.zeros(n)
     use = col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians
+    y = np.concatenate([np.asarray(col.system.q_initial, dtype=float), np.zeros(m + d)])
     X = np.empty((col.K, col.s))
-    J = np.zeros((col.s, col.s))
-    J[:n, n + m:] = -col.B
-    J[n + m:, :n] = col.B.T
+    t_now = 0.0
     try:
         for k in range(col.K):
-            t = float(col.times[k])
-            for _ in range(QUASI_STATIC_ITERATIONS):
-                f = sysm.rhs(q, zero, t)
-                r = -f - col.B @ tau
-                g = np.zeros(0)
-                if m:
-                    r = r + sysm.constraint_jacobian(q, t).T @ lam
-                    g = sysm.constraints(q, t)
-                geo = np.concatenate([g, col.B.T @ q - col.R[k]])
-                res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
-                          float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
-                if res <= QUASI_STATIC_TOLERANCE:
+            t_k = float(col.times[k])
+            h = t_k - t_now
+            halvings = 0
+            while True:
+                t_try = t_k if t_now + h >= t_k else t_now + h
+                y_new, use = _static_solve(col, y, t_try, use)
+                if y_new is None:
+                    halvings += 1
+                    if halvings > QUASI_STATIC_HALVINGS or k == 0:
+                        logger.debug("quasi-static guess: no equilibrium at t = %.4g", t_try)
+                        return None
+                    h *= 0.5
+                    continue
+                y, t_now = y_new, t_try
+                if t_now >= t_k:
                     break
-                tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
-                                    use_exudyn_jacobian=use, accurate=False)
-                use = tb.exudyn_jacobian
-                J[:n, :n] = tb.K[0]
-                J[:n, n:n + m] = tb.Cq[0].T
-                J[n:n + m, :n] = tb.Cq[0]
-                dy = np.linalg.solve(J, -np.concatenate([r, geo]))
-                q, lam, tau = q + dy[:n], lam + dy[n:n + m], tau + dy[n + m:]
-            else:
-                logger.debug("quasi-static guess: no equilibrium at t = %.4g (residual %.1e)", t, res)
-                return None
-            X[k] = np.concatenate([q, lam, tau])
+            X[k] = y
     except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
         logger.debug("quasi-static guess failed: %s", exc)
         return None
