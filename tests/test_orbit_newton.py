@@ -109,3 +109,58 @@ def test_quasi_static_guess_is_in_equilibrium_on_the_drive():
     moment = p.gravity * (p.mass_per_length * p.length ** 2 / 2 + p.tip_mass * p.length) * np.cos(angle)
     # the static deflection shortens the lever arm by O(deflection / length) ~ 1e-3
     np.testing.assert_allclose(U[:, 0], moment, rtol=0, atol=5e-3 * float(np.max(np.abs(moment))))
+
+
+def _two_link_state():
+    from linearize.exudyn_system import ExudynSystem
+    from mbs_models.model_file import build_model, resolve_model
+
+    system = ExudynSystem(build_model(resolve_model("two-link", elements=2), 2 * math.pi))
+    rng = np.random.default_rng(5)
+    q = system.q_initial + 1e-3 * rng.standard_normal(system.n)
+    lam = rng.standard_normal(system.m)
+    return system, q, lam, 0.13
+
+
+def _per_column(system, q, lam, t):
+    """One Richardson difference per coordinate (every column, no pattern)."""
+    h = po.fd_steps(q, po.RICHARDSON_STEP)
+    out = np.zeros((system.n, system.n))
+    for j in range(system.n):
+        e = np.zeros(system.n)
+        e[j] = 1.0
+        out[:, j] = po._richardson(lambda x: system.constraint_jacobian(x, t).T @ lam, q, e, h[j])
+    return out
+
+
+def test_coloured_reaction_stiffness_equals_one_column_at_a_time():
+    """Two-link arm (revolute elbow, two clamps): the compressed differences of d(C_q^T lambda)/dq
+    equal one difference per column (same rule and steps; a row sees one column per colour, so
+    only round-off of the shared evaluation differs: <= 1e-12 of the largest entry), with fewer
+    evaluations."""
+    system, q, lam, t = _two_link_state()
+    pattern = system.coupling_pattern()
+    Kr = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, pattern)
+    ref = _per_column(system, q, lam, t)
+    assert np.max(np.abs(ref)) > 0
+    assert np.max(np.abs(Kr - ref)) <= 1e-12 * np.max(np.abs(ref))
+    assert len(pattern.reaction_colours) < len(system.reaction_columns())
+
+
+def test_wrong_reaction_pattern_is_caught_by_the_directional_check(monkeypatch):
+    """A colouring that puts coupled columns together gives a wrong stiffness; the directional
+    check must notice and fall back to one column at a time (switching the check off shows
+    the wrong answer it prevents)."""
+    from linearize import collocation_solver as cs
+
+    system, q, lam, t = _two_link_state()
+    good = system.coupling_pattern()
+    cols = np.flatnonzero(np.any(good.reaction, axis=0))
+    wrong = cs.CouplingPattern(force=good.force, reaction=good.reaction, force_colours=good.force_colours,
+                               reaction_colours=(cols,))
+    ref = _per_column(system, q, lam, t)
+    fixed = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, wrong)
+    assert np.max(np.abs(fixed - ref)) <= 1e-12 * np.max(np.abs(ref))
+    monkeypatch.setattr(cs, "PATTERN_CHECK_TOLERANCE", math.inf)
+    unchecked = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, wrong)
+    assert np.max(np.abs(unchecked - ref)) > 1e-3 * np.max(np.abs(ref))
