@@ -61,7 +61,9 @@ class ModelFloquetResult:
     kp, kd : tuple of float
         Gains per drive.
     timings : dict
-        Seconds per stage.
+        Seconds per stage (wall clock).
+    cpu_timings : dict
+        CPU seconds per stage (same keys).
     """
 
     floquet: Any
@@ -72,6 +74,7 @@ class ModelFloquetResult:
     kp: tuple = ()
     kd: tuple = ()
     timings: dict = field(default_factory=dict)
+    cpu_timings: dict = field(default_factory=dict)
 
     @property
     def drives(self) -> tuple:
@@ -321,35 +324,41 @@ def analyze(
     from stability import floquet
 
     timings: dict = {}
-    tic = time.perf_counter()
+    cpu_timings: dict = {}
+    tic, ctic = time.perf_counter(), time.process_time()
     if orbit is None:
         orbit = find_orbit(model, omega, samples=samples, verify=verify_orbit, **options)
     elif abs(orbit.omega - float(omega)) > 1e-12 * float(omega):
         raise ValueError(f"the given orbit is for omega = {orbit.omega}, not {omega}")
     timings["orbit"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["orbit"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     lin = linearize_orbit(orbit, kp, kd)
     timings["linearization"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["linearization"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     sm = small_multipliers if method != "paper" else "flag"
     if method == "magnus2":
         res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
     else:
         res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     timings["floquet"] = time.perf_counter() - tic
+    cpu_timings["floquet"] = time.process_time() - ctic
     est = float(res.error_estimate)
     if math.isfinite(est) and est > PROPAGATOR_WARNING:
         msg = (f"Floquet step-doubling estimate {est:.1e} (relative) with {res.n_steps} {res.method} steps: "
                f"the multipliers are not converged; increase n_steps (--method/adaptive n_steps=None)")
         warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    tic = time.perf_counter()
+    tic, ctic = time.perf_counter(), time.process_time()
     modes = label_multipliers(lin, orbit, res)
     timings["labels"] = time.perf_counter() - tic
+    cpu_timings["labels"] = time.process_time() - ctic
     dom = _dominant(res, modes, orbit.drive_names)
     logger.info("Floquet of %s at omega=%.4g: spectral radius %.6f, dominant |rho| %.6f", orbit.model.name, omega,
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
-                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings)
+                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
+                              cpu_timings=cpu_timings)
 
 
 #: Sub-intervals of the Floquet evaluations inside a tuning loop.
