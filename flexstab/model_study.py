@@ -34,13 +34,14 @@ import math
 import resource
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 from flexstab.report import figure, table, text, to_html, to_markdown
+from flexstab.study import StudyResult
 
-__all__ = ["ModelStudyOptions", "ModelStudyResult", "run_model_study"]
+__all__ = ["ModelStudyOptions", "run_model_study"]
 
 logger = logging.getLogger(__name__)
 
@@ -77,17 +78,6 @@ class ModelStudyOptions:
     log: Optional[Callable[[str], None]] = None
 
 
-@dataclass(frozen=True)
-class ModelStudyResult:
-    """Where the report went and what each stage produced (or why it failed)."""
-
-    out: Path
-    report_md: Path
-    report_html: Path
-    stages: dict = field(default_factory=dict)
-    elapsed: float = 0.0
-
-
 def _cpu() -> float:
     ch = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + ch.ru_utime + ch.ru_stime
@@ -101,9 +91,16 @@ def _gains_text(names, kp, kd) -> str:
     return "; ".join(f"{n}: kp = {a:.4g}, kd = {b:.4g}" for n, a, b in zip(names, kp, kd))
 
 
-def _multiplier_rows(res) -> list:
-    return [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
-            for i, (mu, m) in enumerate(zip(res.floquet.multipliers, res.modes))]
+def _multiplier_blocks(res, what: str, tail: str = "") -> list:
+    """A paragraph (``what``, the step count, estimate, spectral radius, dominant |rho|) and the
+    table of the 12 largest labelled multipliers of ``res`` (a ModelFloquetResult)."""
+    f = res.floquet
+    rows = [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
+            for i, (mu, m) in enumerate(zip(f.multipliers, res.modes))]
+    return [text(f"{what} ({f.n_steps} `{f.method}` steps, step-doubling estimate {f.error_estimate:.1e}): dominant "
+                 f"labelled multiplier |ρ| = {abs(res.dominant_multiplier):.6f}{tail}; spectral radius "
+                 f"{f.spectral_radius:.6f}. All multipliers: `multipliers.csv`."),
+            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], rows[:12])]
 
 
 def _write_csv(path: Path, results: dict) -> None:
@@ -117,7 +114,7 @@ def _write_csv(path: Path, results: dict) -> None:
                             m["mode"], m.get("group", ""), bool(m["undamped"])])
 
 
-def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudyResult:
+def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResult:
     """Run the model-file study (see the module docstring) and write ``report.md`` / ``report.html``.
 
     Parameters
@@ -194,11 +191,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
                  f"{res.linearization.size} independent. Periodic orbit by trigonometric collocation "
                  f"({o.samples} samples): relative residual {o.residual:.1e} (tolerance {o.tolerance:.0e}); one "
                  f"period in Exudyn from its state returns with a relative defect {o.shooting_residual:.1e}."),
-            text(f"Uncontrolled multipliers (all gains 0; {res.floquet.n_steps} `{res.floquet.method}` steps, "
-                 f"step-doubling estimate {res.floquet.error_estimate:.1e}): spectral radius "
-                 f"{res.floquet.spectral_radius:.6f}, dominant labelled multiplier |ρ| = "
-                 f"{abs(res.dominant_multiplier):.6f}. All multipliers: `multipliers.csv`."),
-            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], _multiplier_rows(res)[:12]),
+            *_multiplier_blocks(res, "Uncontrolled multipliers, all gains 0"),
         ]
 
     def tuning_stage() -> list:
@@ -231,11 +224,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
                  f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})."),
             table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
                   [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
-            text(f"Check at the tuned gains ({check.floquet.n_steps} steps, step-doubling estimate "
-                 f"{check.floquet.error_estimate:.1e}): dominant labelled multiplier |ρ| = "
-                 f"{abs(check.dominant_multiplier):.6f} (ρ_d = {opts.target:g}); spectral radius "
-                 f"{check.floquet.spectral_radius:.6f}."),
-            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], _multiplier_rows(check)[:12]),
+            *_multiplier_blocks(check, "Check at the tuned gains, an independent evaluation",
+                                f" (ρ_d = {opts.target:g})"),
         ]
 
     def charts_stage() -> list:
@@ -305,7 +295,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
     html_path.write_text(to_html(f"flexstab study: model {definition.name}", preamble, sections))
     (out / "study.json").write_text(json.dumps({"model": model, "omega": omega, "quick": opts.quick,
                                                 "elapsed": elapsed, "cpu": cpu, "stages": stages}, indent=2))
-    return ModelStudyResult(out, md, html_path, stages, elapsed)
+    return StudyResult(out, md, html_path, stages, elapsed)
 
 
 def _ready(obj):
