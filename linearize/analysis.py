@@ -34,8 +34,9 @@ logger = logging.getLogger(__name__)
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
 #: (:mod:`stability.modal`).  In the model's own coordinates 512 steps left the single link's
 #: dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements; in the frozen-modal
-#: frame 32 steps are converged to ~1e-9 there (see ``benchmarks/model_file_speed.py``).
-DEFAULT_PROPAGATOR_STEPS = 64
+#: frame the hub multiplier is off 1.5e-9, 9e-7, 4.3e-5, 1.7e-4 at 2, 4, 6, 8 pi with 128 steps
+#: (against the hand route, converged), ~0.6 s CPU at 8 elements (``benchmarks/model_file_speed.py``).
+DEFAULT_PROPAGATOR_STEPS = 128
 #: Propagation frames of :func:`analyze`: ``"modal"`` (frozen-eigenvector basis, default) or
 #: ``"model"`` (the linearisation's own independent coordinates).
 FRAMES = ("modal", "model")
@@ -68,7 +69,9 @@ class ModelFloquetResult:
     kp, kd : tuple of float
         Gains per drive.
     timings : dict
-        Seconds per stage.
+        Seconds per stage (wall clock).
+    cpu_timings : dict
+        CPU seconds per stage (same keys).
     dominant_error_estimate : float
         Step-doubling (Richardson) estimate of the relative error of the dominant
         multiplier's modulus (``floquet.error_estimate`` is the largest over all moduli
@@ -83,6 +86,7 @@ class ModelFloquetResult:
     kp: tuple = ()
     kd: tuple = ()
     timings: dict = field(default_factory=dict)
+    cpu_timings: dict = field(default_factory=dict)
     dominant_error_estimate: float = math.nan
 
     @property
@@ -347,16 +351,19 @@ def analyze(
     if frame not in FRAMES:
         raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
     timings: dict = {}
-    tic = time.perf_counter()
+    cpu_timings: dict = {}
+    tic, ctic = time.perf_counter(), time.process_time()
     if orbit is None:
         orbit = find_orbit(model, omega, samples=samples, verify=verify_orbit, **options)
     elif abs(orbit.omega - float(omega)) > 1e-12 * float(omega):
         raise ValueError(f"the given orbit is for omega = {orbit.omega}, not {omega}")
     timings["orbit"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["orbit"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     lin = linearize_orbit(orbit, kp, kd)
     timings["linearization"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["linearization"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     sm = small_multipliers if method != "paper" else "flag"
     run = modal_floquet if frame == "modal" and method != "paper" else floquet
     if method == "magnus2":
@@ -364,9 +371,11 @@ def analyze(
     else:
         res = run(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     timings["floquet"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["floquet"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     modes = label_multipliers(lin, orbit, res)
     timings["labels"] = time.perf_counter() - tic
+    cpu_timings["labels"] = time.process_time() - ctic
     dom = _dominant(res, modes, orbit.drive_names)
     dom_est = _multiplier_estimate(res, dom)
     worst = max(_multiplier_estimate(res, res.multipliers[0]), dom_est)
@@ -381,7 +390,8 @@ def analyze(
     logger.info("Floquet of %s at omega=%.4g: spectral radius %.6f, dominant |rho| %.6f", orbit.model.name, omega,
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
-                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings, dominant_error_estimate=dom_est)
+                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
+                              cpu_timings=cpu_timings, dominant_error_estimate=dom_est)
 
 
 def _multiplier_estimate(res: Any, mu: complex) -> float:

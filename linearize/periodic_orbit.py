@@ -16,8 +16,11 @@ Method
 Trigonometric collocation: all ODE2 coordinates ``q``, multipliers ``lambda``
 and torques ``tau`` are unknown at ``K`` equispaced samples; rates and
 accelerations are spectral derivatives (``D1 q``, ``D2 q``).  Newton's method
-(damped, with a natural monotonicity test) solves the ``K (n + m + d)``
-equations at once, with the Jacobian blocks
+solves the ``K (n + m + d)`` equations at once: first with full steps (at most
+:data:`FULL_STEP_ITERATIONS`; the Newton matrix is refreshed unless the last
+step cut the residual :data:`CHORD_REUSE_FACTOR`-fold), and if that does not
+reach the tolerance, damped with a natural monotonicity test from the same
+guess, with the Jacobian blocks
 ``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from (Richardson-extrapolated)
 central differences of
 Exudyn's functions (:func:`tangent_blocks`; ``K_k`` contains the mass-matrix
@@ -82,6 +85,23 @@ STAGNATION_ITERATIONS = 8
 EARLY_GIVE_UP_ITERATIONS = 5
 EARLY_GIVE_UP_FACTOR = 0.5
 MAX_STEP_HALVINGS = 12
+#: Full-step Newton iterations tried before the damped Newton.  A full step from
+#: the simulated guess typically first over-stretches the ANCF beams (their linearised
+#: motion in absolute coordinates leaves the rotation's circle) and the next step
+#: undoes it; the natural monotonicity test of the damped Newton rejects such steps,
+#: which is why it failed on the single link at 6 pi and 8 pi (8 elements) and needed
+#: a long continuation in omega.  Measured full-step iterations to 1e-6 on the
+#: single link (8 elements, 32 samples): 3, 5, 5, 6 at 2, 4, 6, 8 pi; two-link 3, 5
+#: at 2, 4 pi.
+FULL_STEP_ITERATIONS = 10
+#: The full-step phase gives up early when after this many iterations the residual
+#: has not fallen below :data:`FULL_STEP_PROGRESS` times its start.
+FULL_STEP_CHECK = 5
+FULL_STEP_PROGRESS = 0.1
+#: The Newton matrix of the full-step phase is reused (chord step) only after a step
+#: that cut the residual this much (the quadratic phase, where the old matrix still
+#: contracts fast); otherwise it is rebuilt at the new iterate.
+CHORD_REUSE_FACTOR = 0.01
 #: Continuation in omega: start factor, first increment, smallest increment, solves.
 CONTINUATION_START = 0.5
 CONTINUATION_STEP = 0.1
@@ -216,6 +236,11 @@ class PeriodicOrbit:
     planar_pairs : tuple
         Planar vector coordinates ``(i_x, i_y, ref_x, ref_y)`` (for the co-rotating basis).
     wall_time : float
+    timings, cpu_timings : dict
+        Wall-clock and CPU seconds per stage: ``build`` (model and collocation set-up),
+        ``guess`` (the simulated period), ``newton`` (continuation included),
+        ``tangent`` (the accurate linearisation blocks at the converged samples) and
+        ``shooting`` (the check in Exudyn, 0 when not run).
     """
 
     model: ModelDefinition = field(repr=False)
@@ -238,6 +263,8 @@ class PeriodicOrbit:
     slope_nodes: tuple = field(repr=False, default=())
     planar_pairs: tuple = field(repr=False, default=())
     wall_time: float = 0.0
+    timings: dict = field(default_factory=dict, repr=False)
+    cpu_timings: dict = field(default_factory=dict, repr=False)
 
     @property
     def samples(self) -> int:
@@ -551,7 +578,55 @@ def _polish(col: _Collocation, X: np.ndarray, solve, res: float, qscale: float, 
     return X
 
 
-def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
+def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
+    """Undamped Newton (see :data:`FULL_STEP_ITERATIONS`); returns ``(X, history, ok, tangent)``."""
+    history: list = []
+    qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
+    solve = tb = None
+    for it in range(1, min(max_iterations, FULL_STEP_ITERATIONS) + 1):
+        out, fscale = col.residual(X)
+        res = col.relative(out, fscale, qscale)
+        history.append(res)
+        logger.debug("orbit full-step Newton %d: relative residual %.3e", it, res)
+        if not math.isfinite(res):
+            return X, history, False, tb
+        if res <= tol:
+            return _polish(col, X, solve, res, qscale, history), history, True, tb
+        if it > FULL_STEP_CHECK and min(history) > FULL_STEP_PROGRESS * history[0]:
+            break
+        if solve is None or not history[-1] <= CHORD_REUSE_FACTOR * history[-2]:
+            try:
+                solve, tb = col.newton_solver(X)
+            except (OrbitConvergenceError, np.linalg.LinAlgError):
+                if it == 1:
+                    raise
+                break  # a singular matrix away from the guess: leave it to the damped Newton
+        X = X + solve(-out.reshape(-1)).reshape(X.shape)
+    return X, history, False, tb
+
+
+def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False,
+            second_guess=None):
+    """Full-step Newton from ``X``, then (if given and it fails) from ``second_guess(col)``,
+    then damped Newton from ``X``; returns ``(X, history, ok, tangent)``."""
+    Xf, history, ok, tb = _full_step_newton(col, X, tol, max_iterations)
+    if ok:
+        return Xf, history, True, tb
+    if second_guess is not None:
+        logger.debug("orbit: full-step Newton from the simulated guess stopped at %.2e; quasi-static guess",
+                     history[-1])
+        X2 = second_guess(col)
+        if X2 is not None:
+            Xf, h2, ok, tb = _full_step_newton(col, X2, tol, max_iterations)
+            history += h2
+            if ok:
+                return Xf, history, True, tb
+    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess", history[-1])
+    X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up)
+    return X, history + h2, ok, tb
+
+
+def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = None
@@ -666,6 +741,64 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     return X
 
 
+#: Quasi-static guess: Newton iterations per sample and the relative residual they must reach.
+QUASI_STATIC_ITERATIONS = 10
+QUASI_STATIC_TOLERANCE = 1e-8
+
+
+def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
+    """The drives' motions with the model in static equilibrium at every sample (no inertia).
+
+    At each sample ``t_k`` (in order, each started from the previous one and the first
+    from the model file's initial state) Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau
+    = 0``, ``C(q, t_k) = 0``, ``B^T q = r(t_k)``.  For a driven flexible arm this is the rigid
+    motion with the static (gravity) deflection, a guess in the right configuration at every
+    sample, which the simulated period (with the free vibration its start excites) need not
+    be.  Returns ``None`` when a sample does not converge (e.g. no static equilibrium).
+    """
+    sysm = col.system
+    n, m, d = col.n, col.m, col.d
+    q = np.array(sysm.q_initial, dtype=float)
+    lam, tau = np.zeros(m), np.zeros(d)
+    zero = np.zeros(n)
+    use = col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians
+    X = np.empty((col.K, col.s))
+    J = np.zeros((col.s, col.s))
+    J[:n, n + m:] = -col.B
+    J[n + m:, :n] = col.B.T
+    try:
+        for k in range(col.K):
+            t = float(col.times[k])
+            for _ in range(QUASI_STATIC_ITERATIONS):
+                f = sysm.rhs(q, zero, t)
+                r = -f - col.B @ tau
+                g = np.zeros(0)
+                if m:
+                    r = r + sysm.constraint_jacobian(q, t).T @ lam
+                    g = sysm.constraints(q, t)
+                geo = np.concatenate([g, col.B.T @ q - col.R[k]])
+                res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
+                          float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
+                if res <= QUASI_STATIC_TOLERANCE:
+                    break
+                tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
+                                    use_exudyn_jacobian=use, accurate=False)
+                use = tb.exudyn_jacobian
+                J[:n, :n] = tb.K[0]
+                J[:n, n:n + m] = tb.Cq[0].T
+                J[n:n + m, :n] = tb.Cq[0]
+                dy = np.linalg.solve(J, -np.concatenate([r, geo]))
+                q, lam, tau = q + dy[:n], lam + dy[n:n + m], tau + dy[n + m:]
+            else:
+                logger.debug("quasi-static guess: no equilibrium at t = %.4g (residual %.1e)", t, res)
+                return None
+            X[k] = np.concatenate([q, lam, tau])
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+        logger.debug("quasi-static guess failed: %s", exc)
+        return None
+    return X if np.all(np.isfinite(X)) else None
+
+
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
@@ -692,6 +825,7 @@ def find_orbit(
     verify: bool = True,
     continuation: bool = True,
     solver: str = "auto",
+    guess: Optional[PeriodicOrbit] = None,
     **options: Any,
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
@@ -718,6 +852,10 @@ def find_orbit(
         and a sparse LU (:mod:`linearize.collocation_solver`); ``"auto"`` takes the
         structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
         unknowns.  Both solve the same equations to the same tolerance.
+    guess : PeriodicOrbit, optional
+        Start Newton from this orbit's samples (same model and ``samples``, usually a
+        nearby omega: continuation along an omega sweep) instead of one simulated
+        period; if Newton fails from it, the usual guess and continuation follow.
     **options
         Keyword options for ``build``.
 
@@ -734,17 +872,40 @@ def find_orbit(
         On a bad model.
     """
     tic = time.perf_counter()
+    timings: dict = {}
+    cpu_timings: dict = {}
+    clock = [time.perf_counter(), time.process_time()]
+
+    def lap(stage: str) -> None:
+        w, c = time.perf_counter(), time.process_time()
+        timings[stage], cpu_timings[stage] = w - clock[0], c - clock[1]
+        clock[:] = [w, c]
+
     if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
         raise ValueError(f"tol must be finite and > 0, got {tol!r}")
     definition = resolve_model(model, **options)
     built = build_model(definition, omega)
     col = _Collocation(built, samples, solver)
-    X = _guess(col, definition)
-    X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation)
+    lap("build")
+    history: list = []
+    ok = False
+    if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
+            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
+        X = np.hstack([guess.q, guess.lambdas, guess.torques])
+        X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
+        if not ok:
+            logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
+    if not ok:
+        X = _guess(col, definition)
+        lap("guess")
+        X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
+                                second_guess=_quasi_static_guess)
+        history += h1
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
         X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)
         history += h2
+    lap("newton")
     if not ok:
         raise OrbitConvergenceError(
             f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
@@ -762,9 +923,12 @@ def find_orbit(
     # the linearisation is always the accurate one (Exudyn's checked Jacobians, Richardson reaction
     # stiffness); the structured solver's compressed blocks serve Newton only
     tb = tangent_blocks(col.system, col.times, Q, V, A, L, use_exudyn_jacobian=(col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians))
+    lap("tangent")
     shooting = math.nan
     if verify:
         shooting = _shooting_defect(definition, float(omega), Q, V, samples)
+    lap("shooting")
+    if verify:
         if not shooting <= SHOOTING_TOLERANCE:
             raise OrbitConvergenceError(
                 f"periodic orbit of {definition.name} at omega = {float(omega):.6g}: collocation residual "
@@ -778,6 +942,7 @@ def find_orbit(
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
+        timings=timings, cpu_timings=cpu_timings,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
