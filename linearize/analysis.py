@@ -34,8 +34,10 @@ logger = logging.getLogger(__name__)
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
 #: (:mod:`stability.modal`).  In the model's own coordinates 512 steps left the single link's
 #: dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements; in the frozen-modal
-#: frame the hub multiplier is off 1.5e-9, 9e-7, 4.3e-5, 1.7e-4 at 2, 4, 6, 8 pi with 128 steps
-#: (against the hand route, converged), ~0.6 s CPU at 8 elements (``benchmarks/model_file_speed.py``).
+#: frame (order 2, Richardson-extrapolated from 128, 64, 32 steps to order 4) the hub multiplier is
+#: off 1.4e-9, 1.5e-7, 2.1e-6, 5e-8 at 2, 4, 6, 8 pi (against the generic path converged), 0.6 s CPU
+#: at 8 elements (192 steps: 1.2e-9, 2.7e-8, 8.5e-7, 2.3e-6 for ~0.7 s: at 6-8 pi the extrapolated
+#: values scatter at the 1e-6 level; ``benchmarks/model_file_speed.py``).
 DEFAULT_PROPAGATOR_STEPS = 128
 #: Propagation frames of :func:`analyze`: ``"modal"`` (frozen-eigenvector basis, default) or
 #: ``"model"`` (the linearisation's own independent coordinates).
@@ -322,9 +324,11 @@ def analyze(
         Coordinates the propagator runs in (same multipliers): ``"modal"`` (default)
         the frozen-eigenvector basis of :class:`stability.modal.FrozenModalSystem`, in
         which the stiff part of ``P(t)`` is nearly constant (the midpoint product then
-        converges with a few dozen steps; falls back to ``"model"`` when no smooth basis
-        exists); ``"model"`` the linearisation's own coordinates (needs thousands of steps
-        for stiff flexible models).
+        converges with a few dozen steps, at order 2, and with ``magnus2`` and a fixed
+        ``n_steps`` the multipliers are Richardson-extrapolated from ``n_steps``,
+        ``n_steps/2`` and ``n_steps/4``: 4th order, see :func:`stability.modal.modal_floquet`;
+        falls back to ``"model"`` when no smooth basis exists); ``"model"`` the
+        linearisation's own coordinates (needs thousands of steps for stiff flexible models).
     orbit : PeriodicOrbit, optional
         Reuse an orbit (must be for ``omega``).
     verify_orbit : bool
@@ -365,11 +369,15 @@ def analyze(
     cpu_timings["linearization"] = time.process_time() - ctic
     tic, ctic = time.perf_counter(), time.process_time()
     sm = small_multipliers if method != "paper" else "flag"
-    run = modal_floquet if frame == "modal" and method != "paper" else floquet
-    if method == "magnus2":
-        res = run(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
+    if frame == "modal" and method == "magnus2":
+        res = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm,
+                            extrapolate=True)
+    elif frame == "modal" and method != "paper":
+        res = modal_floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
+    elif method == "magnus2":
+        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
     else:
-        res = run(lin, method=method, n_steps=n_steps, small_multipliers=sm)
+        res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     timings["floquet"] = time.perf_counter() - tic
     cpu_timings["floquet"] = time.process_time() - ctic
     tic, ctic = time.perf_counter(), time.process_time()
@@ -454,7 +462,7 @@ class ModelPlant:
             return floquet(lin, method="magnus2", n_steps=max(steps, DEFAULT_PROPAGATOR_STEPS * 8),
                            error_estimate=False, accuracy="moduli")
         return modal_floquet(lin, basis=self.modal_basis, method="magnus2", n_steps=steps, error_estimate=False,
-                             accuracy="moduli")
+                             accuracy="moduli", extrapolate=True)
 
     def spectral_measure(self, kp, kd) -> float:
         lin = self.with_gains(kp, kd)
