@@ -90,7 +90,7 @@ def _cplx(z) -> list:
 
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
-           floquet_limit: float = 0.0, frame: str = "model") -> dict:
+           floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -100,7 +100,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     from stability import floquet, implicit_floquet
 
     tracemalloc.start()
-    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame, "stages": {}}
+    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
+                 "extrapolate": bool(extrapolate and frame == "modal"), "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
         orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
@@ -120,7 +121,14 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     res = None
     if dense:
         with _Stage(st, "floquet_dense", floquet_limit):
-            res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
+            if frame == "modal":
+                from stability.modal import modal_floquet
+
+                # as linearize.analysis.analyze runs it: Richardson-extrapolated from N, N/2, N/4
+                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=n_steps, accuracy="moduli",
+                                    extrapolate=extrapolate)
+            else:
+                res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
     if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
         damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
@@ -229,6 +237,9 @@ def main(argv=None) -> int:
                     help="magnus2 sub-intervals (a multiple of 3: the estimate comes from the same factors)")
     ap.add_argument("--frame", choices=("model", "modal"), default="model",
                     help="propagate in the model's coordinates or the frozen-modal ones (stability.modal)")
+    ap.add_argument("--no-extrapolate", action="store_true",
+                    help="modal frame: plain N-step solve with its own estimate instead of analyze()'s "
+                         "Richardson extrapolation from N, N/2, N/4")
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
@@ -241,7 +252,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
-                     args.floquet_limit, args.frame)
+                     args.floquet_limit, args.frame, not args.no_extrapolate)
         print(json.dumps(rec))
         return 0
     records = []
@@ -250,6 +261,8 @@ def main(argv=None) -> int:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
                "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
                "--floquet-limit", str(args.floquet_limit), "--frame", args.frame]
+        if args.no_extrapolate:
+            cmd.append("--no-extrapolate")
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

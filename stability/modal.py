@@ -78,9 +78,6 @@ MAX_CONDITION = 1e8
 #: Relative gap in ``|lambda|`` that separates two clusters of frozen eigenvalues (over the
 #: whole period); eigenvalues closer than this (a crossing, a pair turning real) share a block.
 CLUSTER_GAP = 0.05
-#: Trapezoidal points of the trace integral ``int tr P`` (spectrally accurate, as in
-#: :data:`stability.floquet.TRACE_POINTS`).
-TRACE_POINTS = 512
 
 
 class ModalBasisError(ArithmeticError):
@@ -261,13 +258,11 @@ class FrozenModalSystem:
         """``int_0^T tr P dt`` of the *original* ``P`` (= that of ``P_hat`` for a periodic ``V``;
         Liouville's check of the result then also checks the periodicity of ``V``)."""
         if self._trace is None:
-            closed_form = getattr(self.original, "trace_integral", None)
-            if callable(closed_form):
-                self._trace = float(closed_form())
-            else:
-                t = np.arange(TRACE_POINTS) * (self.period / TRACE_POINTS)
-                self._trace = float(np.sum(np.trace(self._wrapped.evaluate(t), axis1=1, axis2=2))
-                                    * self.period / TRACE_POINTS)
+            from stability.floquet import _trace_integral
+
+            # the closed form when the original has one, else floquet's nested trapezoidal rule
+            # (64 .. stability.floquet.TRACE_POINTS evaluations, until converged)
+            self._trace = _trace_integral(self.original, self._wrapped, self.period)
         return self._trace
 
     def to_original(self, monodromy: np.ndarray) -> np.ndarray:
