@@ -175,6 +175,14 @@ class FloquetResult:
         error of the multiplier's direction) from the same refinement; it is
         reported whatever ``accuracy`` is, but the refinement drives it below
         ``rtol`` only with ``accuracy="multipliers"``.  NaN when not computed.
+    companion_steps, companion_monodromies : tuple
+        ``magnus2`` with a fixed ``n_steps = N`` (a multiple of 3) on a system
+        larger than ``SMALL_N`` with ``error_estimate``: the step counts
+        ``N / 3`` (and ``N / 9`` when 9 divides ``N``) and the monodromy matrices
+        of the exponential midpoint rule with them, formed from the factors of
+        the ``N``-step solve (``expm(3 h P) = expm(h P)^3``, no new exponentials);
+        the ``N / 3`` one gives ``error_estimate``.  Empty otherwise.  For
+        Richardson extrapolation with ratio 3 (e.g. :mod:`stability.modal`).
     """
 
     multipliers: np.ndarray
@@ -197,6 +205,8 @@ class FloquetResult:
     elapsed: float = 0.0
     accuracy: str = "moduli"
     phase_error_estimate: float = math.nan
+    companion_steps: tuple = ()
+    companion_monodromies: tuple = ()
 
     @property
     def moduli(self) -> np.ndarray:
@@ -356,6 +366,7 @@ class _Propagation:
     changes: Optional[np.ndarray]  # per-multiplier relative error estimate of the result
     factors: Optional[np.ndarray] = None  # sub-interval propagators of the final solve, if kept
     phase_error_estimate: float = math.nan  # largest phase change estimate (radians), reported
+    companions: tuple = ()  # (n_steps, monodromy) of the N / 3^l midpoint rules from the same factors
 
 
 @dataclass(frozen=True)
@@ -398,6 +409,9 @@ MEMORY_LIMIT = 1.5e9
 #: Number of ``(N, n, n)``-sized work arrays alive at once in a solve (P at the
 #: Gauss points, exponents, commutators, Pade terms).
 WORK_ARRAYS = 12
+#: Companion solves ``N / 3, N / 9`` formed from the factors of a fixed-``N`` magnus2 solve
+#: (see :func:`_third_companion`; levels as far as ``3^l`` divides ``N``).
+COMPANION_LEVELS = 2
 #: Memory for the work arrays of one chunk of a streamed solve (systems larger than
 #: ``SMALL_N`` whose full stack of work arrays would exceed this are propagated in
 #: chunks of consecutive sub-intervals, so that memory is ``O(n^2)`` in ``N``; the
@@ -484,17 +498,50 @@ def _third_companion(scheme: MagnusScheme, N: int, n: int) -> bool:
     return scheme.order == 2 and n > SMALL_N and N % 3 == 0 and N >= 3
 
 
-def _cube_product(E: np.ndarray) -> np.ndarray:
-    """``C_m ... C_1`` with ``C_j = E_{3j+1}^3`` for factors ``E`` (time order, a multiple of 3 of them)."""
+def _ladder_levels(N: int, levels: int) -> int:
+    """The largest ``L <= levels`` with ``3^L`` dividing ``N`` (companions ``N / 3, ..., N / 3^L``)."""
+    L = 0
+    while L < levels and N % 3 ** (L + 1) == 0:
+        L += 1
+    return L
+
+
+def _cubes(E: np.ndarray) -> np.ndarray:
+    """Factors of the ``N / 3`` midpoint rule, ``C_j = E_{3j+1}^3``, from ``N`` factors (a multiple of 3)."""
     mid = E[1::3]
-    return ordered_product(mid @ mid @ mid)
+    return mid @ mid @ mid
+
+
+def _companions(E: np.ndarray, Om: np.ndarray, levels: int) -> list[tuple[np.ndarray, float]]:
+    """``(product, sum of traces)`` of the ``N / 3^l`` midpoint rules, ``l = 1 .. levels``, from ``N`` factors
+    (``N`` a multiple of ``3^levels``; the exponent of a level-``l`` factor is ``3^l`` times a fine one)."""
+    out = []
+    F, Ol = E, Om
+    for level in range(1, levels + 1):
+        F, Ol = _cubes(F), Ol[1::3]
+        out.append((ordered_product(F), 3.0**level * float(np.sum(np.trace(Ol, axis1=1, axis2=2)))))
+    return out
+
+
+def _chain(N: int, companions: list[tuple[np.ndarray, float]]) -> Optional["_Solve"]:
+    """The companions as a chain of :class:`_Solve` (``N / 3`` with its ``third`` = ``N / 9`` ...)."""
+    solve = None
+    for level in range(len(companions), 0, -1):
+        Phi, log_det = companions[level - 1]
+        solve = _Solve(N // 3**level, Phi, _spectrum(Phi), log_det, None, solve)
+    return solve
 
 
 def _magnus_solve(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, keep_factors: bool,
-    strict: bool = True, third: bool = False,
+    strict: bool = True, third: int = 0,
 ) -> _Solve:
     """One propagation with ``N`` sub-intervals; raises :class:`_Unresolved` if it means nothing.
+
+    ``third = L > 0`` (magnus2, ``n > SMALL_N``): also the companion solves with
+    ``N / 3, ..., N / 3^L`` sub-intervals from the same factors
+    (:func:`_third_companion`), as far as ``3^l`` divides ``N``, chained in
+    ``_Solve.third``.
 
     ``strict=False`` (a step count fixed by the caller) skips the
     :data:`COMMUTATOR_LIMIT` test and fails only on overflow.  With a fixed
@@ -505,7 +552,7 @@ def _magnus_solve(
     step count resolves fails at the limit instead of refining to ``max_steps``).
     """
     n = wrapped.n
-    third = third and _third_companion(scheme, N, n)
+    third = _ladder_levels(N, int(third)) if _third_companion(scheme, N, n) else 0
     if not strict and not keep_factors and n > SMALL_N and N > _stream_chunk(scheme, n):
         return _magnus_solve_streamed(scheme, wrapped, period, N, strict, _stream_chunk(scheme, n), third)
     _memory_check(scheme, N, n)
@@ -538,17 +585,13 @@ def _magnus_solve(
                 genuine_overflow=True,
             )
     log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
-    companion = None
-    if third:
-        Phi3 = _cube_product(E)
-        companion = _Solve(N // 3, Phi3, _spectrum(Phi3), 3.0 * float(np.sum(np.trace(Om[1::3], axis1=1, axis2=2))),
-                           None)
+    companion = _chain(N, _companions(E, Om, third)) if third else None
     return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None, companion)
 
 
 def _magnus_solve_streamed(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, strict: bool, chunk: int,
-    third: bool = False,
+    third: int = 0,
 ) -> _Solve:
     """:func:`_magnus_solve` with ``O(chunk n^2)`` memory: the factors of ``chunk`` consecutive sub-intervals
     are formed, multiplied (pairwise) into one and applied to the running product ``Phi``, then dropped.
@@ -565,11 +608,13 @@ def _magnus_solve_streamed(
     h = period / N
     nodes = np.asarray(scheme.nodes)
     q = len(nodes)
+    third = int(third)
     if third:
-        chunk = max(3, chunk - chunk % 3)  # whole triples in every chunk
+        g = 3**third
+        chunk = max(g, chunk - chunk % g)  # whole groups of 3^L in every chunk
     Phi = np.eye(n)
-    Phi3 = np.eye(n) if third else None
-    log_det = log_det3 = 0.0
+    ladder = [[np.eye(n), 0.0] for _ in range(third)]
+    log_det = 0.0
     om_max = 0.0
     for start in range(0, N, chunk):
         idx = np.arange(start, min(N, start + chunk))
@@ -582,9 +627,10 @@ def _magnus_solve_streamed(
             del Pg
             om_max = max(om_max, float(np.abs(Om).sum(axis=1).max()))
             log_det += float(np.sum(np.trace(Om, axis1=1, axis2=2)))
-            if third:
-                log_det3 += 3.0 * float(np.sum(np.trace(Om[1::3], axis1=1, axis2=2)))
             E = expm_stack(Om)
+            for rung, (product, traces) in zip(ladder, _companions(E, Om, third)):
+                rung[0] = product @ rung[0]
+                rung[1] += traces
             del Om
             if not np.isfinite(E).all():
                 raise _Unresolved(
@@ -593,8 +639,6 @@ def _magnus_solve_streamed(
                     genuine_overflow=True,
                 )
             Phi = ordered_product(E) @ Phi
-            if third:
-                Phi3 = _cube_product(E) @ Phi3
             del E
             if not np.isfinite(Phi).all():
                 raise _Unresolved(
@@ -603,7 +647,7 @@ def _magnus_solve_streamed(
                     genuine_overflow=True,
                 )
     logger.debug("%s: %d sub-intervals of %dx%d streamed in chunks of %d", scheme.name, N, n, n, chunk)
-    companion = _Solve(N // 3, Phi3, _spectrum(Phi3), log_det3, None) if third else None
+    companion = _chain(N, [(p, t) for p, t in ladder]) if third else None
     return _Solve(N, Phi, _spectrum(Phi), log_det, None, companion)
 
 
@@ -740,7 +784,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         evaluations = 0
         phase_estimate = [math.nan]  # of the last pair (reported, certified only with accuracy="multipliers")
 
-        def solve(N: int, strict: bool = True, third: bool = False) -> _Solve:
+        def solve(N: int, strict: bool = True, third: int = 0) -> _Solve:
             nonlocal evaluations
             evaluations += q * N
             return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict, third)
@@ -772,7 +816,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
 
         if n_steps is not None:
             try:
-                fine = solve(n_steps, strict=False, third=error_estimate)
+                fine = solve(n_steps, strict=False, third=COMPANION_LEVELS if error_estimate else 0)
             except _Unresolved as exc:
                 raise FloquetError(f"{exc}; use more steps (n_steps) or method='magnus2'") from None
             changes, est = None, math.nan
@@ -787,8 +831,13 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         else:
             fine, changes, est = _adaptive(solve, solve_pair, pair_estimate, rtol, max_steps, scheme,
                                            lambda: _start_steps(scheme, wrapped, period, max_steps, probe))
+        companions = []
+        link = fine.third if n_steps is not None else None
+        while link is not None:
+            companions.append((link.n_steps, link.monodromy))
+            link = link.third
         return _Propagation(fine.monodromy, fine.spectrum, fine.log_abs_det, fine.n_steps, evaluations,
-                            est, changes, fine.factors, phase_estimate[0])
+                            est, changes, fine.factors, phase_estimate[0], tuple(companions))
 
     run.__name__ = f"_run_{scheme.name}"
     return run
@@ -1309,6 +1358,9 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
         elapsed=time.perf_counter() - t0,
         accuracy=accuracy,
         phase_error_estimate=prop.phase_error_estimate,
+        companion_steps=tuple(int(N) for N, _ in prop.companions),
+        companion_monodromies=tuple(Phi if scale is None else Phi * scale[:, None] / scale[None, :]
+                                    for _, Phi in prop.companions),
     )
     logger.debug(
         "floquet(%s): rho=%.6g steps=%d est=%.2e liouville=%.2e",

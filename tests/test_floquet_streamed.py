@@ -142,7 +142,7 @@ RATIO_TOLERANCE = 0.2
 def test_third_companion_is_the_n_over_3_solve():
     wrapped, exact = _known_system()
     N = 96
-    fine = fq._magnus_solve(MAGNUS2, wrapped, 1.0, N, False, False, True)
+    fine = fq._magnus_solve(MAGNUS2, wrapped, 1.0, N, False, False, 1)
     direct = fq._magnus_solve(MAGNUS2, wrapped, 1.0, N // 3, True, False)
     assert fine.third is not None and fine.third.n_steps == N // 3
     # the cubes expm(h P)^3 are expm(3 h P) to rounding: N/3 factors, each within ~3 n eps of
@@ -191,8 +191,8 @@ def test_streamed_companion_equals_stored_companion():
     """Chunks of 5 are cut to whole triples (3): the streamed N/3 product equals the stored one."""
     wrapped, _ = _known_system()
     N = 48
-    streamed = fq._magnus_solve_streamed(MAGNUS2, wrapped, 1.0, N, False, 5, True)
-    stored = fq._magnus_solve(MAGNUS2, wrapped, 1.0, N, False, False, True)
+    streamed = fq._magnus_solve_streamed(MAGNUS2, wrapped, 1.0, N, False, 5, 1)
+    stored = fq._magnus_solve(MAGNUS2, wrapped, 1.0, N, False, False, 1)
     E = _factors(wrapped, MAGNUS2, N)[1::3]
     assert np.all(np.abs(streamed.third.monodromy - stored.third.monodromy) <= _rounding_bound(E @ E @ E))
     assert np.all(np.abs(streamed.monodromy - stored.monodromy) <= _rounding_bound(_factors(wrapped, MAGNUS2, N)))
@@ -236,3 +236,37 @@ def test_trace_rule_refines_a_kinked_integrand():
     # Euler-Maclaurin: the K-point error is h^2 / 12 times the jump 2 pi of the derivative at the kink,
     # pi / (6 K^2) absolute; a factor 2 for the higher terms
     assert abs(value - 2 / np.pi) <= 2.0 * np.pi / (6 * fq.TRACE_POINTS**2)
+
+
+# --------------------------------------------------------------------------- ratio-3 Richardson extrapolation
+def test_companions_give_fourth_order_extrapolation():
+    """(9 Phi_N - Phi_{N/3}) / 8 cancels the h^2 term of the symmetric midpoint rule: its error is
+    O(h^4), far below the N-step error; the wrong weights of ratio 2, (4 Phi_N - Phi_{N/3}) / 3,
+    do not cancel it (rejected)."""
+    wrapped, exact = _known_system()
+    N = 144
+    res = floquet(wrapped, method="magnus2", n_steps=N, balance=False)
+    assert res.companion_steps == (48, 16) and res.n_evaluations == N
+    e_fine = _multiplier_error(res.multipliers, exact)
+    mid = res.companion_monodromies[0]
+    good = (9.0 * res.monodromy - mid) / 8.0
+    wrong = (4.0 * res.monodromy - mid) / 3.0
+    e_good = _multiplier_error(np.linalg.eigvals(good), exact)
+    e_wrong = _multiplier_error(np.linalg.eigvals(wrong), exact)
+    # e_fine = C h^2 ~ 1.4e-5 at h = 1/144 (measured at 96: 3.5e-5); the h^4 term with ratio 3 is
+    # 9 C4 h^4: with C4 ~ C ||P||^2 / 10 this is ~1e-3 of e_fine; 1e-2 leaves room
+    assert e_good <= 1e-2 * e_fine
+    # ratio-2 weights leave (4 - 9) / 3 C h^2 = -5/3 e_fine of the h^2 term
+    assert e_wrong >= 0.5 * e_fine
+
+
+def test_modal_floquet_ratio_three_uses_one_set_of_exponentials():
+    """modal_floquet(extrapolate=True) with N divisible by 9 extrapolates from the companions of the
+    N-step solve (no N/2, N/4 solves), and its undivided estimate bounds the true error."""
+    from stability.modal import modal_floquet
+
+    wrapped, exact = _known_system()
+    res = modal_floquet(wrapped, method="magnus2", n_steps=72, accuracy="multipliers", extrapolate=True)
+    assert res.n_evaluations == 72
+    true = _multiplier_error(res.multipliers, exact)
+    assert true <= res.error_estimate
