@@ -8,11 +8,13 @@ linearisation with the Table 3 gains (:func:`linearize.constrained.linearize_orb
 the dense Floquet multipliers (:func:`stability.floquet`, ``magnus2``, as
 :func:`linearize.analysis.analyze` runs it) and the dominant ones matrix-free
 (:func:`stability.implicit_floquet`, same propagator).  ``--frame modal`` propagates in
-the frozen-modal coordinates of :mod:`stability.modal` (when installed; its basis is a
-stage of its own, shared by both Floquet methods).  The dense solve streams its
-sub-interval propagators in chunks (memory O(n^2) in the step count), and with a step
-count that is a multiple of 3 its error estimate comes from the same factors
-(the N/3 midpoint rule is the cubes of every third factor).  Per stage: wall and CPU
+the frozen-modal coordinates of :mod:`stability.modal` (its basis is a stage of its own,
+shared by both Floquet methods) and runs the dense Floquet as ``analyze()`` does:
+Richardson-extrapolated, from ``N, N/2, N/4`` steps, or with ``N`` divisible by 9 from
+``N, N/3, N/9`` where the coarser solves are formed from the ``N``-step factors (the
+``N/3`` midpoint rule is the cubes of every third factor).  The dense solve streams its
+sub-interval propagators in chunks (memory O(n^2) in the step count).  Stage limits
+(``--floquet-limit``) are CPU seconds.  Per stage: wall and CPU
 seconds (CPU is the honest figure on a shared machine) and the peak of numpy /
 Python allocations (``tracemalloc``); per mesh the peak resident set size of the
 process (``ru_maxrss``, Exudyn's C++ memory included).  The growth exponent of
@@ -20,8 +22,8 @@ each stage is the least-squares slope of log(CPU seconds) against log(elements).
 
 Usage::
 
-    python3 benchmarks/scale.py                      # 4 8 16 32 64, writes results/scale.json
-    python3 benchmarks/scale.py --elements 4 8 --dense-max 8
+    python3 benchmarks/scale.py --frame modal --steps 144   # 4 ... 64, writes results/scale.json
+    python3 benchmarks/scale.py --elements 4 8 --steps 510  # model coordinates
 """
 from __future__ import annotations
 
