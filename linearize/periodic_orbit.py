@@ -94,6 +94,9 @@ MAX_STEP_HALVINGS = 12
 #: single link (8 elements, 32 samples): 3, 5, 5, 6 at 2, 4, 6, 8 pi; two-link 3, 5
 #: at 2, 4 pi.
 FULL_STEP_ITERATIONS = 10
+#: ... and continues beyond it (up to ``max_iterations``) only while every step at least
+#: halves the residual (slow but steady convergence near a resonance, e.g. 12 pi).
+FULL_STEP_CONTRACTION = 0.5
 #: The full-step phase gives up early when after this many iterations the residual
 #: has not fallen below :data:`FULL_STEP_PROGRESS` times its start.
 FULL_STEP_CHECK = 5
@@ -630,7 +633,7 @@ def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iteratio
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = tb = None
-    for it in range(1, min(max_iterations, FULL_STEP_ITERATIONS) + 1):
+    for it in range(1, max_iterations + 1):
         out, fscale = col.residual(X)
         res = col.relative(out, fscale, qscale)
         history.append(res)
@@ -641,6 +644,8 @@ def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iteratio
             return _polish(col, X, solve, res, qscale, history), history, True, tb
         if it > FULL_STEP_CHECK and min(history) > FULL_STEP_PROGRESS * history[0]:
             break
+        if it > FULL_STEP_ITERATIONS and (it == 1 or not history[-1] <= FULL_STEP_CONTRACTION * history[-2]):
+            break  # past the budget and no longer contracting
         if solve is None or not history[-1] <= CHORD_REUSE_FACTOR * history[-2]:
             try:
                 solve, tb = col.newton_solver(X)
