@@ -911,6 +911,7 @@ def find_orbit(
     verify: bool = True,
     continuation: bool = True,
     solver: str = "auto",
+    guess: Optional[PeriodicOrbit] = None,
     **options: Any,
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
@@ -937,6 +938,10 @@ def find_orbit(
         and a sparse LU (:mod:`linearize.collocation_solver`); ``"auto"`` takes the
         structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
         unknowns.  Both solve the same equations to the same tolerance.
+    guess : PeriodicOrbit, optional
+        Start Newton from this orbit's samples (same model and ``samples``, usually a
+        nearby omega: continuation along an omega sweep) instead of one simulated
+        period; if Newton fails from it, the usual guess and continuation follow.
     **options
         Keyword options for ``build``.
 
@@ -968,10 +973,20 @@ def find_orbit(
     built = build_model(definition, omega)
     col = _Collocation(built, samples, solver)
     lap("build")
-    X = _guess(col, definition)
-    lap("guess")
-    X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
-                                 second_guess=_quasi_static_guess)
+    history: list = []
+    ok = False
+    if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
+            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
+        X = np.hstack([guess.q, guess.lambdas, guess.torques])
+        X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
+        if not ok:
+            logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
+    if not ok:
+        X = _guess(col, definition)
+        lap("guess")
+        X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
+                                second_guess=_quasi_static_guess)
+        history += h1
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
         X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)

@@ -12,7 +12,7 @@ from flexstab.options import dump_json, add_model_options, positive_float, resol
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS"]
+           "propagator_steps", "MAX_TUNING_STEPS", "tune_model_plant"]
 
 
 def register(sub) -> None:
@@ -50,23 +50,10 @@ def register(sub) -> None:
 def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     """The plant object (``with_gains(kp, kd)``) for the chosen model."""
     if model not in ("reduced", "exudyn"):
-        from flexstab.options import is_model_file
+        from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
-        from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
 
-        if is_model_file(model):
-            if elements is not None:
-                raise ValueError("--elements applies to built-in models only")
-            definition, options = load_model_file(model), {}
-        elif model in BUILTIN_MODELS:
-            definition = builtin_model(model)
-            if model == "single-link":  # the configured link and its mesh
-                options = {"elements": elements or cfg.elements, "params": cfg.manipulator}
-            else:  # other built-ins (two-link) keep their own default mesh unless --elements is given
-                options = {"elements": elements} if elements is not None else {}
-        else:
-            raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
-                             f"or a model file PATH.py")
+        definition, options = resolve_model_definition(model, cfg, elements)
         plant = model_plant(definition, omega, **options)
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
@@ -222,6 +209,42 @@ def _pairs(gains, n_drives: int):
     return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])
 
 
+def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
+    """Taguchi tuning of a model-file plant with the step-doubling check at the tuned gains.
+
+    ``plant`` (a :class:`~linearize.analysis.ModelPlant`, e.g. from :func:`propagator_steps`) is tuned
+    with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
+    compared (second order: the error of ``n`` steps is ``~ 4/3 |r_n - r_2n|``); above a quarter of
+    the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
+    budget is per pass), up to :data:`MAX_TUNING_STEPS`.
+
+    Returns
+    -------
+    (TaguchiResult, plant, passes)
+        The last pass's result, the plant it used and one dict per pass (``propagator_steps``,
+        ``evaluations``, ``spectral_radius``, ``check_2n``, ``converged``).
+    """
+    import dataclasses
+
+    from taguchi.tuning import taguchi_tune
+
+    n_drives = len(plant.drives)
+    passes: list = []
+    while True:
+        res = taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress)
+        kp, kd = _pairs(res.gains, n_drives)
+        finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
+        r2 = finer.spectral_measure(kp, kd)
+        passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
+                       "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
+        if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
+                or finer.n_steps > MAX_TUNING_STEPS):
+            return res, plant, passes
+        logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
+                    res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
+        plant = finer
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
@@ -261,28 +284,13 @@ def tune_report(args: argparse.Namespace) -> dict:
         if args.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
         kind = "serial"  # the plant holds a model loaded from a file: not picklable
-    passes: list = []
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
-        while True:
-            res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
-            if not model_file:
-                break
-            # the step-doubling check at the tuned gains: second order, error of n steps ~ 4/3 |r_n - r_2n|;
-            # too large -> tune again from the initial ranges with 2n steps (the budget is per pass)
-            import dataclasses
-
-            kp, kd = _pairs(res.gains, n_drives)
-            finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
-            r2 = finer.spectral_measure(kp, kd)
-            passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
-                           "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
-            if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
-                    or finer.n_steps > MAX_TUNING_STEPS):
-                break
-            logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
-                        res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
-            plant = finer
-            objective = DrivesObjective(plant)
+        progress = not args.json and sys.stderr.isatty()
+        if model_file:
+            res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
+            objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
+        else:
+            res, passes = taguchi_tune(objective, tcfg, executor=ex, progress=progress), []
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)
