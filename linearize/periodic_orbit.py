@@ -964,7 +964,8 @@ def find_orbit(
 
     def lap(stage: str) -> None:
         w, c = time.perf_counter(), time.process_time()
-        timings[stage], cpu_timings[stage] = w - clock[0], c - clock[1]
+        timings[stage] = timings.get(stage, 0.0) + w - clock[0]
+        cpu_timings[stage] = cpu_timings.get(stage, 0.0) + c - clock[1]
         clock[:] = [w, c]
 
     if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
@@ -981,9 +982,11 @@ def find_orbit(
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
         if not ok:
             logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
+        lap("newton")
     if not ok:
         X = _guess(col, definition)
-        lap("guess")
+    lap("guess")
+    if not ok:
         X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
                                 second_guess=_quasi_static_guess)
         history += h1
