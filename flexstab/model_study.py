@@ -34,6 +34,7 @@ import math
 import resource
 import time
 import traceback
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -160,7 +161,14 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
         try:
-            blocks = fn()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                blocks = fn()
+            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report
+            notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
+            blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
+            for n in notes:
+                say(f"study: {name}: warning: {n}")
         except ModelFileError:
             raise  # a bad model file is a usage error (one line, exit 2), not a failed stage
         except Exception as exc:  # a failed stage is reported, the study goes on
