@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+import uuid
 from dataclasses import dataclass, field
 from typing import Any, Optional, Sequence
 
@@ -49,6 +50,10 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+#: Per-process cache of labelling workspaces, by plant token (a process pool unpickles the plant
+#: once per task; the workspace is built once per process).  Bounded: the oldest plant is dropped.
+_WORKSPACES: dict = {}
 
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
@@ -148,26 +153,29 @@ class HillModelPlant:
     """
 
     def __init__(self, linearization: LinearizedPeriodicSystem, orbit: PeriodicOrbit, *,
-                 label_steps: int = LABEL_STEPS, harmonics: int = TUNING_HARMONICS) -> None:
+                 label_steps: int = LABEL_STEPS, harmonics: int = TUNING_HARMONICS,
+                 _token: Optional[str] = None) -> None:
         if linearization.B is None:
             raise ValueError("HillModelPlant needs a model file's linearisation (with drives)")
         self.linearization = linearization
         self.orbit = orbit
         self.label_steps = int(label_steps)
         self.harmonics = int(harmonics)
-        self._workspaces: dict = {}
+        self._token = uuid.uuid4().hex if _token is None else _token
+        # workspaces per step count, shared by every copy of this plant unpickled in one process
+        self._workspaces: dict = _WORKSPACES.setdefault(self._token, {})
 
     def __getstate__(self) -> dict:
         return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
-                "harmonics": self.harmonics}
+                "harmonics": self.harmonics, "token": self._token}
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["linearization"], state["orbit"], label_steps=state["label_steps"],
-                      harmonics=state["harmonics"])
+                      harmonics=state["harmonics"], _token=state["token"])
 
     def replace(self, **changes: Any) -> "HillModelPlant":
         kw = {"label_steps": self.label_steps, "harmonics": self.harmonics, **changes}
-        return HillModelPlant(self.linearization, self.orbit, **kw)
+        return HillModelPlant(self.linearization, self.orbit, _token=self._token, **kw)
 
     @property
     def drives(self) -> tuple:
@@ -183,6 +191,8 @@ class HillModelPlant:
     def _workspace(self, steps: int):
         ws = self._workspaces.get(steps)
         if ws is None:
+            while len(_WORKSPACES) > 8:
+                _WORKSPACES.pop(next(iter(_WORKSPACES)))
             ws = drive_gain_family(self.linearization).workspace(steps, method="magnus2")
             self._workspaces[steps] = ws
         return ws

@@ -12,7 +12,7 @@ from flexstab.options import dump_json, add_model_options, positive_float, resol
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS"]
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS"]
 
 
 def register(sub) -> None:
@@ -190,6 +190,10 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
     return names, tuple(ranges)
 
 
+#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
+#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
+HILL_MODELS = ("two-link",)
+
 #: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
 MAX_TUNING_STEPS = 4096
 
@@ -250,22 +254,31 @@ def tune_report(args: argparse.Namespace) -> dict:
     oa = tcfg.orthogonal_array()  # validates --array early
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
+    hill = model_file and args.model in HILL_MODELS
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
-        plant = propagator_steps(plant, tcfg)
+        if hill:  # no propagator steps to choose: Hill's harmonics, decided once at the range centre
+            from linearize.hill_plant import HillModelPlant, choose_harmonics
+
+            centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
+            plant = choose_harmonics(HillModelPlant(plant.linearization, plant.orbit), centre[0::2], centre[1::2],
+                                     tcfg.effective_tolerance)
+        else:
+            plant = propagator_steps(plant, tcfg)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
     kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
     if args.model not in ("reduced", "exudyn"):
         if args.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
-        kind = "serial"  # the plant holds a model loaded from a file: not picklable
+        # the plant holds a model loaded from a file: not picklable -- except the built-in ones
+        kind = "process" if hill and args.workers != 1 else "serial"
     passes: list = []
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         while True:
             res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
-            if not model_file:
+            if not model_file or hill:
                 break
             # the step-doubling check at the tuned gains: second order, error of n steps ~ 4/3 |r_n - r_2n|;
             # too large -> tune again from the initial ranges with 2n steps (the budget is per pass)
@@ -292,7 +305,22 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["propagator_passes"] = passes
     kp, kd = _pairs(res.gains, n_drives)
     out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
-    if hasattr(plant, "spectral_measure"):
+    if hill:
+        # independent check: the streamed exponential-midpoint product at many steps (no Hill code)
+        from flexstab.two_link import CHECK_STEPS, check_multiplier
+
+        chk = check_multiplier(plant.linearization, plant.orbit, res.gains, steps=CHECK_STEPS,
+                               harmonics=plant.harmonics)
+        out["response_method"] = "hill"
+        out["harmonics"] = plant.harmonics
+        out["verified_spectral_radius"] = float(abs(chk.streamed[CHECK_STEPS[-1]]))
+        out["verified_error_estimate"] = chk.magnus_error_estimate
+        out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
+        out["propagator_steps"] = plant.label_steps
+        from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+        out["elements"] = args.elements or DEFAULT_ELEMENTS
+    elif hasattr(plant, "spectral_measure"):
         # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
         # unprepared plant (an independent path to P(t): gains written into K, C and interpolated)
         import dataclasses
