@@ -43,6 +43,8 @@ def register(sub) -> None:
     p.add_argument("--robust", action="store_true",
                    help="robust design: gains crossed with an outer array of noise factors (payload, Omega, E; "
                         "[robust] in --config), compared with the nominal gains over a fine noise grid")
+    p.add_argument("--grid", type=int, default=None, metavar="N",
+                   help="--robust: points per noise factor of the worst-case grid (default [robust] grid)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -88,30 +90,41 @@ def robust_report(args: argparse.Namespace) -> dict:
     from taguchi.robust import RobustConfig
     from taguchi.tuning import TuningConfig
 
-    if args.model != "reduced":
-        raise ValueError("--robust is available for --model reduced")
+    if args.model not in ("reduced", "two-link"):
+        raise ValueError("--robust is available for --model reduced and --model two-link")
     cfg = load_config(args.config)
     rs = cfg.robust
-    tcfg = TuningConfig(
-        target=args.target if args.target is not None else cfg.target,
-        kp_range=tuple(args.kp_range) if args.kp_range else cfg.kp_range,
-        kd_range=tuple(args.kd_range) if args.kd_range else cfg.kd_range,
-        array=args.array, tolerance=args.tolerance, max_evaluations=args.max_evaluations,
-    )
-    noise = rs.noise_factors(cfg.manipulator.tip_mass)
+    grid = getattr(args, "grid", None) or rs.grid
+    if args.model == "two-link":
+        from flexstab.two_link import TUNING_RANGES, TwoLinkNoisePlant, two_link_noise_factors
+
+        names, ranges = factor_ranges(2, (0.0, 1.0), (0.0, 1.0), getattr(args, "factor_range", None))
+        given = {str(sp).partition("=")[0].strip() for sp in (getattr(args, "factor_range", None) or ())}
+        ranges = tuple(r if n in given else d for n, r, d in zip(names, ranges, TUNING_RANGES))
+        tkw = {"ranges": ranges, "names": names}
+        noise = two_link_noise_factors(rs)
+    else:
+        tkw = {"kp_range": tuple(args.kp_range) if args.kp_range else cfg.kp_range,
+               "kd_range": tuple(args.kd_range) if args.kd_range else cfg.kd_range}
+        noise = rs.noise_factors(cfg.manipulator.tip_mass)
+    target = args.target if args.target is not None else cfg.target
+    tcfg = TuningConfig(target=target, array=args.array, tolerance=args.tolerance,
+                        max_evaluations=args.max_evaluations, **tkw)
     # the crossed arrays need (inner + 1) x outer runs per experiment: budget per experiment x iterations
     rcfg = RobustConfig(
-        tuning=TuningConfig(target=tcfg.target, kp_range=tcfg.kp_range, kd_range=tcfg.kd_range, array=args.array,
-                            max_evaluations=10**6),
+        tuning=TuningConfig(target=target, array=args.array, max_evaluations=10**6, **tkw),
         noise=noise, outer_array=rs.outer_array, sn=rs.sn, max_iterations=rs.max_iterations,
     )
     rcfg.outer()  # validates the outer array early
     omega = resolve_omega(args, cfg)
-    factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
+    if args.model == "two-link":
+        factory = TwoLinkNoisePlant(omega=omega, elements=args.elements)
+    else:
+        factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
     n_tasks = tcfg.orthogonal_array().n_runs * len(rcfg.outer_runs())
-    with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers, scheduler=args.scheduler,
-                       n_tasks=n_tasks) as ex:
-        cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=rs.grid, executor=ex)
+    kind = "dask" if args.scheduler else ("process" if args.model == "two-link" and args.workers != 1 else "auto")
+    with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
+        cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=grid, executor=ex)
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega, "robust_design": True}
     out.update(cmp.to_dict())
     out["converged"] = cmp.nominal.converged
@@ -124,10 +137,12 @@ def _print_robust(d: dict) -> None:
           f"{rob['inner_array']} x outer {rob['outer_array']}, S/N '{rob['sn_kind']}'")
     for n in rob["noise"]:
         print(f"  noise {n['name']}: [{n['low']:g}, {n['high']:g}], nominal {n['nominal']:g}, {n['levels']} levels")
-    print(f"{'':>8} {'kp':>10} {'kd':>10} {'nominal max|rho|':>17} {'worst on grid':>14}  worst at")
+    names = rob.get("names") or ["kp", "kd"]
+    print(f"{'':>8} " + "".join(f"{s:>10} " for s in names) + f"{'nominal max|rho|':>17} {'worst on grid':>14}  worst at")
     for label, row in (("nominal", nom), ("robust", rob["check"])):
         g = row["gains"]
-        print(f"{label:>8} {g[0]:10.5g} {g[1]:10.5g} {row['nominal']:17.6f} {row['worst']:14.6f}  {row['worst_noise']}")
+        print(f"{label:>8} " + "".join(f"{v:10.5g} " for v in g)
+              + f"{row['nominal']:17.6f} {row['worst']:14.6f}  {row['worst_noise']}")
     print(f"worst case over {d['grid_size']} grid points lowered by {d['worst_case_improvement']:.4g} "
           f"({d['worst_case_improvement_percent']:.2f} %); cost at nominal: |max|rho| - rho_d| "
           f"{'+' if d['nominal_cost'] >= 0 else ''}{d['nominal_cost']:.3g}")
