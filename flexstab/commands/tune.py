@@ -209,6 +209,9 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
 #: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
 HILL_MODELS = ("two-link",)
 
+#: Width (fraction of each initial range) of the ranges of a tuning pass restarted with twice the steps.
+RESTART_WIDTH = 0.25
+
 #: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
 MAX_TUNING_STEPS = 4096
 
@@ -290,13 +293,14 @@ def tune_report(args: argparse.Namespace) -> dict:
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
         kind = "process" if hill and args.workers != 1 else "serial"
     passes: list = []
+    full_cfg = tcfg
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         while True:
             res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
             if not model_file or hill:
                 break
             # the step-doubling check at the tuned gains: second order, error of n steps ~ 4/3 |r_n - r_2n|;
-            # too large -> tune again from the initial ranges with 2n steps (the budget is per pass)
+            # too large -> tune again with 2n steps, warm-started (below; the budget is per pass)
             import dataclasses
 
             kp, kd = _pairs(res.gains, n_drives)
@@ -304,6 +308,12 @@ def tune_report(args: argparse.Namespace) -> dict:
             r2 = finer.spectral_measure(kp, kd)
             passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
                            "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
+            if not res.converged and tcfg is not full_cfg:
+                # the narrowed window of a warm restart missed the target: this pass from the full ranges
+                logger.info("warm restart with %d steps did not converge: tuning again from the initial ranges",
+                            plant.n_steps)
+                tcfg = full_cfg
+                continue
             if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
                     or finer.n_steps > MAX_TUNING_STEPS):
                 break
@@ -311,6 +321,14 @@ def tune_report(args: argparse.Namespace) -> dict:
                         res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
             plant = finer
             objective = DrivesObjective(plant)
+            # warm restart: the finer propagator moves the answer by about the step-doubling
+            # difference, so the next pass starts from the tuned gains with narrowed ranges
+            # (RESTART_WIDTH of each initial width, shifted to stay inside it) instead of from scratch
+            from taguchi.tuning import _recentre
+
+            init = full_cfg.factor_ranges
+            narrowed = tuple(_recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi)) for g, (lo, hi) in zip(res.gains, init))
+            tcfg = dataclasses.replace(tcfg, ranges=narrowed)
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)
