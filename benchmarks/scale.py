@@ -117,10 +117,10 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     rec["states"] = 2 * int(lin.size)
     system = lin
     if frame == "modal":
-        from stability.modal import FrozenModalSystem
+        from stability.modal import modal_system
 
         with _Stage(st, "modal_basis"):
-            system = FrozenModalSystem(lin)
+            system = modal_system(lin)  # the nested frozen-modal frames analyze() uses
         rec["modal_condition"] = float(system.condition)
     dense_mult = None
     res = None
