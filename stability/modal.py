@@ -72,9 +72,10 @@ logger = logging.getLogger(__name__)
 
 #: Samples of the eigenvector basis per period (:func:`modal_system` doubles them, up to
 #: :data:`MAX_MODAL_SAMPLES`, when the continuation fails).  The basis only has to be smooth,
-#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link,
-#: 16 and 32 samples give the same multipliers to 1e-9, and 16 halve the eigenvalue solves.
-DEFAULT_MODAL_SAMPLES = 16
+#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link
+#: 16 and 32 samples give the same multipliers to 1e-9, but on the two-link arm (4 pi, no gains)
+#: 16 samples leave 9e-4 at 128 steps where 32 leave 1.6e-5.
+DEFAULT_MODAL_SAMPLES = 32
 MAX_MODAL_SAMPLES = 64
 #: Largest condition number of a sampled basis ``V(t_k)`` (balanced) accepted; beyond it the
 #: eigenvectors are nearly dependent (a near-defective ``P``) and the similarity loses digits.
@@ -353,6 +354,8 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
 #: between the modes (a superadiabatic iteration).  Measured on the 8-element single link at
 #: 6 pi / 8 pi (extrapolated, 128 steps): hub multiplier 2.1e-6 / ~2e-6 off with one frame
 #: (and no longer converging cleanly), 7e-8 / 3e-7 with two (4th order from 64 to 128 steps).
+#: Not always better: on the two-link arm with gains (4 pi) 5.7e-5 with two frames against 1.4e-7
+#: with one (see :func:`linearize.analysis.analyze`, which then tries one frame).
 MODAL_LEVELS = 2
 
 
@@ -396,14 +399,15 @@ def _rebase(system: "FrozenModalSystem", P: Any) -> "FrozenModalSystem":
 
 
 def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[FrozenModalSystem] = None,
-                  extrapolate: bool = False, **options: Any):
+                  extrapolate: bool = False, levels: int = MODAL_LEVELS, **options: Any):
     """:func:`stability.floquet` of ``P`` propagated in frozen-modal coordinates.
 
     Builds :class:`FrozenModalSystem` (falls back to ``P`` itself, logged, on
     :class:`ModalBasisError`), runs :func:`stability.floquet` with ``options``
     on it and returns its :class:`~stability.FloquetResult` with the monodromy
     matrix mapped back to the coordinates of ``P``.  ``basis``: reuse the
-    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`).
+    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`);
+    ``levels``: nested frames (:func:`modal_system`).
 
     ``extrapolate=True`` (a fixed ``n_steps`` divisible by 4, ``method="magnus2"``,
     no ``small_multipliers="qr"``): the multipliers are those of the
@@ -420,7 +424,7 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         system = _rebase(basis, P)
     else:
         try:
-            system = modal_system(P, MODAL_LEVELS, samples)
+            system = modal_system(P, levels, samples)
         except ModalBasisError as exc:
             logger.info("frozen-modal basis not available (%s): propagating P itself", exc)
             return floquet(P, **options)
