@@ -19,10 +19,25 @@ run at the same mesh:
 Target (issue 9): orbit + linearisation + Floquet <= 2 s per Omega at 8 elements
 (``target_2s`` on wall clock; on a loaded machine read the CPU column).
 
-Measured before the full-step Newton (main at e108001's parent, 8 elements, 32
-samples, CPU seconds of the orbit alone, loaded 2-core machine): 0.68, 0.68, 3.09,
-3.72 s at 2, 4, 6, 8 pi (6 pi and 8 pi through continuation in omega, 44 and 58
-Newton iterations).
+Orbit stage, measured (CPU seconds, min of 2-3 runs in one process, 8 elements, 32
+samples, loaded 2-core machine; ``find_orbit(verify=False)`` + ``linearize_orbit`` +
+the shooting check on its own):
+
+=========  ==========================  ==========================  ============
+Omega      orbit before (its)          orbit after (its)           shooting
+=========  ==========================  ==========================  ============
+2 pi       0.74 (6)                    0.48 (4)                    0.07
+4 pi       0.75 (10)                   0.63 (6)                    0.06
+6 pi       4.01 (44, continuation)     0.63 (7)                    0.07
+8 pi       4.34 (58, continuation)     0.72 (8)                    0.06
+=========  ==========================  ==========================  ============
+
+linearisation 0.02 s CPU throughout; residuals after 2.3e-9, 6.4e-10, 3.1e-10,
+1.1e-10 (tolerance 1e-6, unchanged), shooting defects 2e-5 .. 1e-4 (tolerance
+1e-2).  "before" is commit f539110 (damped Newton only), "after" the full-step
+Newton with the quasi-static fallback and the compressed reaction stiffness.
+Two-link arm (default mesh), same measurement: 1.07 -> 0.67 s at 2 pi,
+0.99 -> 1.02 s at 4 pi (no continuation before either).
 """
 from __future__ import annotations
 

@@ -9,8 +9,8 @@ beside the report:
 2. ``tuning``   -- Taguchi tuning of the ``2 N`` gains of the ``N`` drives to
    ``rho_d`` (:func:`flexstab.commands.tune.tune_model_plant`: step-doubling
    check at the tuned gains) and the labelled multipliers at the tuned gains
-   from an independent evaluation (512 ``magnus2`` steps with their own
-   step-doubling estimate);
+   from a separate evaluation (twice the loop's ``magnus2`` steps, at least
+   512 and at most 4096, with its own step-doubling estimate);
 3. ``charts``   -- the gain chart of the first drive (the others at their tuned
    gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
 4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
@@ -34,13 +34,15 @@ import math
 import resource
 import time
 import traceback
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 from flexstab.report import figure, table, text, to_html, to_markdown
+from flexstab.study import StudyResult
 
-__all__ = ["ModelStudyOptions", "ModelStudyResult", "run_model_study"]
+__all__ = ["ModelStudyOptions", "run_model_study"]
 
 logger = logging.getLogger(__name__)
 
@@ -77,17 +79,6 @@ class ModelStudyOptions:
     log: Optional[Callable[[str], None]] = None
 
 
-@dataclass(frozen=True)
-class ModelStudyResult:
-    """Where the report went and what each stage produced (or why it failed)."""
-
-    out: Path
-    report_md: Path
-    report_html: Path
-    stages: dict = field(default_factory=dict)
-    elapsed: float = 0.0
-
-
 def _cpu() -> float:
     ch = resource.getrusage(resource.RUSAGE_CHILDREN)
     return time.process_time() + ch.ru_utime + ch.ru_stime
@@ -101,9 +92,16 @@ def _gains_text(names, kp, kd) -> str:
     return "; ".join(f"{n}: kp = {a:.4g}, kd = {b:.4g}" for n, a, b in zip(names, kp, kd))
 
 
-def _multiplier_rows(res) -> list:
-    return [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
-            for i, (mu, m) in enumerate(zip(res.floquet.multipliers, res.modes))]
+def _multiplier_blocks(res, what: str, tail: str = "") -> list:
+    """A paragraph (``what``, the step count, estimate, spectral radius, dominant |rho|) and the
+    table of the 12 largest labelled multipliers of ``res`` (a ModelFloquetResult)."""
+    f = res.floquet
+    rows = [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
+            for i, (mu, m) in enumerate(zip(f.multipliers, res.modes))]
+    return [text(f"{what} ({f.n_steps} `{f.method}` steps, step-doubling estimate {f.error_estimate:.1e}): dominant "
+                 f"labelled multiplier |ρ| = {abs(res.dominant_multiplier):.6f}{tail}; spectral radius "
+                 f"{f.spectral_radius:.6f}. All multipliers: `multipliers.csv`."),
+            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], rows[:12])]
 
 
 def _write_csv(path: Path, results: dict) -> None:
@@ -117,7 +115,7 @@ def _write_csv(path: Path, results: dict) -> None:
                             m["mode"], m.get("group", ""), bool(m["undamped"])])
 
 
-def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudyResult:
+def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResult:
     """Run the model-file study (see the module docstring) and write ``report.md`` / ``report.html``.
 
     Parameters
@@ -136,10 +134,10 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
     import argparse
 
     from flexstab.commands.chart import model_charts
-    from flexstab.commands.tune import _pairs, factor_ranges, propagator_steps, tune_model_plant
+    from flexstab.commands.tune import MAX_TUNING_STEPS, _pairs, factor_ranges, propagator_steps, tune_model_plant
     from flexstab.options import resolve_model_definition
     from flexstab.study import validation_blocks
-    from linearize.analysis import ModelPlant, analyze
+    from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, ModelPlant, analyze
     from mbs_models.model_file import ModelFileError
     from taguchi.tuning import TuningConfig
 
@@ -163,7 +161,14 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
         try:
-            blocks = fn()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                blocks = fn()
+            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report
+            notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
+            blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
+            for n in notes:
+                say(f"study: {name}: warning: {n}")
         except ModelFileError:
             raise  # a bad model file is a usage error (one line, exit 2), not a failed stage
         except Exception as exc:  # a failed stage is reported, the study goes on
@@ -194,11 +199,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
                  f"{res.linearization.size} independent. Periodic orbit by trigonometric collocation "
                  f"({o.samples} samples): relative residual {o.residual:.1e} (tolerance {o.tolerance:.0e}); one "
                  f"period in Exudyn from its state returns with a relative defect {o.shooting_residual:.1e}."),
-            text(f"Uncontrolled multipliers (all gains 0; {res.floquet.n_steps} `{res.floquet.method}` steps, "
-                 f"step-doubling estimate {res.floquet.error_estimate:.1e}): spectral radius "
-                 f"{res.floquet.spectral_radius:.6f}, dominant labelled multiplier |ρ| = "
-                 f"{abs(res.dominant_multiplier):.6f}. All multipliers: `multipliers.csv`."),
-            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], _multiplier_rows(res)[:12]),
+            *_multiplier_blocks(res, "Uncontrolled multipliers, all gains 0"),
         ]
 
     def tuning_stage() -> list:
@@ -211,7 +212,10 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
         res, plant, passes = tune_model_plant(plant, tcfg)
         kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in _pairs(res.gains, nd))
         state["gains"] = (kp, kd)
-        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit, **options)
+        # beside the loop's evaluations: twice its propagator steps (at least analyze's 512, at most the
+        # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
+        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit,
+                        n_steps=max(DEFAULT_PROPAGATOR_STEPS, min(2 * plant.n_steps, MAX_TUNING_STEPS)), **options)
         state["tuned"] = check
         _write_csv(out / "multipliers.csv", {"uncontrolled": base, "tuned": check})
         doc = {"drives": list(base.drives), "target": opts.target, "tolerance": tcfg.effective_tolerance,
@@ -231,11 +235,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
                  f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})."),
             table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
                   [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
-            text(f"Check at the tuned gains ({check.floquet.n_steps} steps, step-doubling estimate "
-                 f"{check.floquet.error_estimate:.1e}): dominant labelled multiplier |ρ| = "
-                 f"{abs(check.dominant_multiplier):.6f} (ρ_d = {opts.target:g}); spectral radius "
-                 f"{check.floquet.spectral_radius:.6f}."),
-            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], _multiplier_rows(check)[:12]),
+            *_multiplier_blocks(check, "Check at the tuned gains, an independent evaluation",
+                                f" (ρ_d = {opts.target:g})"),
         ]
 
     def charts_stage() -> list:
@@ -305,7 +306,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> ModelStudy
     html_path.write_text(to_html(f"flexstab study: model {definition.name}", preamble, sections))
     (out / "study.json").write_text(json.dumps({"model": model, "omega": omega, "quick": opts.quick,
                                                 "elapsed": elapsed, "cpu": cpu, "stages": stages}, indent=2))
-    return ModelStudyResult(out, md, html_path, stages, elapsed)
+    return StudyResult(out, md, html_path, stages, elapsed)
 
 
 def _ready(obj):

@@ -24,10 +24,16 @@ guess, with the Jacobian blocks
 ``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from (Richardson-extrapolated)
 central differences of
 Exudyn's functions (:func:`tangent_blocks`; ``K_k`` contains the mass-matrix
-dependence and the constraint-reaction stiffness).  The guess is one period of
+dependence and the constraint-reaction stiffness, the latter by column-compressed
+differences on the constraints' structural pattern).  The guess is one period of
 Exudyn's own integrator from the model file's initial state with the drives
-prescribed.  If Newton fails, natural continuation in ``omega`` from
-``omega/2`` (the model is rebuilt at each ``omega``).
+prescribed; if full steps from it fail, full steps from the quasi-static guess
+(the drives on their motions, the model in static equilibrium at every sample,
+:func:`_quasi_static_guess`) are tried before the damped Newton.  If all fail,
+natural continuation in ``omega`` from ``omega/2`` (the model is rebuilt at each
+``omega``).  Measured on the single link (8 elements, 32 samples): full steps from
+the simulated period converge at 1 to 8.5 pi and 10 pi, the quasi-static guess
+rescues 9 pi, 9.5 pi and 12 pi; 11 pi still needs continuation.
 
 Check in Exudyn itself (:attr:`PeriodicOrbit.shooting_residual`): one period of
 Exudyn's generalised-alpha integrator (spectral radius 0.9) from the orbit's state at ``t = 0`` with the drives prescribed by
@@ -94,6 +100,9 @@ MAX_STEP_HALVINGS = 12
 #: single link (8 elements, 32 samples): 3, 5, 5, 6 at 2, 4, 6, 8 pi; two-link 3, 5
 #: at 2, 4 pi.
 FULL_STEP_ITERATIONS = 10
+#: ... and continues beyond it (up to ``max_iterations``) only while every step at least
+#: halves the residual (slow but steady convergence near a resonance, e.g. 12 pi).
+FULL_STEP_CONTRACTION = 0.5
 #: The full-step phase gives up early when after this many iterations the residual
 #: has not fallen below :data:`FULL_STEP_PROGRESS` times its start.
 FULL_STEP_CHECK = 5
@@ -373,6 +382,58 @@ def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> 
     return True
 
 
+def _reaction_stiffness(system: ExudynSystem, q: np.ndarray, lam: np.ndarray, t: float, step: float,
+                        accurate: bool, pattern) -> np.ndarray:
+    """``d(C_q(q, t)^T lambda)/dq`` by column-compressed differences (Curtis-Powell-Reid).
+
+    Columns of the constraint objects' coordinates that share no row of the structural
+    reaction pattern (:func:`linearize.collocation_solver.coupling_pattern`) are perturbed
+    together: row ``i`` depends on at most one column of a colour, so every entry is the
+    same difference (rule and step) as with one column at a time, for a fraction of the
+    evaluations (two-link arm: 10 colours for 21 columns).  One random directional
+    difference checks the pattern; a mismatch beyond
+    :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE` (a constraint reading
+    coordinates outside its object) falls back to one column at a time on
+    :meth:`ExudynSystem.reaction_columns`.
+    """
+    n = q.size
+    hq = fd_steps(q, step)
+
+    def reaction(x):
+        return system.constraint_jacobian(x, t).T @ lam
+
+    def derivative(e):  # d/ds reaction(q + s e) at 0
+        if accurate:
+            return _richardson(reaction, q, e, 1.0)
+        return 0.5 * (reaction(q + e) - reaction(q - e))
+
+    Kr = np.zeros((n, n))
+    for cols in pattern.reaction_colours:
+        e = np.zeros(n)
+        e[cols] = hq[cols]
+        dcol = derivative(e)
+        for j in cols:
+            rows = pattern.reaction[:, j]
+            Kr[rows, j] = dcol[rows] / hq[j]
+    rng = np.random.default_rng(_REACTION_CHECK_SEED)
+    e = hq * rng.uniform(-1.0, 1.0, n)
+    size = float(np.max(np.abs(Kr) @ np.abs(e)))
+    if size > 0.0:
+        mismatch = float(np.max(np.abs(Kr @ e - derivative(e)))) / size
+        if not mismatch <= structured.PATTERN_CHECK_TOLERANCE:
+            logger.info("constraint reactions depend on coordinates outside their objects (directional check "
+                        "%.1e): one difference per column", mismatch)
+            Kr[:] = 0.0
+            for j in system.reaction_columns():
+                e = np.zeros(n)
+                e[j] = hq[j]
+                Kr[:, j] = derivative(e) / hq[j]
+    return Kr
+
+
+_REACTION_CHECK_SEED = 20261127
+
+
 def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np.ndarray, A: np.ndarray,
                    L: np.ndarray, *, step: float = RICHARDSON_STEP, use_exudyn_jacobian: Optional[bool] = None,
                    accurate: bool = True) -> TangentBlocks:
@@ -397,7 +458,7 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     const_mass = system.mass_is_constant(Q[0])
     if use_exudyn_jacobian is None:
         use_exudyn_jacobian = _exudyn_jacobians_ok(system, Q[0], V[0], A[0], float(times[0]), step, const_mass)
-    cols = system.reaction_columns()
+    pattern = system.coupling_pattern() if m else None
     for k in range(Kn):
         q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
         Ms[k] = system.mass(q, t)
@@ -406,18 +467,9 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
             Kf[k], Cd[k] = system.force_jacobians(q, v, t)
         else:
             Kf[k], Cd[k] = _force_fd(system, q, v, a, t, step, const_mass)
-        if m:
-            def reaction(x, lam=lam, t=t):
-                return system.constraint_jacobian(x, t).T @ lam
-
-            hq = fd_steps(q, step if accurate else CENTRAL_DIFFERENCE_STEP)
-            for j in cols:
-                e = np.zeros(n)
-                e[j] = hq[j]
-                if accurate:
-                    Kr[k, :, j] = _richardson(reaction, q, e / hq[j], hq[j])
-                else:
-                    Kr[k, :, j] = (reaction(q + e) - reaction(q - e)) / (2 * hq[j])
+        if m and np.any(lam != 0.0):  # C_q(x)^T 0 = 0 for every x: no reaction stiffness
+            Kr[k] = _reaction_stiffness(system, q, lam, t, step if accurate else CENTRAL_DIFFERENCE_STEP,
+                                        accurate, pattern)
     return TangentBlocks(M=Ms, K_force=Kf, K_reaction=Kr, C=Cd, Cq=Cqs, exudyn_jacobian=bool(use_exudyn_jacobian))
 
 
@@ -446,7 +498,7 @@ class _Collocation:
         if solver == "auto":
             solver = "structured" if self.K * self.s > structured.STRUCTURED_THRESHOLD else "dense"
         self.solver = solver
-        self.pattern = structured.coupling_pattern(self.system) if solver == "structured" else None
+        self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
@@ -515,28 +567,32 @@ class _Collocation:
         self.exudyn_jacobian = tb.exudyn_jacobian
         Kn, n, m, s = self.K, self.n, self.m, self.s
         J = np.zeros((Kn, s, Kn, s))
-        for k in range(Kn):
-            J[k, :n, k, :n] += tb.K[k]
-            J[k, :n, :, :n] += self.D1[k][None, :, None] * tb.C[k][:, None, :] + self.D2[k][None, :, None] * tb.M[k][:, None, :]
-            if m:
-                J[k, :n, k, n:n + m] = tb.Cq[k].T
-                J[k, n:n + m, k, :n] = tb.Cq[k]
-            J[k, :n, k, n + m:] = -self.B
-            J[k, n + m:, k, :n] = self.B.T
+        # row block k, column block j: D1_kj C_k + D2_kj M_k (+ K_k on the diagonal)
+        J[:, :n, :, :n] = self.D1[:, None, :, None] * tb.C[:, :, None, :]
+        J[:, :n, :, :n] += self.D2[:, None, :, None] * tb.M[:, :, None, :]
+        k = np.arange(Kn)
+        J[k, :n, k, :n] += tb.K
+        if m:
+            J[k, :n, k, n:n + m] = np.transpose(tb.Cq, (0, 2, 1))
+            J[k, n:n + m, k, :n] = tb.Cq
+        J[k, :n, k, n + m:] = -self.B
+        J[k, n + m:, k, :n] = self.B.T
         return J.reshape(Kn * s, Kn * s), tb
 
 
 def _solve(J: np.ndarray):
     """Factorise the Newton matrix (dense LU; one place to swap in a sparse solver)."""
-    # column scaling equilibrates metres, radians and newtons
-    scale = np.max(np.abs(J), axis=0)
-    scale[scale == 0] = 1.0
-    if not np.all(np.isfinite(J)):
+    # column scaling equilibrates metres, radians and newtons (J is scaled in place: it is
+    # built for this factorisation only); a NaN or inf entry makes its column's maximum NaN / inf
+    scale = np.maximum(np.max(J, axis=0), -np.min(J, axis=0))
+    if not np.all(np.isfinite(scale)):
         raise OrbitConvergenceError("the collocation Newton matrix contains NaN or inf (the model's forces "
                                     "are not finite along the guess)", [])
+    scale[scale == 0] = 1.0
+    J /= scale
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-        lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
+        lu = scipy.linalg.lu_factor(J, overwrite_a=True, check_finite=False)
     pivots = np.abs(np.diagonal(lu[0]))
     if not np.all(pivots > 0.0):
         raise OrbitConvergenceError(
@@ -583,7 +639,7 @@ def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iteratio
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = tb = None
-    for it in range(1, min(max_iterations, FULL_STEP_ITERATIONS) + 1):
+    for it in range(1, max_iterations + 1):
         out, fscale = col.residual(X)
         res = col.relative(out, fscale, qscale)
         history.append(res)
@@ -594,6 +650,8 @@ def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iteratio
             return _polish(col, X, solve, res, qscale, history), history, True, tb
         if it > FULL_STEP_CHECK and min(history) > FULL_STEP_PROGRESS * history[0]:
             break
+        if it > FULL_STEP_ITERATIONS and (it == 1 or not history[-1] <= FULL_STEP_CONTRACTION * history[-2]):
+            break  # past the budget and no longer contracting
         if solve is None or not history[-1] <= CHORD_REUSE_FACTOR * history[-2]:
             try:
                 solve, tb = col.newton_solver(X)
@@ -614,14 +672,15 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, e
         return Xf, history, True, tb
     if second_guess is not None:
         logger.debug("orbit: full-step Newton from the simulated guess stopped at %.2e; quasi-static guess",
-                     history[-1])
+                     history[-1] if history else math.nan)
         X2 = second_guess(col)
         if X2 is not None:
             Xf, h2, ok, tb = _full_step_newton(col, X2, tol, max_iterations)
             history += h2
             if ok:
                 return Xf, history, True, tb
-    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess", history[-1])
+    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess",
+                 history[-1] if history else math.nan)
     X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up)
     return X, history + h2, ok, tb
 
@@ -741,58 +800,85 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     return X
 
 
-#: Quasi-static guess: Newton iterations per sample and the relative residual they must reach.
+#: Quasi-static guess: Newton iterations per static solve, the relative residual they must
+#: reach, and how often the step from one sample time to the next may be halved.
 QUASI_STATIC_ITERATIONS = 10
 QUASI_STATIC_TOLERANCE = 1e-8
+QUASI_STATIC_HALVINGS = 6
+
+
+def _static_solve(col: _Collocation, y: np.ndarray, t: float, use: Optional[bool]):
+    """Newton for the static equilibrium at time ``t`` with the drives at ``r(t)`` from
+    ``y = (q, lambda, tau)``; returns ``(y, use)`` or ``(None, use)``."""
+    sysm = col.system
+    n, m = col.n, col.m
+    zero = np.zeros(n)
+    r_t = np.array([dr.evaluate(t)[0] for dr in col.built.drives], dtype=float)
+    J = np.zeros((col.s, col.s))
+    J[:n, n + m:] = -col.B
+    J[n + m:, :n] = col.B.T
+    y = y.copy()
+    for _ in range(QUASI_STATIC_ITERATIONS):
+        q, lam, tau = y[:n], y[n:n + m], y[n + m:]
+        f = sysm.rhs(q, zero, t)
+        r = -f - col.B @ tau
+        g = np.zeros(0)
+        if m:
+            r = r + sysm.constraint_jacobian(q, t).T @ lam
+            g = sysm.constraints(q, t)
+        geo = np.concatenate([g, col.B.T @ q - r_t])
+        res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
+                  float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
+        if not math.isfinite(res):
+            return None, use
+        if res <= QUASI_STATIC_TOLERANCE:
+            return y, use
+        tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
+                            use_exudyn_jacobian=use, accurate=False)
+        use = tb.exudyn_jacobian
+        J[:n, :n] = tb.K[0]
+        J[:n, n:n + m] = tb.Cq[0].T
+        J[n:n + m, :n] = tb.Cq[0]
+        y = y + np.linalg.solve(J, -np.concatenate([r, geo]))
+    return None, use
 
 
 def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
     """The drives' motions with the model in static equilibrium at every sample (no inertia).
 
-    At each sample ``t_k`` (in order, each started from the previous one and the first
-    from the model file's initial state) Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau
-    = 0``, ``C(q, t_k) = 0``, ``B^T q = r(t_k)``.  For a driven flexible arm this is the rigid
-    motion with the static (gravity) deflection, a guess in the right configuration at every
-    sample, which the simulated period (with the free vibration its start excites) need not
-    be.  Returns ``None`` when a sample does not converge (e.g. no static equilibrium).
+    At each sample ``t_k`` Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau = 0``,
+    ``C(q, t_k) = 0``, ``B^T q = r(t_k)``, marching in time from the model file's initial
+    state (natural continuation: each solve starts from the previous one; a step that
+    does not converge is halved, at most :data:`QUASI_STATIC_HALVINGS` times).  For a
+    driven flexible arm this is the rigid motion with the static (gravity) deflection, a
+    guess in the right configuration at every sample, which the simulated period (with
+    the free vibration its start excites) need not be.  Returns ``None`` when no
+    equilibrium is found (e.g. a model without a static equilibrium).
     """
-    sysm = col.system
     n, m, d = col.n, col.m, col.d
-    q = np.array(sysm.q_initial, dtype=float)
-    lam, tau = np.zeros(m), np.zeros(d)
-    zero = np.zeros(n)
     use = col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians
+    y = np.concatenate([np.asarray(col.system.q_initial, dtype=float), np.zeros(m + d)])
     X = np.empty((col.K, col.s))
-    J = np.zeros((col.s, col.s))
-    J[:n, n + m:] = -col.B
-    J[n + m:, :n] = col.B.T
+    t_now = 0.0
     try:
         for k in range(col.K):
-            t = float(col.times[k])
-            for _ in range(QUASI_STATIC_ITERATIONS):
-                f = sysm.rhs(q, zero, t)
-                r = -f - col.B @ tau
-                g = np.zeros(0)
-                if m:
-                    r = r + sysm.constraint_jacobian(q, t).T @ lam
-                    g = sysm.constraints(q, t)
-                geo = np.concatenate([g, col.B.T @ q - col.R[k]])
-                res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
-                          float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
-                if res <= QUASI_STATIC_TOLERANCE:
+            t_k = float(col.times[k])
+            h = t_k - t_now
+            halvings = 0
+            while True:
+                t_try = t_k if t_now + h >= t_k else t_now + h
+                y_new, use = _static_solve(col, y, t_try, use)
+                if y_new is None:
+                    halvings += 1
+                    if halvings > QUASI_STATIC_HALVINGS or k == 0:
+                        logger.debug("quasi-static guess: no equilibrium at t = %.4g", t_try)
+                        return None
+                    h *= 0.5
+                    continue
+                y, t_now = y_new, t_try
+                if t_now >= t_k:
                     break
-                tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
-                                    use_exudyn_jacobian=use, accurate=False)
-                use = tb.exudyn_jacobian
-                J[:n, :n] = tb.K[0]
-                J[:n, n:n + m] = tb.Cq[0].T
-                J[n:n + m, :n] = tb.Cq[0]
-                dy = np.linalg.solve(J, -np.concatenate([r, geo]))
-                q, lam, tau = q + dy[:n], lam + dy[n:n + m], tau + dy[n + m:]
-            else:
-                logger.debug("quasi-static guess: no equilibrium at t = %.4g (residual %.1e)", t, res)
-                return None
-            X[k] = np.concatenate([q, lam, tau])
+            X[k] = y
     except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
         logger.debug("quasi-static guess failed: %s", exc)
         return None
@@ -846,7 +932,7 @@ def find_orbit(
     verify : bool
         Run the one-period shooting check in Exudyn.
     continuation : bool
-        Continue in omega from omega/2 when Newton fails from the guess.
+        Continue in omega from omega/2 when Newton fails from both guesses.
     solver : {"auto", "dense", "structured"}
         Newton matrix: dense differences and LU, or column-compressed differences
         and a sparse LU (:mod:`linearize.collocation_solver`); ``"auto"`` takes the
@@ -878,7 +964,8 @@ def find_orbit(
 
     def lap(stage: str) -> None:
         w, c = time.perf_counter(), time.process_time()
-        timings[stage], cpu_timings[stage] = w - clock[0], c - clock[1]
+        timings[stage] = timings.get(stage, 0.0) + w - clock[0]
+        cpu_timings[stage] = cpu_timings.get(stage, 0.0) + c - clock[1]
         clock[:] = [w, c]
 
     if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
@@ -895,9 +982,11 @@ def find_orbit(
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
         if not ok:
             logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
+        lap("newton")
     if not ok:
         X = _guess(col, definition)
-        lap("guess")
+    lap("guess")
+    if not ok:
         X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
                                 second_guess=_quasi_static_guess)
         history += h1

@@ -83,9 +83,6 @@ MAX_CONDITION = 1e8
 #: Relative gap in ``|lambda|`` that separates two clusters of frozen eigenvalues (over the
 #: whole period); eigenvalues closer than this (a crossing, a pair turning real) share a block.
 CLUSTER_GAP = 0.05
-#: Trapezoidal points of the trace integral ``int tr P`` (spectrally accurate, as in
-#: :data:`stability.floquet.TRACE_POINTS`).
-TRACE_POINTS = 512
 
 
 class ModalBasisError(ArithmeticError):
@@ -282,13 +279,11 @@ class FrozenModalSystem:
         """``int_0^T tr P dt`` of the *original* ``P`` (= that of ``P_hat`` for a periodic ``V``;
         Liouville's check of the result then also checks the periodicity of ``V``)."""
         if self._trace is None:
-            closed_form = getattr(self.original, "trace_integral", None)
-            if callable(closed_form):
-                self._trace = float(closed_form())
-            else:
-                t = np.arange(TRACE_POINTS) * (self.period / TRACE_POINTS)
-                self._trace = float(np.sum(np.trace(self._wrapped.evaluate(t), axis1=1, axis2=2))
-                                    * self.period / TRACE_POINTS)
+            from stability.floquet import _trace_integral
+
+            # the closed form when the original has one, else floquet's nested trapezoidal rule
+            # (64 .. stability.floquet.TRACE_POINTS evaluations, until converged)
+            self._trace = _trace_integral(self.original, self._wrapped, self.period)
         return self._trace
 
     def to_original(self, monodromy: np.ndarray) -> np.ndarray:
@@ -319,11 +314,19 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
                                    _verdict, floquet)
 
     N = int(fine.n_steps)
-    opts = dict(options, error_estimate=False)
-    half = floquet(system, **dict(opts, n_steps=N // 2))
-    quarter = floquet(system, **dict(opts, n_steps=N // 4))
-    R1 = (4.0 * fine.monodromy - half.monodromy) / 3.0
-    R0 = (4.0 * half.monodromy - quarter.monodromy) / 3.0
+    if len(fine.companion_monodromies) == 2:
+        # N / 3 and N / 9 from the N-step factors (stability.floquet: expm(3 h P) = expm(h P)^3):
+        # ratio 3, R = (9 Phi_N - Phi_{N/3}) / 8, no further exponentials
+        r2, (mid, coarse) = 9.0, fine.companion_monodromies
+        extra_evaluations, extra_elapsed = 0, 0.0
+    else:
+        opts = dict(options, error_estimate=False)
+        half = floquet(system, **dict(opts, n_steps=N // 2))
+        quarter = floquet(system, **dict(opts, n_steps=N // 4))
+        r2, mid, coarse = 4.0, half.monodromy, quarter.monodromy
+        extra_evaluations, extra_elapsed = half.n_evaluations + quarter.n_evaluations, half.elapsed + quarter.elapsed
+    R1 = (r2 * fine.monodromy - mid) / (r2 - 1.0)
+    R0 = (r2 * mid - coarse) / (r2 - 1.0)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         spec, prev = _spectrum(R1), _spectrum(R0)
         accuracy = options.get("accuracy", "moduli")
@@ -345,8 +348,8 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     return replace(fine, multipliers=spec.values, log_moduli=spec.log_moduli, monodromy=R1, spectral_radius=rho,
                    verdict=_verdict(rho, tol), stability_tolerance=tol, liouville_residual=liouville,
                    multiplier_liouville_residual=mult_liouville, error_estimate=est, reliable_digits=digits,
-                   n_evaluations=fine.n_evaluations + half.n_evaluations + quarter.n_evaluations,
-                   elapsed=fine.elapsed + half.elapsed + quarter.elapsed, phase_error_estimate=phase)
+                   n_evaluations=fine.n_evaluations + extra_evaluations,
+                   elapsed=fine.elapsed + extra_elapsed, phase_error_estimate=phase)
 
 
 #: Frozen-modal frames stacked by :func:`modal_system`: the second frame is the frozen-modal
@@ -414,7 +417,12 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     Richardson-extrapolated monodromy ``(4 Phi_N - Phi_{N/2}) / 3`` (4th order),
     with the error estimate from its change against ``(4 Phi_{N/2} - Phi_{N/4}) / 3``
     (see :func:`_extrapolated`); ``monodromy`` is the extrapolated matrix, and the
-    verdict band is the largest estimated absolute error of a modulus.
+    verdict band is the largest estimated absolute error of a modulus.  With
+    ``n_steps`` divisible by 9 on a system larger than ``stability.floquet.SMALL_N``
+    the ratio is 3 instead, ``(9 Phi_N - Phi_{N/3}) / 8`` against
+    ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
+    ``N``-step factors (``FloquetResult.companion_monodromies``): ``N``
+    exponentials in all instead of ``1.75 N``.
     Without a modal basis (fallback to ``P``) no extrapolation is done: in the
     model's coordinates the midpoint error is not in its asymptotic range.
     """
@@ -429,11 +437,18 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
             logger.info("frozen-modal basis not available (%s): propagating P itself", exc)
             return floquet(P, **options)
     steps = options.get("n_steps")
-    can_extrapolate = (extrapolate and steps is not None and int(steps) % 4 == 0 and int(steps) >= 8
+    can_extrapolate = (extrapolate and steps is not None and int(steps) >= 8
                        and options.get("method", "magnus6") == "magnus2"
                        and options.get("small_multipliers", "flag") != "qr")
-    if can_extrapolate:
+    # ratio 3 (N divisible by 9: N / 3 and N / 9 come with the N-step solve of a large system) or 2
+    by_nine = can_extrapolate and int(steps) % 9 == 0
+    fine = floquet(system, **dict(options, error_estimate=True)) if by_nine else None
+    if by_nine and len(fine.companion_monodromies) == 2:
+        res = _extrapolated(system, fine, options)
+    elif can_extrapolate and int(steps) % 4 == 0:
         res = _extrapolated(system, floquet(system, **dict(options, error_estimate=False)), options)
+    elif fine is not None:
+        res = fine
     else:
         res = floquet(system, **options)
     return replace(res, monodromy=_to_base(system, res.monodromy))
