@@ -375,7 +375,8 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
 MODAL_LEVELS = 2
 
 
-def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None) -> "FrozenModalSystem":
+def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None,
+                 period: Optional[float] = None) -> "FrozenModalSystem":
     """``levels`` nested frozen-modal frames of ``P`` (fewer if a deeper one has no smooth basis).
 
     The first frame is retried with twice the samples (up to :data:`MAX_MODAL_SAMPLES`) when
@@ -384,7 +385,7 @@ def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = No
     K = int(samples if samples is not None else DEFAULT_MODAL_SAMPLES)
     while True:
         try:
-            system = FrozenModalSystem(P, K)
+            system = FrozenModalSystem(P, K, period)
             break
         except ModalBasisError:
             if 2 * K > MAX_MODAL_SAMPLES:
@@ -445,7 +446,7 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         system = _rebase(basis, P)
     else:
         try:
-            system = modal_system(P, levels, samples)
+            system = modal_system(P, levels, samples, options.get("period"))
         except ModalBasisError as exc:
             logger.info("frozen-modal basis not available (%s): propagating P itself", exc)
             return floquet(P, **options)
