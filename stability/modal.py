@@ -353,11 +353,12 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     reliable_all = bool((moduli > 100.0 * fine.noise_floor).all())
     mult_liouville = _liouville(float(spec.log_moduli.sum()), fine.trace_integral) if reliable_all else math.nan
     liouville = mult_liouville if fine.liouville_source == "multipliers" and reliable_all else fine.liouville_residual
-    # the verdict band: the largest estimated *absolute* error of a modulus (a strongly damped
-    # stiff multiplier of modulus 1e-5 may carry a large relative estimate, but cannot reach |rho| = 1)
+    # the verdict band: stable only if every modulus plus its estimated error stays below 1, i.e.
+    # tol = max_i |rho_i| (1 + e_i) - rho (a strongly damped stiff multiplier of modulus 1e-4 may carry
+    # a large relative estimate without coming near |rho| = 1)
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(1e-6)
-    abs_err = float(np.max(np.where(np.isfinite(changes[keep]), changes[keep] * moduli[keep], np.inf)))
-    tol = max(float(options.get("stability_tol", 1e-8)), abs_err)
+    upper = float(np.max(np.where(np.isfinite(changes[keep]), moduli[keep] * (1.0 + changes[keep]), np.inf)))
+    tol = max(float(options.get("stability_tol", 1e-8)), upper - rho)
     return replace(fine, multipliers=spec.values, log_moduli=spec.log_moduli, monodromy=R1, spectral_radius=rho,
                    verdict=_verdict(rho, tol), stability_tolerance=tol, liouville_residual=liouville,
                    multiplier_liouville_residual=mult_liouville, error_estimate=est, reliable_digits=digits,
@@ -431,7 +432,8 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     Richardson-extrapolated monodromy ``(4 Phi_N - Phi_{N/2}) / 3`` (4th order),
     with the error estimate from its change against ``(4 Phi_{N/2} - Phi_{N/4}) / 3``
     (see :func:`_extrapolated`); ``monodromy`` is the extrapolated matrix, and the
-    verdict band is the largest estimated absolute error of a modulus.  With
+    verdict band is ``max_i |rho_i| (1 + e_i) - rho`` (stable only if every modulus plus
+    its estimated error is below 1).  With
     ``n_steps`` divisible by 9 on a system larger than ``stability.floquet.SMALL_N``
     the ratio is 3 instead, ``(9 Phi_N - Phi_{N/3}) / 8`` against
     ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
