@@ -1,7 +1,6 @@
 """One call from a model to labelled Floquet multipliers: orbit -> linearisation -> Floquet."""
 from __future__ import annotations
 
-import functools
 import logging
 import math
 import time
@@ -429,11 +428,12 @@ def _multiplier_estimate(res: Any, mu: complex) -> float:
     return float(10.0 ** -float(res.reliable_digits[i]))
 
 
-#: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame, basis
-#: computed once per plant at the linearised gains, Richardson-extrapolated; see :class:`ModelPlant`).
-#: Measured on the 8-element single link at the Table 3 gains (basis at gains 0): the hub multiplier
-#: off 9e-8, 9e-7, 5.8e-5, 3.9e-5 at 2, 4, 6, 8 pi, ~0.25 s CPU per evaluation (32 steps:
-#: up to 3.4e-4; the former 256 plain steps: up to ~1e-2 at ~2 s).
+#: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame built at each
+#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16; see :class:`ModelPlant`).
+#: A basis built once at gains 0 and reused is not good enough: 6.6e-4 off on the double pendulum
+#: test model (1e-7 with its own basis).  Measured on the 8-element single link at the Table 3
+#: gains: 1e-8 .. 4e-5 (2-8 pi), ~0.4 s CPU per evaluation (the former 256 plain steps: up to ~1e-2
+#: at ~2 s); the two-link arm 2.5e-6 (0.12 s), the double pendulum test model 4e-8.
 TUNING_PROPAGATOR_STEPS = 64
 
 
@@ -460,29 +460,21 @@ class ModelPlant:
     def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
 
-    @functools.cached_property
-    def modal_basis(self):
-        """Frozen-modal basis of the linearisation (gains as linearised), shared by all gains;
-        ``None`` when none exists (then each evaluation propagates in the model's coordinates)."""
-        from stability.modal import ModalBasisError, modal_system
-
-        try:
-            return modal_system(self.linearization)
-        except ModalBasisError as exc:
-            logger.info("no frozen-modal basis for the plant (%s)", exc)
-            return None
-
     def floquet(self, kp, kd, n_steps: Optional[int] = None):
-        """Floquet multipliers at ``(kp, kd)`` (exponential midpoint in the plant's frozen-modal basis)."""
+        """Floquet multipliers at ``(kp, kd)``: exponential midpoint in the frozen-modal frame of the
+        system *at these gains* (one frame, Richardson-extrapolated; see :data:`TUNING_PROPAGATOR_STEPS`)."""
         from stability import floquet
-        from stability.modal import modal_floquet
+        from stability.modal import ModalBasisError, modal_floquet, modal_system
 
         lin = self.with_gains(kp, kd)
         steps = n_steps or self.n_steps
-        if self.modal_basis is None:
+        try:
+            system = modal_system(lin, levels=1)
+        except ModalBasisError as exc:
+            logger.info("no frozen-modal basis at kp=%s, kd=%s (%s): model coordinates", kp, kd, exc)
             return floquet(lin, method="magnus2", n_steps=max(steps, DEFAULT_PROPAGATOR_STEPS * 8),
                            error_estimate=False, accuracy="moduli")
-        return modal_floquet(lin, basis=self.modal_basis, method="magnus2", n_steps=steps, error_estimate=False,
+        return modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, error_estimate=False,
                              accuracy="moduli", extrapolate=True)
 
     def spectral_measure(self, kp, kd) -> float:
