@@ -14,9 +14,10 @@ turn in the state space with the motion, in any coordinates built from the
 model (the hand-derived hub frame as much as the generic co-rotating null-space
 basis).  Every step boundary then moves the quasi-static equilibrium of the
 stiff modes abruptly; the frozen step excites them (a "kick" of phase
-``omega h``), and the dominant multiplier converges erratically (measured, 2
-elements, 8 pi: relative error 1.2e-4 at 256 steps, 3e-7 at 4096; 8 elements
-needs even more).
+``omega h``), and the multipliers converge erratically (measured, single link,
+2 elements, 8 pi: the largest damped multiplier 1.2e-4 off at 256 steps, 3e-7 at
+4096; the hub multiplier 1.1e-2 off at 512 steps with a step-doubling estimate
+of 4.5e-4; 8 elements need even more).
 
 In the frozen-modal coordinates ``x = V(t) y`` (``V(t)`` a smooth
 T-periodic real basis of the eigenvectors of ``P(t)``, complex pairs as their
