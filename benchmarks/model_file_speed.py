@@ -47,15 +47,16 @@ route's linearisation propagated to convergence (``--converged-steps``):
 =========  ===========  =======================  ==================
 Omega      Floquet CPU  dominant (hub) error     its estimate
 =========  ===========  =======================  ==================
-2 pi       0.78 s       8.7e-10                  3.7e-11
-4 pi       0.56 s       3.2e-9                   4.6e-8
-6 pi       0.55 s       7.9e-8                   1.3e-6
-8 pi       0.68 s       3.3e-7                   4.9e-6
+2 pi       0.72 s       8.7e-10                  3.6e-11
+4 pi       0.57 s       3.2e-9                   4.6e-8
+6 pi       0.69 s       7.9e-8                   1.3e-6
+8 pi       0.77 s       3.3e-7                   4.9e-6
 =========  ===========  =======================  ==================
 
 Before (512 steps in the model's own coordinates): ~4 s, errors 6.5e-5 (4 pi) ..
 5.2e-3 (8 pi), with step-doubling estimates up to 25x too small.  Generic path
-(orbit + linearisation + Floquet, no shooting check): 1.51, 1.33, 1.23, 1.66 s CPU.
+(orbit + linearisation + Floquet, no shooting check): 1.19, 1.24, 1.41, 1.71 s CPU.
+(At 2 pi the error is the two linearisations' agreement, not the propagator's.)
 """
 from __future__ import annotations
 
