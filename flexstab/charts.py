@@ -108,7 +108,7 @@ class ModelRadius:
     samples : int
         Collocation samples per period.
     n_steps : int
-        ``magnus2`` sub-intervals of each Floquet evaluation.
+        Sub-intervals of each Floquet evaluation (:meth:`linearize.analysis.ModelPlant.floquet`).
     """
 
     model: Any

@@ -9,8 +9,8 @@ beside the report:
 2. ``tuning``   -- Taguchi tuning of the ``2 N`` gains of the ``N`` drives to
    ``rho_d`` (:func:`flexstab.commands.tune.tune_model_plant`: step-doubling
    check at the tuned gains) and the labelled multipliers at the tuned gains
-   from an independent evaluation (512 ``magnus2`` steps with their own
-   step-doubling estimate);
+   from a separate evaluation (twice the loop's ``magnus2`` steps, at least
+   512 and at most 4096, with its own step-doubling estimate);
 3. ``charts``   -- the gain chart of the first drive (the others at their tuned
    gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
 4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
@@ -34,6 +34,7 @@ import math
 import resource
 import time
 import traceback
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
@@ -133,10 +134,10 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     import argparse
 
     from flexstab.commands.chart import model_charts
-    from flexstab.commands.tune import _pairs, factor_ranges, propagator_steps, tune_model_plant
+    from flexstab.commands.tune import MAX_TUNING_STEPS, _pairs, factor_ranges, propagator_steps, tune_model_plant
     from flexstab.options import resolve_model_definition
     from flexstab.study import validation_blocks
-    from linearize.analysis import ModelPlant, analyze
+    from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, ModelPlant, analyze
     from mbs_models.model_file import ModelFileError
     from taguchi.tuning import TuningConfig
 
@@ -160,7 +161,14 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
         try:
-            blocks = fn()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                blocks = fn()
+            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report
+            notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
+            blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
+            for n in notes:
+                say(f"study: {name}: warning: {n}")
         except ModelFileError:
             raise  # a bad model file is a usage error (one line, exit 2), not a failed stage
         except Exception as exc:  # a failed stage is reported, the study goes on
@@ -204,7 +212,10 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         res, plant, passes = tune_model_plant(plant, tcfg)
         kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in _pairs(res.gains, nd))
         state["gains"] = (kp, kd)
-        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit, **options)
+        # beside the loop's evaluations: twice its propagator steps (at least analyze's 512, at most the
+        # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
+        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit,
+                        n_steps=max(DEFAULT_PROPAGATOR_STEPS, min(2 * plant.n_steps, MAX_TUNING_STEPS)), **options)
         state["tuned"] = check
         _write_csv(out / "multipliers.csv", {"uncontrolled": base, "tuned": check})
         doc = {"drives": list(base.drives), "target": opts.target, "tolerance": tcfg.effective_tolerance,

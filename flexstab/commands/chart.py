@@ -31,7 +31,8 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=None,
                    help="model files: collocation samples per period (even; default 32)")
     p.add_argument("--steps", type=int, default=None,
-                   help="model files: magnus2 sub-intervals per Floquet evaluation (default 256)")
+                   help="model files: magnus2 sub-intervals per Floquet evaluation (default: the tuning's, "
+                        "linearize.analysis.TUNING_PROPAGATOR_STEPS)")
     add_model_options(p)
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
     p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
