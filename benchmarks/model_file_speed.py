@@ -19,10 +19,25 @@ run at the same mesh:
 Target (issue 9): orbit + linearisation + Floquet <= 2 s per Omega at 8 elements
 (``target_2s`` on wall clock; on a loaded machine read the CPU column).
 
-Measured before the full-step Newton (main at e108001's parent, 8 elements, 32
-samples, CPU seconds of the orbit alone, loaded 2-core machine): 0.68, 0.68, 3.09,
-3.72 s at 2, 4, 6, 8 pi (6 pi and 8 pi through continuation in omega, 44 and 58
-Newton iterations).
+Orbit stage, measured (CPU seconds, min of 2-3 runs in one process, 8 elements, 32
+samples, loaded 2-core machine; ``find_orbit(verify=False)`` + ``linearize_orbit`` +
+the shooting check on its own):
+
+=========  ==========================  ==========================  ============
+Omega      orbit before (its)          orbit after (its)           shooting
+=========  ==========================  ==========================  ============
+2 pi       0.74 (6)                    0.48 (4)                    0.07
+4 pi       0.75 (10)                   0.63 (6)                    0.06
+6 pi       4.01 (44, continuation)     0.63 (7)                    0.07
+8 pi       4.34 (58, continuation)     0.72 (8)                    0.06
+=========  ==========================  ==========================  ============
+
+linearisation 0.02 s CPU throughout; residuals after 2.3e-9, 6.4e-10, 3.1e-10,
+1.1e-10 (tolerance 1e-6, unchanged), shooting defects 2e-5 .. 1e-4 (tolerance
+1e-2).  "before" is commit f539110 (damped Newton only), "after" the full-step
+Newton with the quasi-static fallback and the compressed reaction stiffness.
+Two-link arm (default mesh), same measurement: 1.07 -> 0.67 s at 2 pi,
+0.99 -> 1.02 s at 4 pi (no continuation before either).
 """
 from __future__ import annotations
 
@@ -44,7 +59,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, default=8)
     ap.add_argument("--samples", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=512, help="exponential-midpoint steps (both routes)")
+    ap.add_argument("--steps", type=int, default=None,
+                    help="generic path's propagator steps (default: analyze's default, frozen-modal frame)")
+    ap.add_argument("--hand-steps", type=int, default=512, help="exponential-midpoint steps of the hand route")
+    ap.add_argument("--converged-steps", type=int, default=1024,
+                    help="steps of the converged hand-route reference (frozen-modal frame, extrapolated)")
     ap.add_argument("--cases", default="2,4,6,8", help="Omega / pi of the Table 3 cases to run")
     ap.add_argument("--direct", action="store_true", help="also the direct Exudyn monodromy (slow)")
     ap.add_argument("--no-shooting", action="store_true", help="skip the orbit's shooting check in Exudyn")
@@ -57,7 +76,8 @@ def main(argv=None) -> int:
             continue
         omega = k * math.pi
         tic, ctic = time.perf_counter(), time.process_time()
-        res = analyze("single-link", omega, kp=kp, kd=kd, samples=args.samples, n_steps=args.steps,
+        steps = {} if args.steps is None else {"n_steps": args.steps}
+        res = analyze("single-link", omega, kp=kp, kd=kd, samples=args.samples, **steps,
                       verify_orbit=not args.no_shooting, elements=args.elements)
         orbit_t, orbit_c = res.orbit.timings, res.orbit.cpu_timings
         # orbit + linearisation + Floquet, without the shooting check (measured on its own)
@@ -65,7 +85,7 @@ def main(argv=None) -> int:
         c_generic = time.process_time() - ctic - orbit_c.get("shooting", 0.0)
         tic = time.perf_counter()
         ref = exudyn_floquet(omega=omega, kp=kp, kd=kd, elements=args.elements, samples=args.samples,
-                             n_steps=args.steps, verify_orbit=False)
+                             n_steps=args.hand_steps, verify_orbit=False)
         t_hand = time.perf_counter() - tic
         row = {
             "omega_over_pi": k, "kp": kp, "kd": kd,
@@ -89,6 +109,22 @@ def main(argv=None) -> int:
             "seconds_hand": t_hand,
             "target_2s": t_generic <= 2.0,
         }
+        # the hand route's linearisation propagated to convergence: the reference of the 1e-6 target
+        import numpy as np
+
+        from stability.modal import modal_floquet
+
+        conv = modal_floquet(ref.linearization, method="magnus2", n_steps=args.converged_steps, accuracy="moduli",
+                             extrapolate=True)
+        hand_conv = conv.multipliers[np.argmin(np.abs(conv.multipliers - res.dominant_multiplier))]
+        row.update({
+            "floquet_steps": int(res.floquet.n_steps),
+            "floquet_cpu_seconds": res.cpu_timings["floquet"],
+            "generic_dominant_error_estimate": res.dominant_error_estimate,
+            "hand_converged_dominant": [hand_conv.real, hand_conv.imag],
+            "hand_converged_error_estimate": conv.error_estimate,
+            "error_vs_hand_converged": abs(res.dominant_multiplier - hand_conv) / abs(hand_conv),
+        })
         if args.direct:
             tic = time.perf_counter()
             d = direct_monodromy(ref.orbit, kp=kp, kd=kd)
@@ -109,6 +145,10 @@ def main(argv=None) -> int:
                   f"hand {t_hand:.2f} s wall"
                   + (f", direct {row['seconds_direct']:.1f} s wall ({abs(d.dominant_multiplier):.6f})"
                      if args.direct else ""),
+                  flush=True)
+            print(f"    Floquet: {row['floquet_steps']} steps (frozen-modal, extrapolated), CPU "
+                  f"{row['floquet_cpu_seconds']:.2f} s; dominant vs hand route converged "
+                  f"{row['error_vs_hand_converged']:.1e} (estimate {row['generic_dominant_error_estimate']:.1e})",
                   flush=True)
     if args.json:
         print(json.dumps({"elements": args.elements, "samples": args.samples, "steps": args.steps, "cases": rows},

@@ -12,7 +12,10 @@ report can be traced to a file:
    at most 4 elements, 16 collocation samples, the tuning loop at half the
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
-   against the predicted multipliers.
+   against the predicted multipliers;
+7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
+   :mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
+   figures, and the cached results of ``scripts/two_link_study.py``.
 
 Which Omega
 -----------
@@ -494,6 +497,13 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
     return blocks
 
 
+def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
+    """The built-in two-link arm (issue 11): see :mod:`flexstab.two_link_report`."""
+    from flexstab.two_link_report import stage_two_link
+
+    return stage_two_link(cfg, opts)
+
+
 #: Registry of the study's stages, in order.
 STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
     "table2": _stage_table2,
@@ -502,6 +512,7 @@ STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
     "transients": _stage_transients,
     "exudyn": _stage_exudyn,
     "validation": _stage_validation,
+    "two_link": _stage_two_link,
 }
 
 #: Section titles (a stage's own title may name the Omega or the paper's table).
@@ -512,6 +523,7 @@ STAGE_TITLES: dict[str, str] = {
     "transients": "Transient responses",
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
+    "two_link": "Two-link flexible arm (issue 11)",
 }
 
 
@@ -647,7 +659,7 @@ def _prepare_out(out: Path) -> None:
 
 #: Stages that run in the second process when the study runs on two processes (``jobs=2``): the
 #: Exudyn chain (``validation`` reads the gains ``exudyn`` tuned).  Only that process imports Exudyn.
-EXUDYN_LANE = ("exudyn", "validation")
+EXUDYN_LANE = ("exudyn", "validation", "two_link")
 
 
 def _cpu_now() -> float:
@@ -752,6 +764,11 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
         if name == "validation":  # reads the gains tuned by the exudyn stage
             inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
+        if name == "two_link":  # reads the cached results of scripts/two_link_study.py
+            from flexstab.two_link_report import find_cache
+
+            c = find_cache(out)
+            inputs["cache"] = _file_sha(c) if c is not None else None
         ihash = _sha(_canonical(inputs))
         rec = _load_record(out, name)
         if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:

@@ -16,25 +16,36 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from linearize.hill_plant import HillGainObjective, HillModelPlant, choose_harmonics
 from taguchi.tuning import DriveGainObjective, TaguchiResult, TuningConfig, taguchi_tune
 
 __all__ = [
     "MODEL",
     "TUNING_RANGES",
+    "TUNED_GAINS",
     "UNDAMPED_TOLERANCE",
     "TUNING_FLOQUET",
     "two_link_orbit",
     "dominant_damped",
     "tuning_objective",
     "tune_four_gains",
+    "hill_plant",
+    "TunedCheck",
+    "TwoLinkFloquet",
+    "TwoLinkNoisePlant",
+    "two_link_noise_factors",
+    "two_link_floquet",
+    "check_multiplier",
+    "CHECK_STEPS",
     "main_dominant",
     "LabelledGainObjective",
     "gain_slices",
+    "gain_slices_hill",
 ]
 
 logger = logging.getLogger(__name__)
@@ -48,6 +59,17 @@ UNDAMPED_TOLERANCE = 2e-3
 #: steps.  Measured on the drive-mode multiplier at 2 elements (gains 20, 5, 5, 1):
 #: 512 steps 0.0132875, 1024 0.0131898, 2048 0.0131911 -> about 1e-4 absolute at 512.
 TUNING_FLOQUET = {"method": "magnus2", "n_steps": 512, "error_estimate": False}
+#: Steps of the independent check (streamed magnus2): two resolutions, the finer converged
+#: to ~1e-6 on the 2-element arm (measured: 2.0e-7 at 2 pi, 1.4e-6 at 4 pi against Hill).
+CHECK_STEPS = (16384, 32768)
+#: Four-gain Taguchi results (Hill response, ranges TUNING_RANGES, rho_d = 0.3, 2 elements per link;
+#: measured with ``benchmarks/two_link_speed.py`` / ``scripts/two_link_study.py``): |rho| = 0.300132 (2 pi) and
+#: 0.300027 (4 pi) by Hill, 0.300132 / 0.300025 by the streamed magnus2 product at 32768 steps.
+#: Used by the study when the script's cached results are absent.
+TUNED_GAINS = {
+    2: (15.0, 8.935546875, 7.138671875, 1.4443359375),
+    4: (21.6015625, 7.900390625, 5.888671875, 1.8779296875),
+}
 #: Initial gain ranges (kp1, kd1, kp2, kd2) of the four-gain tuning; see the 2-D slices
 #: (``gain_slices``) in the study for why they bracket rho_d = 0.3 at both Omega.
 TUNING_RANGES = ((0.0, 40.0), (0.0, 10.0), (0.0, 10.0), (0.0, 3.0))
@@ -120,16 +142,36 @@ class LabelledGainObjective:
 
 def tune_four_gains(lin: Any, target: float = 0.3, *, orbit: Any = None, ranges: Sequence = TUNING_RANGES,
                     executor: Any = None, max_evaluations: int = 2000,
-                    floquet_options: Optional[dict] = None) -> TaguchiResult:
+                    floquet_options: Optional[dict] = None, response: str = "hill",
+                    harmonics: Optional[int] = None) -> TaguchiResult:
     """Iterative Taguchi (L9, four factors) to ``|rho_dominant| = target`` on the linearisation ``lin``.
 
-    With ``orbit`` the response is :class:`LabelledGainObjective` (drive modes
-    and first bending mode); without, the largest multiplier off the unit circle.
+    ``response="hill"`` (default, needs ``orbit``): the dominant labelled multiplier
+    measured by Hill's method (:class:`linearize.hill_plant.HillModelPlant`; its
+    harmonic count chosen once at the centre of the ranges unless ``harmonics``
+    is given).  ``response="magnus"``: :class:`LabelledGainObjective` with
+    ``floquet_options`` (with ``orbit``), else the largest multiplier off the unit circle.
     """
     cfg = TuningConfig(target=target, ranges=tuple(ranges), max_evaluations=max_evaluations)
-    obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
-           else tuning_objective(lin, floquet_options))
+    if response == "hill":
+        if orbit is None:
+            raise ValueError("response='hill' needs the orbit (mode labels)")
+        obj = HillGainObjective(hill_plant(lin, orbit, cfg, harmonics=harmonics))
+    elif response == "magnus":
+        obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
+               else tuning_objective(lin, floquet_options))
+    else:
+        raise ValueError(f"response must be 'hill' or 'magnus', got {response!r}")
     return taguchi_tune(obj, cfg, executor=executor)
+
+
+def hill_plant(lin: Any, orbit: Any, cfg: TuningConfig, *, harmonics: Optional[int] = None) -> HillModelPlant:
+    """:class:`HillModelPlant` with its harmonics decided once, at the centre of the tuning ranges."""
+    plant = HillModelPlant(lin, orbit)
+    if harmonics is not None:
+        return plant.replace(harmonics=harmonics)
+    centre = [0.5 * (lo + hi) for lo, hi in cfg.factor_ranges]
+    return choose_harmonics(plant, centre[0::2], centre[1::2], cfg.effective_tolerance)
 
 
 @dataclass(frozen=True)
@@ -171,6 +213,26 @@ def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: 
                       shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
 
 
+def gain_slices_hill(lin: Any, orbit: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES,
+                     points: int = 9, executor: Any = None, harmonics: int = 12) -> GainSlices:
+    """:func:`gain_slices` with the tuning response (Hill's method, :class:`HillModelPlant`)."""
+    obj = HillGainObjective(HillModelPlant(lin, orbit, harmonics=harmonics))
+    grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
+    grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
+    out = []
+    for drive in (0, 1):
+        pts = []
+        for kd in grids_d[drive]:
+            for kp in grids_p[drive]:
+                g = list(fixed)
+                g[2 * drive], g[2 * drive + 1] = float(kp), float(kd)
+                pts.append(tuple(g))
+        vals = list(executor.map(obj, pts)) if executor is not None else [obj(p) for p in pts]
+        out.append(np.array(vals).reshape(points, points))
+    return GainSlices(kp_grid=tuple(tuple(g) for g in grids_p), kd_grid=tuple(tuple(g) for g in grids_d),
+                      shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
+
+
 def plot_gain_slices(sl: GainSlices, path, *, target: float = 0.3, title: str = "") -> None:
     """Contour plots of the two slices with the ``rho_d`` level."""
     import matplotlib.pyplot as plt
@@ -196,3 +258,172 @@ def timed(fn, *args, **kwargs):
     t0 = time.perf_counter()
     out = fn(*args, **kwargs)
     return out, time.perf_counter() - t0
+
+
+@dataclass(frozen=True)
+class TunedCheck:
+    """The dominant multiplier at some gains by Hill (the loop's method) and by an independent product.
+
+    Attributes
+    ----------
+    gains : tuple
+    hill : complex
+        Hill's value (``harmonics``), with ``hill_error_estimate`` (relative, H vs H/2).
+    mode : str
+    streamed : dict
+        ``{n_steps: multiplier}`` of the streamed magnus2 product nearest Hill's value.
+    magnus_error_estimate : float
+        ``4/3 |rho_2n - rho_n|`` of the two finest products (second order), absolute.
+    difference : float
+        ``| |rho_hill| - |rho_magnus,finest| |``.
+    seconds : dict
+    """
+
+    gains: tuple
+    hill: complex
+    hill_error_estimate: float
+    harmonics: int
+    mode: str
+    streamed: dict
+    magnus_error_estimate: float
+    difference: float
+    seconds: dict
+
+    def to_dict(self) -> dict:
+        c = lambda z: [float(np.real(z)), float(np.imag(z))]  # noqa: E731
+        return {"gains": list(self.gains), "hill": c(self.hill), "hill_modulus": float(abs(self.hill)),
+                "hill_error_estimate": self.hill_error_estimate, "harmonics": self.harmonics, "mode": self.mode,
+                "streamed_magnus2": {str(k): c(v) for k, v in self.streamed.items()},
+                "streamed_moduli": {str(k): float(abs(v)) for k, v in self.streamed.items()},
+                "magnus_error_estimate": self.magnus_error_estimate, "difference": self.difference,
+                "seconds": dict(self.seconds)}
+
+
+def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Sequence[int] = CHECK_STEPS,
+                     harmonics: int = 32) -> TunedCheck:
+    """Dominant labelled multiplier at ``gains`` by Hill and by streamed magnus2 products at ``steps``."""
+    from stability.streamed import streamed_floquet
+
+    g = [float(v) for v in gains]
+    t0 = time.perf_counter()
+    m = HillModelPlant(lin, orbit, harmonics=harmonics).measure(g[0::2], g[1::2], error_estimate=True)
+    secs = {"hill": time.perf_counter() - t0}
+    lg = lin.with_gains(g[0::2], g[1::2])
+    streamed = {}
+    for n in steps:
+        t0 = time.perf_counter()
+        streamed[int(n)] = streamed_floquet(lg, lg.period, int(n)).nearest(m.dominant)
+        secs[f"magnus2_{n}"] = time.perf_counter() - t0
+    mods = [abs(streamed[int(n)]) for n in steps]
+    est = 4.0 / 3.0 * abs(mods[-1] - mods[-2]) if len(mods) > 1 else math.nan
+    return TunedCheck(gains=tuple(g), hill=m.dominant, hill_error_estimate=m.hill_error_estimate, harmonics=harmonics,
+                      mode=m.mode, streamed=streamed, magnus_error_estimate=est,
+                      difference=abs(abs(m.dominant) - mods[-1]), seconds=secs)
+
+
+@dataclass(frozen=True)
+class TwoLinkFloquet:
+    """Orbit, linearisation and the labelled multipliers of the two-link arm at one Omega and gains.
+
+    ``labelled`` is the magnus2 pass (all multipliers, mode labels); ``measure`` the
+    dominant drive-mode / bending-1 multiplier measured by Hill's method.
+    """
+
+    omega: float
+    elements: int
+    gains: tuple
+    orbit: Any = field(repr=False)
+    linearization: Any = field(repr=False)
+    floquet: Any = field(repr=False)
+    modes: list = field(repr=False)
+    measure: Any = None
+    cpu_seconds: dict = field(default_factory=dict)
+
+
+def two_link_floquet(omega: float, elements: Optional[int] = None, gains: Sequence[float] = (0.0, 0.0, 0.0, 0.0), *,
+                     orbit: Any = None, lin: Any = None, harmonics: int = 16,
+                     label_steps: int = 512, **options: Any) -> TwoLinkFloquet:
+    """Orbit + linearisation + labelled Floquet (magnus2 labels, Hill value) of the two-link arm.
+
+    CPU seconds per stage in ``cpu_seconds`` (``time.process_time``, this process).
+    """
+    from linearize.constrained import linearize_orbit
+
+    cpu: dict = {}
+    c0 = time.process_time()
+    if orbit is None:
+        orbit = two_link_orbit(omega, elements, **options)
+    cpu["orbit"] = time.process_time() - c0
+    c0 = time.process_time()
+    if lin is None:
+        lin = linearize_orbit(orbit, 0.0, 0.0)
+    cpu["linearization"] = time.process_time() - c0
+    g = [float(v) for v in gains]
+    plant = HillModelPlant(lin, orbit, label_steps=label_steps, harmonics=harmonics)
+    c0 = time.process_time()
+    _, res, modes = plant.labelled(g[0::2], g[1::2])
+    cpu["floquet_labels"] = time.process_time() - c0
+    c0 = time.process_time()
+    m = plant.measure(g[0::2], g[1::2], error_estimate=True)
+    cpu["hill"] = time.process_time() - c0
+    n_el = elements
+    if n_el is None:
+        from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+        n_el = DEFAULT_ELEMENTS
+    return TwoLinkFloquet(omega=float(omega), elements=int(n_el), gains=tuple(g), orbit=orbit, linearization=lin,
+                          floquet=res, modes=modes, measure=m, cpu_seconds=cpu)
+
+
+#: Orbit + linearisation per noise value, per process (outer runs recur in every crossed experiment).
+_NOISE_PLANTS: dict = {}
+
+
+@dataclass(frozen=True)
+class TwoLinkNoisePlant:
+    """``noise -> plant`` of the two-link arm for the robust design (picklable).
+
+    ``noise`` may hold ``tip_mass`` (kg), ``omega_scale`` and ``youngs_modulus_scale``
+    (missing: nominal).  Each noise value gets its own periodic orbit and
+    linearisation (payload, frequency and stiffness change the orbit), cached per
+    process; the plant's ``spectral_measure(*gains)`` takes the flat
+    ``(kp1, kd1, kp2, kd2)`` of :class:`taguchi.robust.PlantNoiseObjective`.
+    """
+
+    omega: float
+    elements: Optional[int] = None
+    harmonics: int = 12
+
+    def __call__(self, noise: Any) -> "_FlatGainPlant":
+        from linearize.constrained import linearize_orbit
+        from mbs_models.builtin.two_link import TwoLinkParameters
+
+        tip = float(noise.get("tip_mass", TwoLinkParameters.tip_mass))
+        w = float(noise.get("omega_scale", 1.0))
+        e = float(noise.get("youngs_modulus_scale", 1.0))
+        key = (self.omega, self.elements, self.harmonics, tip, w, e)
+        plant = _NOISE_PLANTS.get(key)
+        if plant is None:
+            orbit = two_link_orbit(self.omega * w, self.elements, tip_mass=tip,
+                                   youngs_modulus=TwoLinkParameters.youngs_modulus * e)
+            plant = HillModelPlant(linearize_orbit(orbit, 0.0, 0.0), orbit, harmonics=self.harmonics)
+            while len(_NOISE_PLANTS) > 400:
+                _NOISE_PLANTS.pop(next(iter(_NOISE_PLANTS)))
+            _NOISE_PLANTS[key] = plant
+        return _FlatGainPlant(plant)
+
+
+class _FlatGainPlant:
+    def __init__(self, plant: HillModelPlant) -> None:
+        self.plant = plant
+
+    def spectral_measure(self, *gains: float) -> float:
+        g = [float(v) for v in gains]
+        return self.plant.spectral_measure(g[0::2], g[1::2])
+
+
+def two_link_noise_factors(settings: Any) -> tuple:
+    """Noise factors of the ``[robust]`` settings about the two-link arm's nominal tip mass."""
+    from mbs_models.builtin.two_link import TwoLinkParameters
+
+    return settings.noise_factors(TwoLinkParameters.tip_mass)

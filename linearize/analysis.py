@@ -32,12 +32,12 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
-#: (:mod:`stability.modal`).  In the model's own coordinates 512 steps left the single link's
-#: dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements; in the frozen-modal
-#: frame (order 2, Richardson-extrapolated from 128, 64, 32 steps to order 4) the hub multiplier is
-#: off 1.4e-9, 1.5e-7, 2.1e-6, 5e-8 at 2, 4, 6, 8 pi (against the generic path converged), 0.6 s CPU
-#: at 8 elements (192 steps: 1.2e-9, 2.7e-8, 8.5e-7, 2.3e-6 for ~0.7 s: at 6-8 pi the extrapolated
-#: values scatter at the 1e-6 level; ``benchmarks/model_file_speed.py``).
+#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps).
+#: In the model's own coordinates 512 steps left the single link's dominant multiplier 6.5e-5
+#: (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the step-doubling estimate under-read that by
+#: up to 25x).  Here, measured at 8 elements against the generic path converged: 1.5e-9, 9e-11,
+#: 7.3e-8, 3.3e-7 at 2, 4, 6, 8 pi, ~0.7 s CPU for the Floquet stage (96 steps: 1.5e-9, 8e-9,
+#: 2.3e-7, 1.0e-6 for ~0.6 s; ``benchmarks/model_file_speed.py``).
 DEFAULT_PROPAGATOR_STEPS = 128
 #: Propagation frames of :func:`analyze`: ``"modal"`` (frozen-eigenvector basis, default) or
 #: ``"model"`` (the linearisation's own independent coordinates).
@@ -412,8 +412,11 @@ def _multiplier_estimate(res: Any, mu: complex) -> float:
 
 
 #: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame, basis
-#: computed once per plant; see :class:`ModelPlant`).
-TUNING_PROPAGATOR_STEPS = 32
+#: computed once per plant at the linearised gains, Richardson-extrapolated; see :class:`ModelPlant`).
+#: Measured on the 8-element single link at the Table 3 gains (basis at gains 0): the hub multiplier
+#: off 9e-8, 9e-7, 5.8e-5, 3.9e-5 at 2, 4, 6, 8 pi, ~0.25 s CPU per evaluation (32 steps:
+#: up to 3.4e-4; the former 256 plain steps: up to ~1e-2 at ~2 s).
+TUNING_PROPAGATOR_STEPS = 64
 
 
 @dataclass(frozen=True)
@@ -443,10 +446,10 @@ class ModelPlant:
     def modal_basis(self):
         """Frozen-modal basis of the linearisation (gains as linearised), shared by all gains;
         ``None`` when none exists (then each evaluation propagates in the model's coordinates)."""
-        from stability.modal import FrozenModalSystem, ModalBasisError
+        from stability.modal import ModalBasisError, modal_system
 
         try:
-            return FrozenModalSystem(self.linearization)
+            return modal_system(self.linearization)
         except ModalBasisError as exc:
             logger.info("no frozen-modal basis for the plant (%s)", exc)
             return None

@@ -1,14 +1,17 @@
 #!/usr/bin/env python3
-"""The two-link flexible arm (issue 11): Floquet at 2pi and 4pi, mesh convergence, direct check,
-four-gain Taguchi, figures.  Writes ``results/two_link/`` (JSON + PNG + report.md).
+"""The two-link flexible arm (issue 11): four-gain Taguchi with an independent check, method comparison,
+mesh convergence, robust design, direct Exudyn monodromy, figures.  Writes ``results/two_link/``.
 
-Stages (``--stages``, comma separated; default all):
+Each stage writes ``two_link_<stage>.json``; every run merges all stage files present into
+``two_link.json`` (read by the study's two-link section).  Stages (``--stages``, comma separated):
 
-``floquet``   orbit + linearisation + labelled multipliers, uncontrolled, at the default mesh
-``mesh``      dominant damped multipliers at 2, 4, 8 elements per link (uncontrolled and tuned gains)
-``tune``      four-gain Taguchi to rho_d at both Omega, re-checked with an adaptive Floquet run
-``direct``    direct Exudyn monodromy (2 elements) against the generic path, uncontrolled and tuned
-``figures``   poses over one period, Floquet mode pictures (two-link and single link), gain slices
+``tune``     four-gain Taguchi (Hill response) at 2pi and 4pi, CPU seconds, evaluations; each tuned
+             value re-checked by the streamed magnus2 product at 16384 and 32768 steps (independent);
+             with ``--compare`` also Nelder-Mead and differential evolution on the same objective
+``mesh``     dominant multipliers at 2, 4, 8 elements per link, uncontrolled and at the tuned gains (Hill)
+``robust``   crossed-array robust design vs the nominal gains, worst case over a ``--grid``^3 noise grid
+``direct``   direct Exudyn monodromy (2 elements) against Hill, uncontrolled and tuned
+``figures``  gain slices (Hill response) around the tuned gains
 """
 from __future__ import annotations
 
@@ -16,178 +19,194 @@ import argparse
 import json
 import logging
 import math
+import resource
 import time
 from pathlib import Path
 
-import numpy as np
-
 OMEGAS = (2, 4)
-#: magnus2 sub-intervals: in the tuning loop, and the re-checks (the engine's memory
-#: limit allows 8192 for the 40 x 40 system of 2 elements per link, 2048 for 4, 1024 for 8).
-LOOP_STEPS = 2048
-CHECK_STEPS = {2: (4096, 8192), 4: (1024, 2048), 8: (512, 1024)}
+MESH = (2, 4, 8)
+#: Hill harmonics per mesh (the H vs H/2 estimate is reported beside each value).
+MESH_HARMONICS = {2: 24, 4: 16, 8: 12}
 
 
-def _opts(n):
-    return {"method": "magnus2", "n_steps": n, "error_estimate": False}
+def cpu() -> float:
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
 
 
-def _mu(z):
-    return [float(np.real(z)), float(np.imag(z))]
+def _c(z):
+    return [float(z.real), float(z.imag)]
 
 
-def _labelled(res, count=10):
-    rows = []
-    for mu, m in list(zip(res.floquet.multipliers, res.modes)):
-        if m["undamped"]:
-            continue
-        rows.append({"multiplier": _mu(mu), "modulus": float(abs(mu)), "mode": m["mode"], "group": m["group"],
-                     "frequency_hz": m["frequency_hz"]})
-        if len(rows) >= count:
-            break
-    undamped = sum(1 for m in res.modes if m["undamped"])
-    return {"damped": rows, "undamped_count": undamped, "dominant": _mu(res.dominant_multiplier),
-            "dominant_modulus": float(abs(res.dominant_multiplier)), "orbit_residual": res.orbit_residual,
-            "shooting_residual": float(res.orbit.shooting_residual), "timings": dict(res.timings)}
+def merge(out: Path) -> dict:
+    doc: dict = {}
+    for stage in ("tune", "mesh", "robust", "direct", "figures"):
+        p = out / f"two_link_{stage}.json"
+        if p.exists():
+            doc.update(json.loads(p.read_text()))
+    (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
+    return doc
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results/two_link")
-    ap.add_argument("--stages", default="floquet,mesh,tune,direct,figures")
+    ap.add_argument("--stages", default="tune,mesh,robust,figures")
+    ap.add_argument("--omegas", default="2,4", help="multiples of pi")
     ap.add_argument("--target", type=float, default=0.3)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--elements", type=int, default=None, help="default mesh (default: the model file's)")
+    ap.add_argument("--compare", action="store_true", help="tune: also Nelder-Mead and differential evolution")
+    ap.add_argument("--grid", type=int, default=5, help="robust: points per noise factor of the worst-case grid")
+    ap.add_argument("--robust-iterations", type=int, default=6)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    stages = set(args.stages.split(","))
+    stages = [s for s in args.stages.split(",") if s]
+    omegas = [int(k) for k in args.omegas.split(",")]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
     from flexstab.executor import make_executor
-    from flexstab.two_link import MODEL, LabelledGainObjective, gain_slices, plot_gain_slices, tune_four_gains
-    from linearize.analysis import analyze
+    from flexstab.two_link import (TUNED_GAINS, TUNING_RANGES, check_multiplier, hill_plant, tune_four_gains,
+                                   two_link_floquet, two_link_orbit)
     from linearize.constrained import linearize_orbit
-    from linearize.periodic_orbit import find_orbit
-    from mbs_models.builtin.two_link import DEFAULT_ELEMENTS, build
-    from mbs_models.model_file import builtin_model
-    from stability import floquet
+    from linearize.hill_plant import HillGainObjective
+    from taguchi.tuning import TuningConfig
 
-    N0 = args.elements or DEFAULT_ELEMENTS
-    report: dict = {"model": MODEL, "default_elements": N0, "target": args.target}
-    orbits: dict = {}
-    lins: dict = {}
+    arms: dict = {}
 
-    def orbit(k, N):
-        if (k, N) not in orbits:
-            orbits[(k, N)] = find_orbit(builtin_model(MODEL, elements=N), k * math.pi)
-            lins[(k, N)] = linearize_orbit(orbits[(k, N)], 0.0, 0.0)
-        return orbits[(k, N)], lins[(k, N)]
+    def arm(k, N=None):
+        if (k, N) not in arms:
+            o = two_link_orbit(k * math.pi, N)
+            arms[(k, N)] = (o, linearize_orbit(o, 0.0, 0.0))
+        return arms[(k, N)]
 
-    tuned: dict = {}
-    gains_file = out / "tuned_gains.json"
-    if gains_file.exists():
-        tuned = {int(k): v for k, v in json.loads(gains_file.read_text()).items()}
-
-    if "floquet" in stages:
-        report["floquet"] = {}
-        for k in OMEGAS:
-            o, _ = orbit(k, N0)
-            res = analyze(builtin_model(MODEL, elements=N0), k * math.pi, orbit=o, n_steps=LOOP_STEPS)
-            report["floquet"][f"{k}pi"] = {"uncontrolled": _labelled(res)}
-            print(f"{k}pi uncontrolled: dominant {abs(res.dominant_multiplier):.6f} ({res.modes[0]['mode']})")
+    def tuned_gains(k):
+        p = out / "two_link_tune.json"
+        if p.exists():
+            t = json.loads(p.read_text())["tune"].get(f"{k}pi")
+            if t:
+                return t["gains"]
+        return list(TUNED_GAINS[k])
 
     if "tune" in stages:
-        report["tune"] = {}
-        with make_executor("process", max_workers=args.workers) as ex:
-            for k in OMEGAS:
-                o, lin = orbit(k, N0)
-                t0 = time.perf_counter()
-                res = tune_four_gains(lin, args.target, orbit=o, executor=ex, floquet_options=_opts(LOOP_STEPS))
-                elapsed = time.perf_counter() - t0
-                g = res.gains
-                checks = {n: LabelledGainObjective(lin, o, _opts(n))(g) for n in CHECK_STEPS[N0]}
-                tuned[k] = list(g)
-                report["tune"][f"{k}pi"] = {"gains": list(g), "names": list(res.names), "rho_loop": res.spectral_radius,
-                                            "rho_checks": checks, "evaluations": res.evaluations,
-                                            "iterations": len(res.iterations), "seconds": elapsed,
-                                            "converged": res.converged}
-                print(f"{k}pi tuned {np.round(g, 4)}: loop {res.spectral_radius:.6f}, checks {checks} "
-                      f"({res.evaluations} evaluations, {elapsed:.1f} s)")
-        gains_file.write_text(json.dumps(tuned))
+        from taguchi.direct import direct_tune
 
-    if "floquet" in stages and tuned:
-        for k in OMEGAS:
-            if k in tuned:
-                o, _ = orbit(k, N0)
-                g = tuned[k]
-                res = analyze(builtin_model(MODEL, elements=N0), k * math.pi, orbit=o, kp=g[0::2], kd=g[1::2],
-                              n_steps=LOOP_STEPS)
-                report["floquet"][f"{k}pi"]["controlled"] = {"gains": g, **_labelled(res)}
+        doc = {"target": args.target, "tune": {}}
+        p = out / "two_link_tune.json"
+        if p.exists():
+            doc = json.loads(p.read_text())
+        for k in omegas:
+            o, lin = arm(k)
+            with make_executor("process", max_workers=args.workers) as ex:
+                list(ex.map(abs, range(args.workers)))
+                c0, t0 = cpu(), time.perf_counter()
+                res = tune_four_gains(lin, args.target, orbit=o, executor=ex)
+                wall = time.perf_counter() - t0
+            cpu_s = cpu() - c0
+            c0 = cpu()
+            chk = check_multiplier(lin, o, res.gains)
+            row = {"gains": list(res.gains), "rho": res.spectral_radius, "evaluations": res.evaluations,
+                   "iterations": len(res.iterations), "status": res.status, "cpu_s": cpu_s, "wall_s": wall,
+                   "workers": args.workers, "check": chk.to_dict(), "check_cpu_s": cpu() - c0}
+            print(f"{k}pi tuned {[round(g, 5) for g in res.gains]}: Hill {res.spectral_radius:.6f}, magnus2 "
+                  f"{chk.to_dict()['streamed_moduli']} ({res.evaluations} evaluations, {cpu_s:.1f} s CPU)", flush=True)
+            if args.compare:
+                cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
+                obj = HillGainObjective(hill_plant(lin, o, cfg))
+                row["direct"] = []
+                for m in ("nelder-mead", "differential-evolution"):
+                    c0 = cpu()
+                    d = direct_tune(obj, cfg, m).to_dict()
+                    d["cpu_s"] = cpu() - c0
+                    row["direct"].append(d)
+                    print(f"   {m}: {d['evaluations']} evaluations, {d['cpu_s']:.1f} s CPU, {d['status']}", flush=True)
+            doc["tune"][f"{k}pi"] = row
+            p.write_text(json.dumps(doc, indent=2, default=str))
+        merge(out)
 
     if "mesh" in stages:
-        report["mesh"] = {}
-        for k in OMEGAS:
+        doc = {"mesh": {}}
+        for k in omegas:
             rows = []
-            for N in (2, 4, 8):
-                o, lin = orbit(k, N)
-                row = {"elements": N}
-                for label, g in (("uncontrolled", [0.0, 0.0, 0.0, 0.0]), ("controlled", tuned.get(k))):
-                    if g is None:
-                        continue
-                    row[label] = {n: LabelledGainObjective(lin, o, _opts(n))(g) for n in CHECK_STEPS[N]}
+            for N in MESH:
+                o, lin = arm(k, N)
+                row = {"elements": N, "size": lin.size, "harmonics": MESH_HARMONICS[N]}
+                for label, g in (("uncontrolled", (0.0, 0.0, 0.0, 0.0)), ("tuned", tuned_gains(k))):
+                    c0 = cpu()
+                    fl = two_link_floquet(k * math.pi, N, g, orbit=o, lin=lin, harmonics=MESH_HARMONICS[N])
+                    row[label] = {"gains": list(g), "multiplier": _c(fl.measure.dominant),
+                                  "modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
+                                  "hill_error_estimate": fl.measure.hill_error_estimate, "cpu_s": cpu() - c0}
                 rows.append(row)
-                print(f"{k}pi mesh {N}: {row}")
-            report["mesh"][f"{k}pi"] = rows
+                print(f"{k}pi {N} el: uncontrolled {row['uncontrolled']['modulus']:.8f}, tuned "
+                      f"{row['tuned']['modulus']:.8f}", flush=True)
+                arms.pop((k, N), None)
+            doc["mesh"][f"{k}pi"] = rows
+            (out / "two_link_mesh.json").write_text(json.dumps(doc, indent=2, default=str))
+        merge(out)
+
+    if "robust" in stages:
+        from flexstab.config import RobustSettings
+        from flexstab.robust import compare_nominal_robust
+        from flexstab.two_link import TwoLinkNoisePlant, two_link_noise_factors
+        from taguchi.robust import RobustConfig
+
+        doc = {"robust": {}}
+        p = out / "two_link_robust.json"
+        if p.exists():
+            doc = json.loads(p.read_text())
+        rs = RobustSettings()
+        for k in omegas:
+            tcfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=2000)
+            rcfg = RobustConfig(tuning=TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=10**6),
+                                noise=two_link_noise_factors(rs), sn=rs.sn, max_iterations=args.robust_iterations)
+            c0, t0 = cpu(), time.perf_counter()
+            with make_executor("process", max_workers=args.workers) as ex:
+                cmp = compare_nominal_robust(TwoLinkNoisePlant(k * math.pi), tcfg, rcfg, grid_points=args.grid,
+                                             executor=ex)
+            d = cmp.to_dict()
+            d["cpu_s"], d["wall_s"] = cpu() - c0, time.perf_counter() - t0
+            doc["robust"][f"{k}pi"] = d
+            p.write_text(json.dumps(doc, indent=2, default=str))
+            print(f"{k}pi robust: nominal worst {d['nominal']['worst']:.5f} (nominal {d['nominal']['nominal']:.5f}), "
+                  f"robust worst {d['robust']['check']['worst']:.5f} (nominal {d['robust']['check']['nominal']:.5f}); "
+                  f"improvement {d['worst_case_improvement_percent']:.2f} %, {d['cpu_s']:.0f} s CPU", flush=True)
+        merge(out)
 
     if "direct" in stages:
+        from mbs_models.builtin.two_link import build
         from validation.direct_monodromy import direct_monodromy
 
-        report["direct"] = {}
-        for k in OMEGAS:
-            o, lin = orbit(k, 2)
+        doc = {"direct": {}}
+        for k in omegas:
+            o, lin = arm(k)
             rows = []
-            for label, g in (("uncontrolled", [0.0, 0.0, 0.0, 0.0]), ("controlled", tuned.get(k))):
-                if g is None:
-                    continue
+            for label, g in (("uncontrolled", [0.0, 0.0, 0.0, 0.0]), ("tuned", tuned_gains(k))):
+                fl = two_link_floquet(k * math.pi, None, g, orbit=o, lin=lin)
                 dm = direct_monodromy(build, k * math.pi, o.q[0], o.q_t[0], o.torque, kp=g[0::2], kd=g[1::2],
                                       elements=2)
-                from linearize.analysis import label_multipliers
-                from flexstab.two_link import main_dominant
-
-                lg = lin.with_gains(list(g[0::2]), list(g[1::2]))
-                r = floquet(lg, **_opts(CHECK_STEPS[2][-1]))
-                gen = main_dominant(r.multipliers, label_multipliers(lg, o, r), o.drive_names)
-                dd = dm.nearest(gen)
-                rows.append({"case": label, "gains": g, "generic": _mu(gen), "direct": _mu(dd),
-                             "difference": float(abs(gen - dd)), "direct_defect": dm.defect,
+                dd = dm.nearest(fl.measure.dominant)
+                rows.append({"case": label, "gains": list(g), "hill": _c(fl.measure.dominant), "direct": _c(dd),
+                             "difference": float(abs(fl.measure.dominant - dd)), "direct_defect": dm.defect,
                              "direct_seconds": dm.wall_time})
-                print(f"{k}pi {label}: generic {abs(gen):.6f}, direct {abs(dd):.6f}, |diff| {abs(gen - dd):.2e}")
-            report["direct"][f"{k}pi"] = rows
+                print(f"{k}pi {label}: Hill {abs(fl.measure.dominant):.6f}, direct {abs(dd):.6f}", flush=True)
+            doc["direct"][f"{k}pi"] = rows
+        (out / "two_link_direct.json").write_text(json.dumps(doc, indent=2, default=str))
+        merge(out)
 
     if "figures" in stages:
-        from flexstab.arm_figures import plot_floquet_mode, plot_poses
+        from flexstab.two_link import gain_slices_hill, plot_gain_slices
 
-        figs = {}
-        o, lin = orbit(2, N0)
-        figs["poses_2pi"] = str(plot_poses(o, out / "two_link_poses_2pi.png"))
-        for k in OMEGAS:
-            o, lin = orbit(k, N0)
-            g = tuned.get(k, [0.0, 0.0, 0.0, 0.0])
-            res = analyze(builtin_model(MODEL, elements=N0), k * math.pi, orbit=o, kp=g[0::2], kd=g[1::2],
-                          n_steps=LOOP_STEPS)
-            figs[f"mode_{k}pi"] = str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png"))
-            if k in tuned:
-                sl = gain_slices(lin, g, orbit=o, points=7, floquet_options=_opts(1024))
-                plot_gain_slices(sl, out / f"two_link_slices_{k}pi.png", target=args.target)
-                figs[f"slices_{k}pi"] = str(out / f"two_link_slices_{k}pi.png")
-                (out / f"two_link_slices_{k}pi.json").write_text(json.dumps(sl.to_dict()))
-        single = analyze(builtin_model("single-link", elements=8), 2 * math.pi, kp=37.1617, kd=29.2410)
-        figs["single_link_mode_2pi"] = str(plot_floquet_mode(single, out / "single_link_mode_2pi.png"))
-        report["figures"] = figs
-
-    (out / "two_link.json").write_text(json.dumps(report, indent=2, default=str))
-    print(f"wrote {out / 'two_link.json'}")
+        doc = {"figures": {}}
+        for k in omegas:
+            o, lin = arm(k)
+            g = tuned_gains(k)
+            sl = gain_slices_hill(lin, o, g, points=7)
+            plot_gain_slices(sl, out / f"two_link_slices_{k}pi.png", target=args.target)
+            (out / f"two_link_slices_{k}pi.json").write_text(json.dumps(sl.to_dict()))
+            doc["figures"][f"slices_{k}pi"] = f"two_link_slices_{k}pi.png"
+        (out / "two_link_figures.json").write_text(json.dumps(doc, indent=2))
+        merge(out)
     return 0
 
 

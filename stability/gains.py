@@ -53,8 +53,10 @@ class GainParametrisedSystem:
         ``P_0`` (callable ``t -> (n, n)``, optionally ``evaluate(times)`` and ``.period``).
     inputs : callable
         ``times (m,) -> B (m, n, k)``: the columns ``b_i(t)``.
-    outputs : ndarray, shape (k, n)
-        The rows ``c_i``.
+    outputs : ndarray, shape (k, n), or callable
+        The rows ``c_i``; or ``times (m,) -> C (m, k, n)`` when they vary in time
+        (e.g. a drive whose coordinate is a time-dependent combination of the
+        state, ``P(t; g) = P_0(t) + sum_i g_i b_i(t) c_i(t)^T``).
     names : tuple of str
         Gain names (for messages).
     period : float, optional
@@ -72,6 +74,14 @@ class GainParametrisedSystem:
         if T is None:
             raise ValueError("period is required: the base system carries no .period")
         object.__setattr__(self, "period", check_period(T))
+        if callable(self.outputs):
+            k = np.asarray(self.outputs(np.zeros(1)), dtype=float)
+            if k.ndim != 3 or k.shape[0] != 1 or not np.all(np.isfinite(k)):
+                raise ValueError(f"outputs(times) must return finite (m, k, n) arrays, got shape {k.shape}")
+            object.__setattr__(self, "_n_gains", int(k.shape[1]))
+            if not self.names:
+                object.__setattr__(self, "names", tuple(f"g{i}" for i in range(k.shape[1])))
+            return
         C = np.atleast_2d(np.asarray(self.outputs, dtype=float))
         if not np.all(np.isfinite(C)):
             raise ValueError("outputs contain NaN or inf")
@@ -81,7 +91,16 @@ class GainParametrisedSystem:
 
     @property
     def n_gains(self) -> int:
+        if callable(self.outputs):
+            return self._n_gains  # type: ignore[attr-defined]
         return int(self.outputs.shape[0])
+
+    def output_rows(self, times: np.ndarray) -> np.ndarray:
+        """``c_i(t)`` stacked over ``times``, shape ``(m, k, n)``."""
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        if callable(self.outputs):
+            return np.asarray(self.outputs(t), dtype=float)
+        return np.broadcast_to(self.outputs, (t.size,) + self.outputs.shape)
 
     def _gains(self, gains: Sequence[float]) -> np.ndarray:
         g = np.asarray(gains, dtype=float).ravel()
@@ -94,7 +113,7 @@ class GainParametrisedSystem:
         g = self._gains(gains)
         t = np.atleast_1d(np.asarray(times, dtype=float))
         wrapped = PeriodicMatrixFunction(self.base, self.period)
-        return wrapped.evaluate(t) + np.einsum("mnk,k,kj->mnj", self.inputs(t), g, self.outputs)
+        return wrapped.evaluate(t) + np.einsum("mnk,k,mkj->mnj", self.inputs(t), g, self.output_rows(t))
 
     def with_gains(self, gains: Sequence[float]) -> "_WithGains":
         """A periodic matrix object (``period``, ``evaluate``, ``__call__``) for fixed gains."""
@@ -205,21 +224,21 @@ class FloquetWorkspace:
         if B.shape != (times.size, n, family.n_gains):
             raise ValueError(f"inputs(times) must have shape {(times.size, n, family.n_gains)}, got {B.shape}")
         scale = _balancing_scale(P0[:: max(1, times.size // 16)]) if balance else None
-        Cout = family.outputs
+        Cout = family.output_rows(times)
         if scale is not None:
             P0 = P0 * (scale[None, :] / scale[:, None])[None]
             B = B / scale[None, :, None]
-            Cout = Cout * scale[None, :]
+            Cout = Cout * scale[None, None, :]
         self.scale = scale
         self._P0 = P0.reshape(self.n_steps, len(nodes), n, n)
         self._B = B.reshape(self.n_steps, len(nodes), n, family.n_gains)
-        self._C = Cout
+        self._C = np.ascontiguousarray(Cout).reshape(self.n_steps, len(nodes), family.n_gains, n)
         self.n = n
 
     def monodromy(self, gains: Sequence[float]) -> tuple[np.ndarray, float]:
         """Balanced ``Phi(T)`` and ``sum tr Omega_k`` for ``gains``."""
         g = self.family._gains(gains)
-        Pg = self._P0 + np.einsum("sqnk,k,kj->sqnj", self._B, g, self._C)
+        Pg = self._P0 + np.einsum("sqnk,k,sqkj->sqnj", self._B, g, self._C)
         with np.errstate(over="ignore", invalid="ignore"):
             Om = magnus_exponents(self.scheme, Pg, self.h)
             Phi = ordered_product(expm_stack(Om))

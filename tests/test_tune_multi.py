@@ -182,3 +182,55 @@ def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails
     assert d["propagator_steps"] == 1024
     assert d["evaluations"] == sum(p["evaluations"] for p in d["propagator_passes"])
     assert abs(exact(d["kp"], d["kd"]) - 0.3) <= d["tolerance"] + 30.0 / 1024**2
+
+
+def _fake_tune(monkeypatch, capsys, shift):
+    """Fake plant: exact response plus a second-order error c / n^2 that also *moves* the solution by
+    ``shift(n)`` in the gain sum; returns the JSON of ``tune``."""
+    from dataclasses import dataclass
+
+    import flexstab.commands.tune as tune
+
+    @dataclass(frozen=True)
+    class Fake:
+        n_steps: int = 256
+        drives: tuple = ("a", "b")
+
+        def spectral_measure(self, kp, kd):
+            return 0.6 * math.exp(-0.1 * (sum(kp) + sum(kd) - shift(self.n_steps))) + 30.0 / self.n_steps**2
+
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake())
+    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)
+    rc = cli_main(["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10",
+                   "--json"])
+    assert rc == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_repeated_pass_starts_from_the_tuned_gains_with_narrowed_ranges(monkeypatch, capsys):
+    """After the step-doubling check fails, the next pass starts around the previous gains with ranges of
+    RESTART_WIDTH x the initial width (not from the initial ranges) and needs no more evaluations than the
+    first; the result still meets the tolerance in the exact response."""
+    from flexstab.commands.tune import RESTART_WIDTH
+
+    d = _fake_tune(monkeypatch, capsys, lambda n: 0.0)
+    first = d["iterations"][0]
+    for s in d["names"]:
+        lo, hi = first[f"{s}_range"]
+        assert hi - lo == pytest.approx(RESTART_WIDTH * 10.0)
+    passes = d["propagator_passes"]
+    assert len(passes) >= 2 and all(p["evaluations"] <= passes[0]["evaluations"] for p in passes[1:]), passes
+    exact = 0.6 * math.exp(-0.1 * (sum(d["kp"]) + sum(d["kd"])))
+    assert abs(exact - 0.3) <= d["tolerance"] + 30.0 / d["propagator_steps"] ** 2
+
+
+def test_warm_restart_falls_back_to_the_initial_ranges_when_its_window_misses(monkeypatch, capsys):
+    """If the finer propagator moves the solution out of the narrowed window (here by 15 in the gain sum:
+    the target needs a sum of 21.9 with more than 256 steps, the window around the first pass's gains
+    (sum 6.9) reaches at most 6.9 + 4 x 1.25 = 11.9), that pass is repeated from the initial ranges."""
+    d = _fake_tune(monkeypatch, capsys, lambda n: 0.0 if n <= 256 else 15.0)
+    assert d["converged"]
+    steps = [(p["propagator_steps"], p["converged"]) for p in d["propagator_passes"]]
+    assert steps[:3] == [(256, True), (512, False), (512, True)], steps  # the missed window, then full ranges
+    exact = 0.6 * math.exp(-0.1 * (sum(d["kp"]) + sum(d["kd"]) - 15.0))
+    assert abs(exact - 0.3) <= d["tolerance"] + 30.0 / d["propagator_steps"] ** 2

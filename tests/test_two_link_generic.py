@@ -27,11 +27,11 @@ ELASTIC_TOLERANCE = (2.0 / 16.4) ** 2  # quasi-static elastic correction of the 
 GAINS_2PI = (15.0, 8.94531, 7.14844, 1.45312)  # (kp1, kd1, kp2, kd2), tuned to rho_d = 0.3
 
 
-def rigid_multipliers(omega, gains, gravity=P.gravity):
+def rigid_multipliers(omega, gains, gravity=P.gravity, tip_mass=P.tip_mass):
     l1, l2, mu = P.length1, P.length2, P.mass_per_length
     m1, m2 = mu * l1, mu * l2
-    ma, sa = m2 + P.tip_mass, m2 * l2 / 2 + P.tip_mass * l2  # link 2 + tip about the elbow
-    Ia = m2 * l2**2 / 3 + P.tip_mass * l2**2 + P.rotor_inertia
+    ma, sa = m2 + tip_mass, m2 * l2 / 2 + tip_mass * l2  # link 2 + tip about the elbow
+    Ia = m2 * l2**2 / 3 + tip_mass * l2**2 + P.rotor_inertia
     I1 = P.hub_inertia + m1 * l1**2 / 3 + P.motor_mass * l1**2
 
     def residual(q, qd, qdd):
@@ -88,3 +88,23 @@ def test_drive_mode_multiplier_against_rigid_two_link(orbit_2pi, gains):
     # rejects a wrong model: the rigid arm without gravity is far outside the bound
     no_gravity = abs(rigid_multipliers(2 * math.pi, gains, gravity=0.0)[0])
     assert abs(flexible - no_gravity) > ELASTIC_TOLERANCE * rigid
+
+
+@pytest.mark.parametrize("noise", [{"tip_mass": 0.2, "omega_scale": 1.1, "youngs_modulus_scale": 0.95},
+                                   {"tip_mass": 0.05, "omega_scale": 0.9, "youngs_modulus_scale": 1.05}])
+def test_noise_plant_of_the_robust_design_against_rigid_two_link(noise):
+    """The robust design's plant at a noise value (payload, Omega, E) is the arm with those values: its
+    Hill-measured drive-mode multiplier (1 element per link) against the rigid arm with that payload and
+    Omega (elastic tolerance as above; E enters only through the elastic correction).  Rejects the
+    nominal payload/Omega: outside the bound."""
+    from flexstab.two_link import TwoLinkNoisePlant
+
+    omega = 2 * math.pi
+    plant = TwoLinkNoisePlant(omega, elements=1)(noise)
+    g = GAINS_2PI
+    flexible = plant.spectral_measure(*g)
+    w = omega * noise["omega_scale"]
+    rigid = abs(rigid_multipliers(w, g, tip_mass=noise["tip_mass"])[0])
+    assert abs(flexible - rigid) <= ELASTIC_TOLERANCE * rigid, (flexible, rigid)
+    nominal = abs(rigid_multipliers(omega, g)[0])
+    assert abs(flexible - nominal) > ELASTIC_TOLERANCE * rigid

@@ -12,7 +12,7 @@ from flexstab.options import dump_json, add_model_options, positive_float, resol
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "tune_model_plant"]
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant"]
 
 
 def register(sub) -> None:
@@ -43,6 +43,8 @@ def register(sub) -> None:
     p.add_argument("--robust", action="store_true",
                    help="robust design: gains crossed with an outer array of noise factors (payload, Omega, E; "
                         "[robust] in --config), compared with the nominal gains over a fine noise grid")
+    p.add_argument("--grid", type=int, default=None, metavar="N",
+                   help="--robust: points per noise factor of the worst-case grid (default [robust] grid)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
 
@@ -75,30 +77,41 @@ def robust_report(args: argparse.Namespace) -> dict:
     from taguchi.robust import RobustConfig
     from taguchi.tuning import TuningConfig
 
-    if args.model != "reduced":
-        raise ValueError("--robust is available for --model reduced")
+    if args.model not in ("reduced", "two-link"):
+        raise ValueError("--robust is available for --model reduced and --model two-link")
     cfg = load_config(args.config)
     rs = cfg.robust
-    tcfg = TuningConfig(
-        target=args.target if args.target is not None else cfg.target,
-        kp_range=tuple(args.kp_range) if args.kp_range else cfg.kp_range,
-        kd_range=tuple(args.kd_range) if args.kd_range else cfg.kd_range,
-        array=args.array, tolerance=args.tolerance, max_evaluations=args.max_evaluations,
-    )
-    noise = rs.noise_factors(cfg.manipulator.tip_mass)
+    grid = getattr(args, "grid", None) or rs.grid
+    if args.model == "two-link":
+        from flexstab.two_link import TUNING_RANGES, TwoLinkNoisePlant, two_link_noise_factors
+
+        names, ranges = factor_ranges(2, (0.0, 1.0), (0.0, 1.0), getattr(args, "factor_range", None))
+        given = {str(sp).partition("=")[0].strip() for sp in (getattr(args, "factor_range", None) or ())}
+        ranges = tuple(r if n in given else d for n, r, d in zip(names, ranges, TUNING_RANGES))
+        tkw = {"ranges": ranges, "names": names}
+        noise = two_link_noise_factors(rs)
+    else:
+        tkw = {"kp_range": tuple(args.kp_range) if args.kp_range else cfg.kp_range,
+               "kd_range": tuple(args.kd_range) if args.kd_range else cfg.kd_range}
+        noise = rs.noise_factors(cfg.manipulator.tip_mass)
+    target = args.target if args.target is not None else cfg.target
+    tcfg = TuningConfig(target=target, array=args.array, tolerance=args.tolerance,
+                        max_evaluations=args.max_evaluations, **tkw)
     # the crossed arrays need (inner + 1) x outer runs per experiment: budget per experiment x iterations
     rcfg = RobustConfig(
-        tuning=TuningConfig(target=tcfg.target, kp_range=tcfg.kp_range, kd_range=tcfg.kd_range, array=args.array,
-                            max_evaluations=10**6),
+        tuning=TuningConfig(target=target, array=args.array, max_evaluations=10**6, **tkw),
         noise=noise, outer_array=rs.outer_array, sn=rs.sn, max_iterations=rs.max_iterations,
     )
     rcfg.outer()  # validates the outer array early
     omega = resolve_omega(args, cfg)
-    factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
+    if args.model == "two-link":
+        factory = TwoLinkNoisePlant(omega=omega, elements=args.elements)
+    else:
+        factory = ReducedNoisePlant(omega=omega, params=cfg.manipulator, constants=args.constants)
     n_tasks = tcfg.orthogonal_array().n_runs * len(rcfg.outer_runs())
-    with make_executor("dask" if args.scheduler else "auto", max_workers=args.workers, scheduler=args.scheduler,
-                       n_tasks=n_tasks) as ex:
-        cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=rs.grid, executor=ex)
+    kind = "dask" if args.scheduler else ("process" if args.model == "two-link" and args.workers != 1 else "auto")
+    with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
+        cmp = compare_nominal_robust(factory, tcfg, rcfg, grid_points=grid, executor=ex)
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega, "robust_design": True}
     out.update(cmp.to_dict())
     out["converged"] = cmp.nominal.converged
@@ -111,10 +124,12 @@ def _print_robust(d: dict) -> None:
           f"{rob['inner_array']} x outer {rob['outer_array']}, S/N '{rob['sn_kind']}'")
     for n in rob["noise"]:
         print(f"  noise {n['name']}: [{n['low']:g}, {n['high']:g}], nominal {n['nominal']:g}, {n['levels']} levels")
-    print(f"{'':>8} {'kp':>10} {'kd':>10} {'nominal max|rho|':>17} {'worst on grid':>14}  worst at")
+    names = rob.get("names") or ["kp", "kd"]
+    print(f"{'':>8} " + "".join(f"{s:>10} " for s in names) + f"{'nominal max|rho|':>17} {'worst on grid':>14}  worst at")
     for label, row in (("nominal", nom), ("robust", rob["check"])):
         g = row["gains"]
-        print(f"{label:>8} {g[0]:10.5g} {g[1]:10.5g} {row['nominal']:17.6f} {row['worst']:14.6f}  {row['worst_noise']}")
+        print(f"{label:>8} " + "".join(f"{v:10.5g} " for v in g)
+              + f"{row['nominal']:17.6f} {row['worst']:14.6f}  {row['worst_noise']}")
     print(f"worst case over {d['grid_size']} grid points lowered by {d['worst_case_improvement']:.4g} "
           f"({d['worst_case_improvement_percent']:.2f} %); cost at nominal: |max|rho| - rho_d| "
           f"{'+' if d['nominal_cost'] >= 0 else ''}{d['nominal_cost']:.3g}")
@@ -177,6 +192,13 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
     return names, tuple(ranges)
 
 
+#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
+#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
+HILL_MODELS = ("two-link",)
+
+#: Width (fraction of each initial range) of the ranges of a tuning pass restarted with twice the steps.
+RESTART_WIDTH = 0.25
+
 #: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
 MAX_TUNING_STEPS = 4096
 
@@ -226,10 +248,11 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
     """
     import dataclasses
 
-    from taguchi.tuning import taguchi_tune
+    from taguchi.tuning import _recentre, taguchi_tune
 
     n_drives = len(plant.drives)
     passes: list = []
+    full_cfg = tcfg
     while True:
         res = taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress)
         kp, kd = _pairs(res.gains, n_drives)
@@ -237,12 +260,24 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
         r2 = finer.spectral_measure(kp, kd)
         passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
                        "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
+        if not res.converged and tcfg is not full_cfg:
+            # the narrowed window of a warm restart missed the target: this pass again from the full ranges
+            logger.info("warm restart with %d steps did not converge: tuning again from the initial ranges",
+                        plant.n_steps)
+            tcfg = full_cfg
+            continue
         if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
                 or finer.n_steps > MAX_TUNING_STEPS):
             return res, plant, passes
         logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
                     res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
         plant = finer
+        # warm restart: the finer propagator moves the answer by about the step-doubling difference, so the
+        # next pass starts from the tuned gains with ranges narrowed to RESTART_WIDTH of each initial width
+        # (shifted to stay inside it) instead of from scratch
+        narrowed = tuple(_recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi))
+                         for g, (lo, hi) in zip(res.gains, full_cfg.factor_ranges))
+        tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
 
 def tune_report(args: argparse.Namespace) -> dict:
@@ -273,23 +308,32 @@ def tune_report(args: argparse.Namespace) -> dict:
     oa = tcfg.orthogonal_array()  # validates --array early
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
+    hill = model_file and args.model in HILL_MODELS
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
-        plant = propagator_steps(plant, tcfg)
+        if hill:  # no propagator steps to choose: Hill's harmonics, decided once at the range centre
+            from linearize.hill_plant import HillModelPlant, choose_harmonics
+
+            centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
+            plant = choose_harmonics(HillModelPlant(plant.linearization, plant.orbit), centre[0::2], centre[1::2],
+                                     tcfg.effective_tolerance)
+        else:
+            plant = propagator_steps(plant, tcfg)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
     kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
     if args.model not in ("reduced", "exudyn"):
         if args.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
-        kind = "serial"  # the plant holds a model loaded from a file: not picklable
+        # the plant holds a model loaded from a file: not picklable -- except the built-in ones
+        kind = "process" if hill and args.workers != 1 else "serial"
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         progress = not args.json and sys.stderr.isatty()
-        if model_file:
+        if model_file and not hill:
             res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
             objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
-        else:
+        else:  # Hill plants have no propagator steps to refine: one pass
             res, passes = taguchi_tune(objective, tcfg, executor=ex, progress=progress), []
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
@@ -300,7 +344,22 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["propagator_passes"] = passes
     kp, kd = _pairs(res.gains, n_drives)
     out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
-    if hasattr(plant, "spectral_measure"):
+    if hill:
+        # independent check: the streamed exponential-midpoint product at many steps (no Hill code)
+        from flexstab.two_link import CHECK_STEPS, check_multiplier
+
+        chk = check_multiplier(plant.linearization, plant.orbit, res.gains, steps=CHECK_STEPS,
+                               harmonics=plant.harmonics)
+        out["response_method"] = "hill"
+        out["harmonics"] = plant.harmonics
+        out["verified_spectral_radius"] = float(abs(chk.streamed[CHECK_STEPS[-1]]))
+        out["verified_error_estimate"] = chk.magnus_error_estimate
+        out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
+        out["propagator_steps"] = plant.label_steps
+        from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+        out["elements"] = args.elements or DEFAULT_ELEMENTS
+    elif hasattr(plant, "spectral_measure"):
         # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
         # unprepared plant (an independent path to P(t): gains written into K, C and interpolated)
         import dataclasses

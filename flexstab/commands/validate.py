@@ -275,7 +275,11 @@ def _text(d: dict) -> str:
         verdict = ("no measurement" if alt["distance"] is None
                    else ("consistent with" if alt["consistent"] else "excluded by") + " the measurement")
         lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> {verdict}")
-    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'} (dominant: {'yes' if d['agrees_dominant'] else 'no'}); "
+    for u in d.get("unresolved", []):
+        lines.append(f"not resolved (no verdict): {u['mode']} {_c(u['predicted'])}, levels "
+                     + ", ".join(_c(z) for z in u["levels"]) + f" -- criterion: {d['resolved_criterion']}")
+    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'} (dominant: {'yes' if d['agrees_dominant'] else 'no'}; "
+                 f"every compared multiplier: {'yes' if d.get('agrees_all') else 'no'}); "
                  f"the measurement confirms: {', '.join(d['confirms']) or 'none'}")
     g = d.get("growth")
     if g:

@@ -1,0 +1,186 @@
+"""The study's two-link section (issue 11): one stage function and its report blocks.
+
+Computed in the stage (a few CPU seconds per Omega): the periodic orbit, the
+linearisation and the labelled Floquet multipliers of the built-in two-link arm at
+2 pi and 4 pi (``--quick``: 2 pi only), uncontrolled and at the four tuned gains, the
+dominant one measured by Hill's method; figures of the poses and of the dominant
+Floquet mode.
+
+Read from the cached results of ``scripts/two_link_study.py`` (minutes of CPU: the
+four-gain tunings, Nelder-Mead / differential evolution, the independent
+streamed-product check, the mesh study and the robust design): copied into the
+study folder as ``two_link_cached.json`` with the SHA-256 of the source, so that
+every number in the section comes from a file beside the report.  Without that
+file the section says so and uses :data:`flexstab.two_link.TUNED_GAINS`.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import types
+from pathlib import Path
+from typing import Any, Optional
+
+from flexstab.report import figure, table, text
+
+__all__ = ["stage_two_link", "CACHE_NAME", "find_cache"]
+
+#: File written by ``scripts/two_link_study.py`` into its output folder.
+CACHE_NAME = "two_link.json"
+
+
+def find_cache(out: Path) -> Optional[Path]:
+    """The script's results: ``<out>/two_link/two_link.json`` or ``results/two_link/two_link.json``."""
+    for p in (Path(out) / "two_link" / CACHE_NAME, Path("results") / "two_link" / CACHE_NAME):
+        if p.exists():
+            return p
+    return None
+
+
+def _z(z: complex) -> str:
+    return f"{abs(z):.6f}"
+
+
+def _mode_rows(fl: Any) -> str:
+    """The Hill-refined multipliers of the drive modes / first bending mode (one of each conjugate pair)."""
+    return ", ".join(f"{abs(z):.5g} ({label})" for label, z in fl.measure.refined)
+
+
+def stage_two_link(cfg: Any, opts: Any) -> dict:
+    """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> dict``)."""
+    from flexstab.arm_figures import plot_floquet_mode, plot_poses
+    from flexstab.two_link import TUNED_GAINS, two_link_floquet
+
+    out = Path(opts.out)
+    omegas = (2,) if opts.quick else (2, 4)
+    cache_path = find_cache(out)
+    cache = json.loads(cache_path.read_text()) if cache_path is not None else None
+    doc: dict = {"omegas_over_pi": list(omegas), "cache": None, "rows": []}
+    if cache is not None:
+        doc["cache"] = {"source": str(cache_path), "sha256": hashlib.sha256(cache_path.read_bytes()).hexdigest()}
+        (out / "two_link_cached.json").write_text(json.dumps(cache, indent=2))
+    tuned_src = {}
+    for k in omegas:
+        g = None
+        if cache is not None:
+            g = ((cache.get("tune") or {}).get(f"{k}pi") or {}).get("gains")
+        tuned_src[k] = ("scripts/two_link_study.py (two_link_cached.json)", g) if g else \
+            ("flexstab.two_link.TUNED_GAINS", list(TUNED_GAINS[k]))
+    figs = []
+    rows_tab = []
+    for k in omegas:
+        omega = k * math.pi
+        unc = two_link_floquet(omega)
+        src, g = tuned_src[k]
+        ctl = two_link_floquet(omega, gains=g, orbit=unc.orbit, lin=unc.linearization)
+        row = {"omega": omega, "elements": unc.elements, "tuned_gains": g, "gains_source": src}
+        for label, fl in (("uncontrolled", unc), ("tuned", ctl)):
+            row[label] = {
+                "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
+                "dominant_modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
+                "hill_error_estimate": fl.measure.hill_error_estimate,
+                "labelled": [{"modulus": float(abs(mu)), "mode": m["mode"], "undamped": m["undamped"]}
+                             for mu, m in zip(fl.floquet.multipliers, fl.modes) if abs(mu) > 1e-6][:12],
+                "cpu_seconds": fl.cpu_seconds,
+            }
+        doc["rows"].append(row)
+        rows_tab.append([f"{k}π", unc.elements, f"{abs(unc.measure.dominant):.6f} ({unc.measure.mode})",
+                         _mode_rows(unc), ", ".join(f"{v:.4g}" for v in g),
+                         f"{abs(ctl.measure.dominant):.6f} ({ctl.measure.mode})", _mode_rows(ctl),
+                         f"{sum(unc.cpu_seconds.values()):.1f}"])
+        if k == omegas[0]:
+            figs.append(str(plot_poses(unc.orbit, out / f"two_link_poses_{k}pi.png").name))
+        res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
+                                    linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
+                                    dominant_multiplier=ctl.measure.estimate)
+        figs.append(str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png").name))
+    doc["figures"] = figs
+    (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
+    blocks = [
+        text("Built-in two-link flexible arm (`--model two-link`, issue 11): shoulder q1 = π/2 + (π/4) sin Ωt, "
+             "elbow q2 = (π/4) sin Ωt, 2 ANCF elements per link, four PD gains (kp1, kd1, kp2, kd2). Multipliers: "
+             "`magnus2` (512 steps) for all of them and their mode labels; the dominant one (drive modes / first "
+             "bending mode) measured by Hill's method (`stability.hill`, 16 harmonics; its H vs H/2 estimate is in "
+             "the JSON). The other FE modes (axial, higher bending) are undamped (no structural damping: |ρ| = 1; "
+             "the 512-step product shows some of them off the unit circle by its own error) and not listed."),
+        table(["Ω", "el./link", "uncontrolled: dominant |ρ|", "uncontrolled: drive / bending-1 multipliers (Hill)",
+               "tuned gains kp1, kd1, kp2, kd2", "tuned: dominant |ρ| (Hill)", "tuned: drive / bending-1 multipliers",
+               "CPU s (orbit+lin.+Floquet)"], rows_tab),
+        text("Tuned gains from " + "; ".join(f"{k}π: {tuned_src[k][0]}" for k in omegas) + "."),
+    ]
+    if cache is not None:
+        blocks += _cached_blocks(cache)
+    else:
+        blocks.append(text("No cached results of `scripts/two_link_study.py` found: the tuning, method comparison, "
+                           "independent check, mesh study and robust design are not in this report."))
+    for f in figs:
+        k = f.split("_")[-1].replace(".png", "").replace("pi", "π")
+        cap = (f"The arm over one period on its periodic orbit, Ω = {k}" if "poses" in f else
+               f"Floquet mode of the dominant multiplier at the tuned gains, Ω = {k}: deformation along one "
+               "period (red) on the orbit pose (grey)")
+        blocks.append(figure(f, cap))
+    return {"json": "two_link.json", "title": "Two-link flexible arm (issue 11)", "blocks": blocks,
+            "files": ["two_link.json"] + (["two_link_cached.json"] if cache is not None else []) + figs}
+
+
+def _cached_blocks(c: dict) -> list:
+    blocks = []
+    tune = c.get("tune") or {}
+    if tune:
+        rows = []
+        for key, t in tune.items():
+            chk = t.get("check") or {}
+            rows.append([key.replace("pi", "π"), ", ".join(f"{v:.5g}" for v in t["gains"]),
+                         f"{t['rho']:.6f}", f"{chk.get('streamed_moduli', {}).get('32768', float('nan')):.6f}",
+                         f"{chk.get('difference', float('nan')):.1e}",
+                         f"{abs(t['rho'] - c.get('target', 0.3)) / c.get('target', 0.3):.1e}",
+                         t["evaluations"], f"{t['cpu_s']:.1f}"])
+        blocks += [
+            text("Four-gain Taguchi (L9, iterated) to ρ_d, response = dominant multiplier by Hill's method; checked "
+                 "by an independent method: the streamed exponential-midpoint product (`stability.streamed`) at "
+                 "32768 steps (no Hill code; its own 16384 → 32768 change is in the cached JSON)."),
+            table(["Ω", "tuned gains", "|ρ| Hill (loop)", "|ρ| magnus2 32768 steps", "|Hill − magnus2|",
+                   "|ρ − ρ_d| / ρ_d", "evaluations", "CPU s"], rows),
+        ]
+    comp = [(k, t) for k, t in tune.items() if t.get("direct")]
+    if comp:
+        rows = []
+        for key, t in comp:
+            rows.append([key.replace("pi", "π"), "Taguchi", t["evaluations"], f"{t['cpu_s']:.1f}", f"{t['rho']:.6f}"])
+            for d in t["direct"]:
+                rows.append([key.replace("pi", "π"), d["method"], d["evaluations"], f"{d.get('cpu_s', d['elapsed']):.1f}",
+                             f"{d['spectral_radius']:.6f}"])
+        blocks += [text("Same objective, same tolerance (1e-3 ρ_d), each method stops at its first hit; Taguchi's "
+                        "runs are serial here too."),
+                   table(["Ω", "method", "evaluations", "CPU s", "|ρ| reached"], rows)]
+    mesh = c.get("mesh") or {}
+    if mesh:
+        rows = []
+        for key, rs in mesh.items():
+            for r in rs:
+                rows.append([key.replace("pi", "π"), r["elements"], r["size"],
+                             f"{r['uncontrolled']['modulus']:.7f} ({r['uncontrolled']['mode']})",
+                             f"{r['uncontrolled']['hill_error_estimate']:.0e}",
+                             f"{r['tuned']['modulus']:.8f} ({r['tuned']['mode']})",
+                             f"{r['tuned']['hill_error_estimate']:.0e}"])
+        blocks += [text("Mesh convergence of the dominant multipliers (Hill's method; its H vs H/2 estimate beside)."),
+                   table(["Ω", "elements per link", "coordinates", "uncontrolled |ρ|", "est.", "tuned |ρ|", "est."],
+                         rows)]
+    rob = c.get("robust") or {}
+    if rob:
+        rows = []
+        for key, r in rob.items():
+            for label, w in (("nominal", r["nominal"]), ("robust", r["robust"]["check"])):
+                rows.append([key.replace("pi", "π"), label, ", ".join(f"{v:.4g}" for v in w["gains"]),
+                             f"{w['nominal']:.5f}", f"{w['worst']:.5f}",
+                             ", ".join(f"{a} {b:.3g}" for a, b in w["worst_noise"].items())])
+            rows.append([key.replace("pi", "π"), "change", "", f"{r['nominal_cost']:+.4f} (|ρ − ρ_d|)",
+                         f"{-r['worst_case_improvement']:+.5f} ({-r['worst_case_improvement_percent']:+.2f} %)",
+                         f"grid {r['grid_size']} points"])
+        blocks += [text("Robust design: inner L9 array of the four gains × outer L9 array of the noise factors "
+                        "(payload 0.05–0.2 kg, Ω ± 10 %, E ± 5 %), S/N = −10 log10 mean (|ρ| − ρ_d)² over the outer "
+                        "runs; both gain sets judged by the worst |ρ| over a full grid of the noise box."),
+                   table(["Ω", "gains", "kp1, kd1, kp2, kd2", "|ρ| at nominal", "worst |ρ| on grid", "worst at"],
+                         rows)]
+    return blocks

@@ -1,0 +1,275 @@
+"""A model file's linearisation as a tuning plant whose response is measured by Hill's method.
+
+Why: on finite-element models with stiff undamped modes (the two-link arm's axial
+modes, 3.6-28 kHz against Omega / 2 pi = 1-2 Hz) the exponential-midpoint product
+converges erratically in its step count (step-size resonances ``h omega ~ 2 pi m``):
+the drive-mode multiplier of the two-link arm at 4 pi moves by 2e-3 between 1024 and
+8192 steps and settles (to 1e-6) only beyond ~16384 steps.  Hill's method
+(:mod:`stability.hill`) has no step count: with 16 harmonics it gives the same
+multiplier to ~1e-9 in 0.05 s.
+
+How an evaluation works (:meth:`HillModelPlant.measure`):
+
+1. ``magnus2`` with a modest, fixed step count on a prepared
+   :class:`stability.gains.FloquetWorkspace` (``P_0`` and the drive-gain terms
+   sampled once): all multipliers, labelled by :func:`linearize.analysis.label_multipliers`;
+2. every multiplier labelled as a drive mode or ``bending 1`` (the rule of
+   :attr:`linearize.analysis.ModelFloquetResult.dominant_multiplier`) is refined by
+   Hill's method on the same linearisation (its samples with the gains: the system
+   ``stability.floquet`` integrates);
+3. the response is the largest refined modulus.
+
+The step count of (1) only has to put each estimate nearer its own exponent than any
+other (checked: the refined value must lie within :data:`MATCH_TOLERANCE` in
+``log rho`` of its estimate, else the estimate is recomputed with twice the steps).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import uuid
+from dataclasses import dataclass, field
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from linearize.analysis import UNDAMPED_TOLERANCE, label_multipliers
+from linearize.fourier import trig_interpolate
+from linearize.periodic_orbit import PeriodicOrbit
+from linearize.system import LinearizedPeriodicSystem
+
+__all__ = [
+    "HillModelPlant",
+    "HillMeasure",
+    "drive_gain_family",
+    "LABEL_STEPS",
+    "TUNING_HARMONICS",
+    "MATCH_TOLERANCE",
+    "choose_harmonics",
+    "HillGainObjective",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Per-process cache of labelling workspaces, by plant token (a process pool unpickles the plant
+#: once per task; the workspace is built once per process).  Bounded: the oldest plant is dropped.
+_WORKSPACES: dict = {}
+
+#: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
+LABEL_STEPS = 512
+#: Hill harmonics in the tuning loop (two-link arm, 2 elements: relative change vs H/2 below 1e-8).
+TUNING_HARMONICS = 16
+#: Estimates below ``NOISE_FACTOR`` times the product's rounding floor are not refined.
+NOISE_FACTOR = 1e3
+#: Only estimates at least this fraction of the largest candidate are refined (the response is the max).
+RELATIVE_CUTOFF = 1e-2
+#: At most this many candidates are refined per evaluation.
+MAX_REFINED = 4
+#: A refined multiplier must satisfy ``|log(refined / estimate)| <= MATCH_TOLERANCE``.
+MATCH_TOLERANCE = 0.25
+
+
+def drive_gain_family(lin: LinearizedPeriodicSystem):
+    """:class:`stability.gains.GainParametrisedSystem` of the drive gains ``(kp1, kd1, kp2, kd2, ...)``.
+
+    With ``K += B kp B^T + B kd B_t^T`` and ``C += B kd B^T`` (see
+    :class:`~linearize.system.LinearizedPeriodicSystem`), ``P = [[0, I], [-M^-1 K, -M^-1 C]]``
+    changes by ``sum_d kp_d u_d [b_d^T, 0] + kd_d u_d [b_t,d^T, b_d^T]`` with
+    ``u_d = [0; -M^-1 b_d]``: time-dependent rank-one terms.  ``M``, ``b``, ``b_t`` are the
+    trigonometric interpolants of their samples.
+    """
+    from stability.gains import GainParametrisedSystem
+
+    if lin.B is None:
+        raise ValueError("the linearisation has no drive input map B (not a model file's)")
+    base = lin.with_gains(0.0, 0.0)
+    T = float(lin.period)
+    d, n = lin.B.shape[2], lin.size
+    Bs, Bts = lin.B, lin.B_t
+
+    def inputs(times: np.ndarray) -> np.ndarray:
+        M = trig_interpolate(base.M, T, times)
+        B = trig_interpolate(Bs, T, times)
+        u = -np.linalg.solve(M, B)  # (m, n, d)
+        out = np.zeros((len(times), 2 * n, 2 * d))
+        out[:, n:, 0::2] = u
+        out[:, n:, 1::2] = u
+        return out
+
+    def outputs(times: np.ndarray) -> np.ndarray:
+        B = trig_interpolate(Bs, T, times)
+        Bt = trig_interpolate(Bts, T, times)
+        out = np.zeros((len(times), 2 * d, 2 * n))
+        out[:, 0::2, :n] = np.swapaxes(B, 1, 2)
+        out[:, 1::2, :n] = np.swapaxes(Bt, 1, 2)
+        out[:, 1::2, n:] = np.swapaxes(B, 1, 2)
+        return out
+
+    names = tuple(f"{k}{j + 1}" for j in range(d) for k in ("kp", "kd"))
+    return GainParametrisedSystem(base, inputs, outputs, names=names, period=T)
+
+
+@dataclass(frozen=True)
+class HillMeasure:
+    """One evaluation of :meth:`HillModelPlant.measure`.
+
+    Attributes
+    ----------
+    dominant : complex
+        The largest refined multiplier (drive modes / ``bending 1``).
+    mode : str
+        Its label.
+    estimate : complex
+        The magnus2 estimate it was refined from.
+    refined : list of (label, complex)
+        Every refined multiplier (upper half plane of each conjugate pair).
+    hill_error_estimate : float
+        Hill's relative H vs H/2 change of the dominant (NaN when not computed).
+    label_steps : int
+    """
+
+    dominant: complex
+    mode: str
+    estimate: complex
+    refined: list = field(default_factory=list)
+    hill_error_estimate: float = math.nan
+    label_steps: int = LABEL_STEPS
+
+
+class HillModelPlant:
+    """Tuning plant: ``spectral_measure(kp, kd)`` = dominant labelled multiplier by Hill's method.
+
+    Parameters
+    ----------
+    linearization : LinearizedPeriodicSystem
+        A model file's linearisation (``B`` present).
+    orbit : PeriodicOrbit
+    label_steps : int
+        magnus2 steps of the labelling pass.
+    harmonics : int
+        Hill harmonics.
+
+    Picklable (the workspace is rebuilt once per process).
+    """
+
+    def __init__(self, linearization: LinearizedPeriodicSystem, orbit: PeriodicOrbit, *,
+                 label_steps: int = LABEL_STEPS, harmonics: int = TUNING_HARMONICS,
+                 _token: Optional[str] = None) -> None:
+        if linearization.B is None:
+            raise ValueError("HillModelPlant needs a model file's linearisation (with drives)")
+        self.linearization = linearization
+        self.orbit = orbit
+        self.label_steps = int(label_steps)
+        self.harmonics = int(harmonics)
+        self._token = uuid.uuid4().hex if _token is None else _token
+        # workspaces per step count, shared by every copy of this plant unpickled in one process
+        self._workspaces: dict = _WORKSPACES.setdefault(self._token, {})
+
+    def __getstate__(self) -> dict:
+        return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
+                "harmonics": self.harmonics, "token": self._token}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["linearization"], state["orbit"], label_steps=state["label_steps"],
+                      harmonics=state["harmonics"], _token=state["token"])
+
+    def replace(self, **changes: Any) -> "HillModelPlant":
+        kw = {"label_steps": self.label_steps, "harmonics": self.harmonics, **changes}
+        return HillModelPlant(self.linearization, self.orbit, _token=self._token, **kw)
+
+    @property
+    def drives(self) -> tuple:
+        return self.orbit.drive_names
+
+    @property
+    def n_steps(self) -> int:  # the tune command reports it
+        return self.label_steps
+
+    def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
+        return self.linearization.with_gains(kp, kd)
+
+    def _workspace(self, steps: int):
+        ws = self._workspaces.get(steps)
+        if ws is None:
+            while len(_WORKSPACES) > 8:
+                _WORKSPACES.pop(next(iter(_WORKSPACES)))
+            ws = drive_gain_family(self.linearization).workspace(steps, method="magnus2")
+            self._workspaces[steps] = ws
+        return ws
+
+    def labelled(self, kp, kd, steps: Optional[int] = None):
+        """``(lin, floquet_result, modes)`` of the labelling pass."""
+        lin = self.with_gains(kp, kd)
+        g = [v for pair in zip(lin.kp, lin.kd) for v in pair]
+        res = self._workspace(steps or self.label_steps).floquet(g)
+        return lin, res, label_multipliers(lin, self.orbit, res)
+
+    def measure(self, kp, kd, *, error_estimate: bool = False) -> HillMeasure:
+        """Dominant drive-mode / ``bending 1`` multiplier, labelled by magnus2 and measured by Hill."""
+        from stability.hill import hill_multipliers
+
+        steps = self.label_steps
+        for _ in range(3):
+            lin, res, modes = self.labelled(kp, kd, steps)
+            main = set(self.orbit.drive_names) | {"bending 1"}
+            picks = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
+                     if m["mode"] in main and not m["undamped"] and np.imag(mu) >= 0]
+            if not picks:  # as linearize.analysis: the largest one off the unit circle
+                picks = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
+                         if not m["undamped"] and np.imag(mu) >= 0][:1]
+            # below the product's rounding floor a multiplier (and its label) is noise; the
+            # response is the largest, so the few largest estimates are refined
+            floor = max(NOISE_FACTOR * float(res.noise_floor), 1e-300)
+            picks = sorted((p for p in picks if abs(p[1]) > floor), key=lambda p: -abs(p[1]))
+            picks = [p for p in picks if abs(p[1]) >= RELATIVE_CUTOFF * abs(picks[0][1])][:MAX_REFINED] if picks else []
+            if not picks:
+                return HillMeasure(dominant=complex(res.multipliers[0]), mode=modes[0]["mode"],
+                                   estimate=complex(res.multipliers[0]), label_steps=steps)
+            h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks], harmonics=self.harmonics,
+                                 error_estimate=error_estimate)
+            mismatch = np.abs(np.log(h.multipliers / np.array([p[1] for p in picks])))
+            if np.all(mismatch <= MATCH_TOLERANCE):
+                break
+            logger.info("Hill refinement moved an estimate by %.3g in log rho: labelling again with %d steps",
+                        float(np.max(mismatch)), 2 * steps)
+            steps *= 2
+        else:
+            raise ArithmeticError(f"the magnus2 estimates do not match Hill's multipliers "
+                                  f"(log mismatch {float(np.max(mismatch)):.3g} with {steps // 2} steps)")
+        j = int(np.argmax(np.abs(h.multipliers)))
+        return HillMeasure(dominant=complex(h.multipliers[j]), mode=picks[j][0], estimate=picks[j][1],
+                           refined=[(p[0], complex(m)) for p, m in zip(picks, h.multipliers)],
+                           hill_error_estimate=float(h.error_estimate[j]), label_steps=steps)
+
+    def spectral_measure(self, kp, kd) -> float:
+        """``|rho|`` of the dominant labelled multiplier (Hill)."""
+        return float(abs(self.measure(kp, kd).dominant))
+
+
+def choose_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[float], tolerance: float,
+                     candidates: Sequence[int] = (8, 12, 16, 24, 32)) -> HillModelPlant:
+    """``plant`` with the fewest Hill harmonics whose H vs H/2 estimate is below ``tolerance / 20``.
+
+    Decided once, at one gain point (e.g. the centre of the initial ranges): the
+    estimate is the relative change from ``H/2`` to ``H`` (spectral convergence: it
+    bounds the error of ``H/2``, so over-states that of ``H``).
+    """
+    for H in candidates:
+        p = plant.replace(harmonics=H)
+        m = p.measure(kp, kd, error_estimate=True)
+        if m.hill_error_estimate * abs(m.dominant) <= tolerance / 20:
+            return p
+    return p
+
+
+class HillGainObjective:
+    """``(kp1, kd1, kp2, kd2, ...) -> |rho|`` of :meth:`HillModelPlant.spectral_measure` (picklable)."""
+
+    def __init__(self, plant: HillModelPlant) -> None:
+        self.plant = plant
+
+    def __call__(self, gains: Sequence[float]) -> float:
+        g = [float(v) for v in gains]
+        if len(g) % 2:
+            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
+        return self.plant.spectral_measure(g[0::2], g[1::2])
