@@ -7,7 +7,14 @@ peak memory is its own): the periodic orbit (:func:`linearize.periodic_orbit.fin
 linearisation with the Table 3 gains (:func:`linearize.constrained.linearize_orbit`),
 the dense Floquet multipliers (:func:`stability.floquet`, ``magnus2``, as
 :func:`linearize.analysis.analyze` runs it) and the dominant ones matrix-free
-(:func:`stability.implicit_floquet`, same propagator).  Per stage: wall and CPU
+(:func:`stability.implicit_floquet`, same propagator).  ``--frame modal`` propagates in
+the frozen-modal coordinates of :mod:`stability.modal` (its basis is a stage of its own,
+shared by both Floquet methods) and runs the dense Floquet as ``analyze()`` does:
+Richardson-extrapolated, from ``N, N/2, N/4`` steps, or with ``N`` divisible by 9 from
+``N, N/3, N/9`` where the coarser solves are formed from the ``N``-step factors (the
+``N/3`` midpoint rule is the cubes of every third factor).  The dense solve streams its
+sub-interval propagators in chunks (memory O(n^2) in the step count).  Stage limits
+(``--floquet-limit``) are CPU seconds.  Per stage: wall and CPU
 seconds (CPU is the honest figure on a shared machine) and the peak of numpy /
 Python allocations (``tracemalloc``); per mesh the peak resident set size of the
 process (``ru_maxrss``, Exudyn's C++ memory included).  The growth exponent of
@@ -15,8 +22,8 @@ each stage is the least-squares slope of log(CPU seconds) against log(elements).
 
 Usage::
 
-    python3 benchmarks/scale.py                      # 4 8 16 32 64, writes results/scale.json
-    python3 benchmarks/scale.py --elements 4 8 --dense-max 8
+    python3 benchmarks/scale.py --frame modal --steps 144   # 4 ... 64, writes results/scale.json
+    python3 benchmarks/scale.py --elements 4 8 --steps 510  # model coordinates
 """
 from __future__ import annotations
 
@@ -40,7 +47,7 @@ if str(ROOT) not in sys.path:
 
 #: Table 3 gains at Omega = 2 pi (paper) and the case.
 KP, KD, OMEGA = 37.1617, 29.2410, 2.0 * math.pi
-STAGES = ("orbit", "linearization", "floquet_dense", "floquet_implicit")
+STAGES = ("orbit", "linearization", "modal_basis", "floquet_dense", "floquet_implicit")
 
 
 class StageTimeout(Exception):
@@ -57,14 +64,16 @@ class _Stage:
 
     def __enter__(self):
         if self.limit > 0:
-            signal.signal(signal.SIGALRM, _alarm)
-            signal.alarm(int(math.ceil(self.limit)))
+            # a limit on this process's CPU time (SIGPROF), not wall time: on a loaded shared
+            # machine the wall clock runs 3-7x the CPU time
+            signal.signal(signal.SIGPROF, _alarm)
+            signal.setitimer(signal.ITIMER_PROF, self.limit)
         tracemalloc.reset_peak()
         self.w, self.c = time.perf_counter(), time.process_time()
         return self
 
     def __exit__(self, *exc):
-        signal.alarm(0)
+        signal.setitimer(signal.ITIMER_PROF, 0)
         self.out[self.name] = {
             "wall_s": time.perf_counter() - self.w,
             "cpu_s": time.process_time() - self.c,
@@ -72,7 +81,7 @@ class _Stage:
             "ok": exc[0] is None,
         }
         if exc[0] is StageTimeout:
-            self.out[self.name]["error"] = f"not finished within {self.limit:.0f} s"
+            self.out[self.name]["error"] = f"not finished within {self.limit:.0f} s CPU"
             return True  # recorded as not finished; the next stages run
         if exc[0] is not None and self.name.startswith("floquet"):
             self.out[self.name]["error"] = " ".join(f"{exc[0].__name__}: {exc[1]}".split())[:300]
@@ -85,7 +94,7 @@ def _cplx(z) -> list:
 
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
-           floquet_limit: float = 0.0, fallback_steps: int = 0) -> dict:
+           floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -95,7 +104,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     from stability import floquet, implicit_floquet
 
     tracemalloc.start()
-    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "stages": {}}
+    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
+                 "extrapolate": bool(extrapolate and frame == "modal"), "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
         orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
@@ -104,36 +114,38 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     with _Stage(st, "linearization"):
         lin = linearize_orbit(orbit, KP, KD)
     rec["states"] = 2 * int(lin.size)
-    dense_mult = None
-    if dense:
-        res = None
-        with _Stage(st, "floquet_dense", floquet_limit):
-            res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli")
-        if res is None and fallback_steps and "GB of work arrays" in st["floquet_dense"].get("error", ""):
-            # the engine holds all sub-interval propagators at once: retry with the largest power
-            # of two of steps within its memory limit (fallback_steps < 0) or the given count
-            if fallback_steps < 0:
-                from stability.floquet import MEMORY_LIMIT, WORK_ARRAYS
+    system = lin
+    if frame == "modal":
+        from stability.modal import FrozenModalSystem
 
-                fit = MEMORY_LIMIT / (WORK_ARRAYS * 8.0 * lin.size**2 * 4)  # magnus2: one node; 2r states
-                fallback_steps = 2 ** int(math.floor(math.log2(max(fit, 2.0))))
-            first = st.pop("floquet_dense")
-            with _Stage(st, "floquet_dense", floquet_limit):
-                res = floquet(lin, method="magnus2", n_steps=fallback_steps, accuracy="moduli")
-            st["floquet_dense"]["n_steps"] = fallback_steps
-            st["floquet_dense"]["first_attempt"] = first
+        with _Stage(st, "modal_basis"):
+            system = FrozenModalSystem(lin)
+        rec["modal_condition"] = float(system.condition)
+    dense_mult = None
+    res = None
+    if dense:
+        with _Stage(st, "floquet_dense", floquet_limit):
+            if frame == "modal":
+                from stability.modal import modal_floquet
+
+                # as linearize.analysis.analyze runs it: Richardson-extrapolated from N, N/2, N/4
+                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=n_steps, accuracy="moduli",
+                                    extrapolate=extrapolate)
+            else:
+                res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
     if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
         damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
         rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
                         "dominant_damped": _cplx(damped[0]) if damped else None,
-                        "error_estimate": float(getattr(res, "error_estimate", math.nan)),
-                        "n_steps": int(st["floquet_dense"].get("n_steps", n_steps)),
+                        "error_estimate": float(res.error_estimate), "n_steps": int(res.n_steps),
+                        "n_evaluations": int(res.n_evaluations),
+                        "liouville_residual": float(res.liouville_residual),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
+    imp = None
     if implicit:
-        imp = None
         with _Stage(st, "floquet_implicit", floquet_limit):
-            imp = implicit_floquet(lin, k=k, n_steps=n_steps, method="magnus2")
+            imp = implicit_floquet(system, k=k, n_steps=n_steps, method="magnus2")
     if implicit and imp is not None:
         mult = np.asarray(imp.multipliers)
         rec["implicit"] = {"dominant": _cplx(mult[0]), "top": [_cplx(z) for z in mult],
@@ -144,10 +156,12 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
             # each certified implicit multiplier against the nearest dense one
             diffs = [float(np.min(np.abs(dense_mult - z))) for z, c in zip(mult, imp.certified) if c]
             rec["implicit"]["max_diff_to_dense"] = max(diffs) if diffs else math.nan
+            rec["implicit"]["n_certified"] = len(diffs)
     rec["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    # the pipeline as analyze() runs it: orbit + linearisation + dense Floquet
-    pipeline = [st[s] for s in ("orbit", "linearization", "floquet_dense") if s in st and "error" not in st[s]]
-    rec["pipeline_complete"] = len(pipeline) == 3
+    # the pipeline as analyze() runs it: orbit + linearisation (+ modal basis) + dense Floquet
+    needed = ("orbit", "linearization") + (("modal_basis",) if frame == "modal" else ()) + ("floquet_dense",)
+    pipeline = [st[s] for s in needed if s in st and "error" not in st[s]]
+    rec["pipeline_complete"] = len(pipeline) == len(needed)
     rec["total_cpu_s"] = sum(v["cpu_s"] for v in pipeline)
     rec["total_wall_s"] = sum(v["wall_s"] for v in pipeline)
     return rec
@@ -189,23 +203,30 @@ def _cell(st: dict, stage: str) -> str:
 
 
 def markdown(records: list, exps: dict) -> str:
-    cols = ["elements", "ODE2 / states", "orbit CPU s (wall)", "lin. CPU s", "Floquet dense CPU s",
-            "Floquet implicit CPU s", "pipeline CPU s (wall)", "peak RSS MB", "orbit residual (tol 1e-6)",
-            "dominant multiplier (largest off the unit circle)", "modulus", "implicit vs dense"]
+    cols = ["elements", "ODE2 / states", "orbit CPU s (wall)", "lin. CPU s", "modal basis CPU s",
+            "Floquet dense CPU s", "Floquet implicit CPU s", "pipeline CPU s (wall)", "peak RSS MB",
+            "spectral radius (est.)", "largest off the unit circle", "modulus",
+            "implicit: certified, max diff to dense"]
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in records:
         if "error" in r:
             lines.append(f"| {r['elements']} | failed: {r['error']} |" + " |" * (len(cols) - 2))
             continue
         st = r["stages"]
-        dom = r.get("dense", {}).get("dominant_damped")
+        d = r.get("dense", {})
+        dom = d.get("dominant_damped")
         total = f"{r['total_cpu_s']:.2f} ({r['total_wall_s']:.2f})" + ("" if r.get("pipeline_complete") else " no Floquet")
+        imp = r.get("implicit", {})
+        imp_cell = (f"{imp.get('n_certified', sum(imp.get('certified', [])))}/{len(imp.get('certified', []))}, "
+                    f"{_fmt(imp.get('max_diff_to_dense'), '.1e')}") if imp else "—"
         lines.append(
             f"| {r['elements']} | {r['ode2']} / {r['states']} | {st['orbit']['cpu_s']:.2f} ({st['orbit']['wall_s']:.2f}) | "
-            f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
-            f"{total} | {r['peak_rss_mb']:.0f} | {r['orbit_residual']:.1e} | "
+            f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'modal_basis') if 'modal_basis' in st else '—'} | "
+            f"{_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
+            f"{total} | {r['peak_rss_mb']:.0f} | "
+            + (f"{d['spectral_radius']:.9f} ({d['error_estimate']:.0e})" if d else "—") + " | "
             + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
-            + f" | {_fmt(r.get('implicit', {}).get('max_diff_to_dense'), '.1e')} |")
+            + f" | {imp_cell} |")
     lines.append("")
     lines.append("Growth exponent p (CPU s ~ elements^p, least squares over the meshes where the stage finished): "
                  + ", ".join(f"{s} {_fmt(v)}" for s, v in exps.items()))
@@ -216,23 +237,26 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, nargs="+", default=[4, 8, 16, 32, 64])
     ap.add_argument("--samples", type=int, default=32)
-    ap.add_argument("--steps", type=int, default=512, help="magnus2 sub-intervals (as analyze())")
+    ap.add_argument("--steps", type=int, default=510,
+                    help="magnus2 sub-intervals (a multiple of 3: the estimate comes from the same factors)")
+    ap.add_argument("--frame", choices=("model", "modal"), default="model",
+                    help="propagate in the model's coordinates or the frozen-modal ones (stability.modal)")
+    ap.add_argument("--no-extrapolate", action="store_true",
+                    help="modal frame: plain N-step solve with its own estimate instead of analyze()'s "
+                         "Richardson extrapolation from N, N/2, N/4")
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
-    ap.add_argument("--fallback-steps", type=int, default=0,
-                    help="dense Floquet steps when --steps exceeds the engine's memory limit "
-                         "(0: none, -1: the largest power of two within it)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
     ap.add_argument("--floquet-limit", type=float, default=300.0,
-                    help="wall seconds per Floquet stage before it is recorded as not finished")
+                    help="CPU seconds per Floquet stage before it is recorded as not finished")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
-                     args.floquet_limit, args.fallback_steps)
+                     args.floquet_limit, args.frame, not args.no_extrapolate)
         print(json.dumps(rec))
         return 0
     records = []
@@ -240,7 +264,9 @@ def main(argv=None) -> int:
     for e in args.elements:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
                "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
-               "--floquet-limit", str(args.floquet_limit), "--fallback-steps", str(args.fallback_steps)]
+               "--floquet-limit", str(args.floquet_limit), "--frame", args.frame]
+        if args.no_extrapolate:
+            cmd.append("--no-extrapolate")
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:
@@ -263,7 +289,7 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"case": {"model": "single-link", "omega": OMEGA, "kp": KP, "kd": KD,
-                                        "samples": args.samples, "n_steps": args.steps},
+                                        "samples": args.samples, "n_steps": args.steps, "frame": args.frame},
                                "records": records, "growth_exponents": exps, "table": table}, indent=1))
     return 0
 

@@ -22,6 +22,7 @@ __all__ = [
     "ReducedRadius",
     "PlantRadius",
     "ExudynOmegaRadius",
+    "ModelRadius",
     "GainChart",
     "OmegaChart",
     "gain_chart",
@@ -81,6 +82,78 @@ class ExudynOmegaRadius:
         return float(abs(r.dominant_multiplier))
 
 
+@dataclass(frozen=True)
+class ModelRadius:
+    """Task for a model file: ``{"omega", "kp", "kd"} -> |rho|`` of its dominant labelled multiplier.
+
+    The response is :meth:`linearize.analysis.ModelPlant.spectral_measure` (drive modes and the
+    first bending mode; the tuning response of ``flexstab tune --model``).  A point's ``kp``/``kd``
+    are either numbers -- the gains of the charted drive ``drive`` (``None``: every drive), the
+    other drives at ``fixed_kp``/``fixed_kd`` -- or lists with one value per drive.
+
+    The plant (orbit + linearisation, gains 0) is computed once per Omega and kept; the orbit at
+    a new Omega starts Newton from the orbit at the nearest Omega computed so far (continuation
+    along an Omega sweep).  It holds Exudyn systems built from a file loaded at run time: run it
+    in this process (serial executor).
+
+    Attributes
+    ----------
+    model : ModelDefinition
+    options : dict
+        Keyword options of the model's ``build``.
+    drive : int or None
+        Index of the charted drive; ``None``: the same (kp, kd) on every drive.
+    fixed_kp, fixed_kd : tuple of float
+        Gains of every drive (the charted one's are replaced by the point's).
+    samples : int
+        Collocation samples per period.
+    n_steps : int
+        Sub-intervals of each Floquet evaluation (:meth:`linearize.analysis.ModelPlant.floquet`).
+    """
+
+    model: Any
+    options: dict = field(default_factory=dict)
+    drive: Optional[int] = 0
+    fixed_kp: tuple = ()
+    fixed_kd: tuple = ()
+    samples: int = 32
+    n_steps: int = 256
+    _plants: dict = field(default_factory=dict, compare=False, repr=False)
+
+    def plant(self, omega: float):
+        """The :class:`~linearize.analysis.ModelPlant` at ``omega`` (cached; orbit continued in Omega)."""
+        import dataclasses
+
+        from linearize.analysis import ModelPlant
+        from linearize.constrained import linearize_orbit
+        from linearize.periodic_orbit import find_orbit
+
+        omega = float(omega)
+        hit = self._plants.get(omega)
+        if hit is None:
+            near = min(self._plants, key=lambda w: abs(w - omega), default=None)
+            guess = self._plants[near].orbit if near is not None else None
+            orbit = find_orbit(self.model, omega, samples=self.samples, verify=False, guess=guess, **self.options)
+            hit = dataclasses.replace(ModelPlant(linearize_orbit(orbit), orbit), n_steps=self.n_steps)
+            self._plants[omega] = hit
+        return hit
+
+    def gains(self, kp, kd, n_drives: int) -> tuple[list, list]:
+        """Per-drive gains of a point (see the class docstring)."""
+        if isinstance(kp, (list, tuple)):
+            return [float(v) for v in kp], [float(v) for v in kd]
+        gp = [float(v) for v in self.fixed_kp] or [0.0] * n_drives
+        gd = [float(v) for v in self.fixed_kd] or [0.0] * n_drives
+        for j in (range(n_drives) if self.drive is None else (self.drive,)):
+            gp[j], gd[j] = float(kp), float(kd)
+        return gp, gd
+
+    def __call__(self, point: dict) -> float:
+        plant = self.plant(point["omega"])
+        kp, kd = self.gains(point["kp"], point["kd"], len(plant.drives))
+        return float(plant.spectral_measure(kp, kd) if plant.drives else plant.spectral_measure(0.0, 0.0))
+
+
 #: Most points per chart axis (a 1001 x 1001 gain chart is already 1e6 Floquet evaluations,
 #: ~1 h on 2 cores; more points cannot be told apart on a figure).
 MAX_GRID_POINTS = 1001
@@ -131,8 +204,8 @@ class OmegaChart:
     omega: np.ndarray
     radius_uncontrolled: np.ndarray
     radius_controlled: np.ndarray
-    kp: float
-    kd: float
+    kp: Any  # float, or one value per drive (model files)
+    kd: Any
 
     def to_dict(self) -> dict:
         return {
@@ -174,12 +247,22 @@ def omega_chart(
     *,
     progress: bool = False,
 ) -> OmegaChart:
-    """max|rho| against Omega with zero gains and with ``(kp, kd)`` (resumable via ``store``)."""
+    """max|rho| against Omega with zero gains and with ``(kp, kd)`` (resumable via ``store``).
+
+    ``kp``, ``kd``: numbers, or one value per drive (lists; the zero gains are then lists too).
+    The points run in the order of ``omegas``, uncontrolled first.
+    """
     omegas = np.asarray(omegas, dtype=float)
-    points = [{"omega": float(w), "kp": g[0], "kd": g[1]} for g in ((0.0, 0.0), (float(kp), float(kd))) for w in omegas]
+    if isinstance(kp, (list, tuple)):
+        kp, kd = [float(v) for v in kp], [float(v) for v in kd]
+        zero: tuple = ([0.0] * len(kp), [0.0] * len(kd))
+    else:
+        kp, kd = float(kp), float(kd)
+        zero = (0.0, 0.0)
+    points = [{"omega": float(w), "kp": g[0], "kd": g[1]} for g in (zero, (kp, kd)) for w in omegas]
     sweep = run_sweep(task, points, executor, store, progress=progress, desc="omega chart")
     r = np.asarray(sweep.results, dtype=float).reshape(2, omegas.size)
-    return OmegaChart(omegas, r[0], r[1], float(kp), float(kd))
+    return OmegaChart(omegas, r[0], r[1], kp, kd)
 
 
 def _label_every_segment(ax, cs, text: str, color: str) -> int:
@@ -201,7 +284,7 @@ def _label_every_segment(ax, cs, text: str, color: str) -> int:
 
 
 def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequence[Sequence[float]]] = None,
-                    label: str = "linearised manipulator") -> Path:
+                    label: str = "linearised manipulator", drive: str = "") -> Path:
     """log10 max|rho| on a diverging colour scale centred at |rho| = 1 (blue stable, red unstable).
 
     The |rho| = 1 boundary is drawn in black and labelled on every segment, the rho_d contour
@@ -245,14 +328,22 @@ def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequenc
         ax.plot(p[:, 0], p[:, 1], "o-", color="orange", ms=4, lw=1.2, mec="k", mew=0.4, label="Taguchi incumbents")
         ax.plot(p[-1, 0], p[-1, 1], "*", color="orange", ms=14, mec="k", label="tuned gains")
         ax.legend(loc="upper right", framealpha=0.9)
-    ax.set_xlabel("kp (N·m/rad)")
-    ax.set_ylabel("kd (N·m·s/rad)")
+    of = f" of drive {drive}" if drive else ""
+    ax.set_xlabel(f"kp{of} (N·m/rad)")
+    ax.set_ylabel(f"kd{of} (N·m·s/rad)")
     ax.set_title(f"max|ρ|, {label}\nΩ = {chart.omega / math.pi:.3g}π rad/s, {chart.kp.size} × {chart.kd.size} grid",
                  fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def _gain_text(g) -> str:
+    """``"12.5"`` for one gain, ``"(12.5, 3)"`` for one per drive."""
+    if isinstance(g, (list, tuple)):
+        return "(" + ", ".join(f"{v:.4g}" for v in g) + ")"
+    return f"{g:.4g}"
 
 
 def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model",
@@ -267,7 +358,7 @@ def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised red
     x = chart.omega / math.pi
     ax.semilogy(x, chart.radius_uncontrolled, "-", label="uncontrolled (kp = kd = 0)")
     ax.semilogy(x, chart.radius_controlled, "-",
-                label=f"kp = {chart.kp:.4g} N·m/rad, kd = {chart.kd:.4g} N·m·s/rad")
+                label=f"kp = {_gain_text(chart.kp)} N·m/rad, kd = {_gain_text(chart.kd)} N·m·s/rad")
     ax.axhline(1.0, color="red", lw=1, ls="--", label="|ρ| = 1")
     ax.set_xlabel("Ω / π (Ω in rad/s)")
     ax.set_ylabel(ylabel)

@@ -6,7 +6,7 @@ import math
 import re
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
-           "positive_float", "gain_list", "is_model_file"]
+           "positive_float", "gain_list", "is_model_file", "resolve_model_definition"]
 
 _PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -69,6 +69,44 @@ def gain_list(text: str) -> tuple:
 def is_model_file(model: str) -> bool:
     """Whether ``--model`` names a model file (a ``.py`` path) rather than a built-in model."""
     return str(model).endswith(".py")
+
+
+def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
+    """The one ``--model`` rule of every command for model files: ``(definition, build options)``.
+
+    * a model file ``PATH.py``: its own defaults; ``--elements`` and the ``builtin_options``
+      that are set (non-zero damping, ...) are rejected, they apply to built-in models only;
+    * ``single-link``: the configured link (``cfg.manipulator``) with ``--elements`` or the
+      configuration's ``elements``;
+    * any other built-in (``two-link``): its own default mesh unless ``--elements`` is given
+      (the configuration's ``elements`` describes the single link).
+
+    ``builtin_options`` (e.g. ``bending_damping``) are passed to a built-in's ``build`` when set.
+
+    Raises
+    ------
+    ValueError
+        Unknown model name, or options that do not apply to a model file.
+    """
+    from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
+
+    given = {k: v for k, v in builtin_options.items() if v}
+    if is_model_file(model):
+        if elements is not None or given:
+            flags = (["--elements"] if elements is not None else []) + ["--" + k.replace("_", "-") for k in given]
+            raise ValueError(f"{', '.join(flags)} applies to built-in models only, not to a model file")
+        return load_model_file(model), {}
+    if model not in BUILTIN_MODELS:
+        raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
+                         f"or a model file PATH.py")
+    options = dict(given)
+    if model == "single-link":
+        options.update(elements=elements if elements is not None else cfg.elements, params=cfg.manipulator)
+    elif elements is not None:
+        options["elements"] = elements
+    return builtin_model(model), options
+
+
 positive_float = _float_type(0.0, True, "finite and > 0")
 
 

@@ -8,7 +8,9 @@ report can be traced to a file:
 3. ``charts``  -- max|rho| over the gain plane (with the Taguchi path) and against Omega;
 4. ``transients`` -- linear transient responses (paper Figs. 2-9);
 5. ``exudyn``  -- the Exudyn ANCF model: periodic orbit, linearisation, Floquet
-   at the reference gains, Taguchi tuning on the Exudyn linearisation;
+   at the reference gains, Taguchi tuning on the Exudyn linearisation (``quick``:
+   at most 4 elements, 16 collocation samples, the tuning loop at half the
+   propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers;
 7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
@@ -74,7 +76,8 @@ from typing import Callable, Optional, Sequence
 from flexstab.config import StudyConfig
 from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
-__all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash"]
+__all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash",
+           "validation_blocks"]
 
 logger = logging.getLogger(__name__)
 
@@ -346,18 +349,36 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
     omega = cfg.omega
     kp_r, kd_r, source = _reference_gains(cfg, opts)
-    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements)
+    # --quick: 16 collocation samples per period (32 in the full study; at 4 elements and 2pi the
+    # dominant multipliers at the reference, zero and tuned gains agree to 1e-9 between the two)
+    samples = 16 if opts.quick else 32
+    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples)
     # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
     # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
     plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
     uncontrolled = plant.spectral_measure(0.0, 0.0)
     tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                         max_evaluations=100 if opts.quick else 300)
-    # in this process (the study's second process runs beside the others): one workspace, no pool
-    tuned = taguchi_tune(GainObjective(plant), tcfg)
+    # in this process (the study's second process runs beside the others): one workspace, no pool.
+    # --quick: the loop runs with half the plant's propagator steps; the tuned gains are re-evaluated
+    # with the full count, and tuned again with it if the step-doubling estimate (second order: the
+    # error of n steps ~ 4/3 |r_n - r_2n|) exceeds a quarter of the tuning tolerance
+    loop = ExudynPlant(plant.linearization, n_steps=plant.n_steps // 2).prepared() if opts.quick else plant
+    tuned = taguchi_tune(GainObjective(loop), tcfg)
+    tuned_dominant = tuned.spectral_radius
+    step_check = None
+    if loop is not plant:
+        tuned_dominant = plant.spectral_measure(tuned.kp, tuned.kd)
+        step_check = 4.0 / 3.0 * abs(tuned.spectral_radius - tuned_dominant)
+        if step_check > 0.25 * tcfg.effective_tolerance:
+            logger.info("quick tuning: step-doubling estimate %.1e at the tuned gains; tuning again with %d steps",
+                        step_check, plant.n_steps)
+            tuned = taguchi_tune(GainObjective(plant), tcfg)
+            tuned_dominant, loop = tuned.spectral_radius, plant
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
     row = {
-        "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "target": cfg.target,
+        "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "samples": samples,
+        "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
         # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
         "orbit_shooting_residual": float(ef.orbit.shooting_residual),
@@ -368,9 +389,13 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
         "reference_gains_dominant_reduced": reduced,
         "spectral_radius_all_modes": float(ef.floquet.spectral_radius),
         "undamped_multipliers": int(ef.undamped_count),
-        "tuned_kp": tuned.kp, "tuned_kd": tuned.kd, "tuned_dominant": tuned.spectral_radius,
+        "tuned_kp": tuned.kp, "tuned_kd": tuned.kd, "tuned_dominant": tuned_dominant,
         "tuning_status": tuned.status, "tuning_evaluations": tuned.evaluations,
         "tuning_time_s": tuned.elapsed,
+        # the loop's step count and, for --quick, the step-doubling estimate of its response at the
+        # tuned gains (tuned_dominant is always at the plant's full count, plant.n_steps)
+        "tuning_propagator_steps": loop.n_steps, "propagator_steps": plant.n_steps,
+        "tuning_step_doubling_estimate": step_check,
     }
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
@@ -385,8 +410,15 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
               [[f"{row['omega_over_pi']:.4g}π", f"{uncontrolled:.5f}", f"{kp_r:.4f}, {kd_r:.4f}",
                 f"{row['reference_gains_dominant_exudyn']:.5f} ({row['reference_gains_dominant_mode']})",
                 f"{reduced:.5f}", f"{row['spectral_radius_all_modes']:.6f}",
-                f"{tuned.kp:.4f}, {tuned.kd:.4f}", f"{tuned.spectral_radius:.5f} ({tuned.status})",
+                f"{tuned.kp:.4f}, {tuned.kd:.4f}", f"{tuned_dominant:.5f} ({tuned.status})",
                 tuned.evaluations]]),
+        *([text(f"Quick mode: {samples} collocation samples per period (32 in the full study); "
+                + (f"the Taguchi loop ran with {loop.n_steps} propagator steps and the tuned gains were re-evaluated "
+                   f"with {plant.n_steps} (the table's value): step-doubling estimate {step_check:.1e}, below a "
+                   f"quarter of the tuning tolerance {tcfg.effective_tolerance:.1e}." if loop is not plant else
+                   f"the Taguchi loop with {plant.n_steps // 2} propagator steps missed the tuning tolerance "
+                   f"{tcfg.effective_tolerance:.1e} by its step-doubling estimate {step_check:.1e} and was repeated "
+                   f"with {plant.n_steps}."))] if opts.quick else []),
         text(f"At the reference gains the Exudyn and reduced models differ by "
              f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
     ]
@@ -425,6 +457,18 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
                           titles=[f"Ω = {cfg.omega / math.pi:.4g}π: kp = {kp:.4g}, kd = {kd:.4g}"],
                           suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
 
+    blocks = validation_blocks(d, f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: "
+                                  f"{source}).", check.steps, fig)
+    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
+            "files": [fig, "validation.json"]}
+
+
+def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> list:
+    """Report blocks of a nonlinear multiplier validation (``MultiplierValidation.to_dict()``).
+
+    ``what`` opens the paragraph (the model and its gains), ``steps`` are the generalised-alpha
+    steps, ``fig`` the complex-plane figure.
+    """
     def z(c):
         return "–" if c is None else f"{c[0]:+.6f}{c[1]:+.6f}i"
 
@@ -437,20 +481,20 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
         rows.append([m["mode"], z(m["predicted"]), z(m.get("measured")), e(m.get("abs_error")),
                      e(m.get("error_bar")), "yes" if m.get("agrees") else "no"])
     blocks = [
-        text(f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: {source}). The "
-             "one-period map of the nonlinear closed loop is measured on the subspace of the compared multipliers "
-             "(central differences of runs from the periodic orbit perturbed along the predicted Floquet vectors, "
-             "generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in check.steps) + " s); its "
+        text(what + " The one-period map of the nonlinear closed loop is measured on the subspace of the compared "
+             "multipliers (central differences of runs from the periodic orbit perturbed along the predicted Floquet "
+             "vectors, generalised-α with ρ∞ = 1 at h = " + ", ".join(f"{h:g}" for h in steps) + " s); its "
              "eigenvalues are compared with the multipliers of the Exudyn linearisation within the measurement's "
              "error bar (Richardson step error + amplitude check + prediction refinement)."
              + (f" Diverged: {d['reason']}." if d["diverged"] else "")),
         table(["mode", "predicted", "measured", "absolute error", "error bar", "agrees"], rows),
-        text("Measured distance to the alternative predictions: "
-             + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."),
-        figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the unit circle."),
     ]
-    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
-            "files": [fig, "validation.json"]}
+    if alts:
+        blocks.append(text("Measured distance to the alternative predictions: "
+                           + "; ".join(f"{k}: {e(val)}" for k, val in alts.items()) + "."))
+    blocks.append(figure(fig, "Measured (nonlinear Exudyn) and predicted multipliers in the complex plane with the "
+                              "unit circle."))
+    return blocks
 
 
 def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
@@ -642,6 +686,12 @@ def _preload(stages: Sequence[str]) -> None:
         from taguchi.arrays import available_arrays
 
         available_arrays()  # loads and verifies the catalogue (imports pydoe -> scipy.stats) once
+    # the compiled Floquet kernel (numba's on-disk cache, ~1 s CPU to load): every stage's reduced-model
+    # and small-system Floquet runs use it; loaded once here instead of once per process
+    from mbs_models.reduced import ReducedModel
+    from stability import floquet
+
+    floquet(ReducedModel(2 * math.pi))
 
 
 def _lane_worker_init(parent_pid: int) -> None:

@@ -1,6 +1,7 @@
 """One call from a model to labelled Floquet multipliers: orbit -> linearisation -> Floquet."""
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
@@ -30,10 +31,19 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Sub-intervals of the exponential-midpoint (``magnus2``) product.
-DEFAULT_PROPAGATOR_STEPS = 512
-#: Above this step-doubling estimate :func:`analyze` warns that the propagator is not converged
-#: (measured on the 8-element single link at 512 steps: ~3e-7 at 2 pi, but up to ~1e-3 at 6 pi).
+#: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
+#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps).
+#: In the model's own coordinates 512 steps left the single link's dominant multiplier 6.5e-5
+#: (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the step-doubling estimate under-read that by
+#: up to 25x).  Here, measured at 8 elements against the generic path converged: 1.5e-9, 9e-11,
+#: 7.3e-8, 3.3e-7 at 2, 4, 6, 8 pi, ~0.7 s CPU for the Floquet stage (96 steps: 1.5e-9, 8e-9,
+#: 2.3e-7, 1.0e-6 for ~0.6 s; ``benchmarks/model_file_speed.py``).
+DEFAULT_PROPAGATOR_STEPS = 128
+#: Propagation frames of :func:`analyze`: ``"modal"`` (frozen-eigenvector basis, default) or
+#: ``"model"`` (the linearisation's own independent coordinates).
+FRAMES = ("modal", "model")
+#: Above this step-doubling estimate of the spectral radius or of the dominant multiplier
+#: :func:`analyze` warns that the propagator is not converged.
 PROPAGATOR_WARNING = 1e-4
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
@@ -61,7 +71,13 @@ class ModelFloquetResult:
     kp, kd : tuple of float
         Gains per drive.
     timings : dict
-        Seconds per stage.
+        Seconds per stage (wall clock).
+    cpu_timings : dict
+        CPU seconds per stage (same keys).
+    dominant_error_estimate : float
+        Step-doubling (Richardson) estimate of the relative error of the dominant
+        multiplier's modulus (``floquet.error_estimate`` is the largest over all moduli
+        above ``1e-6`` of the spectral radius).
     """
 
     floquet: Any
@@ -72,6 +88,8 @@ class ModelFloquetResult:
     kp: tuple = ()
     kd: tuple = ()
     timings: dict = field(default_factory=dict)
+    cpu_timings: dict = field(default_factory=dict)
+    dominant_error_estimate: float = math.nan
 
     @property
     def drives(self) -> tuple:
@@ -95,6 +113,9 @@ class ModelFloquetResult:
             "dominant_modulus": float(abs(d)),
             "modes": self.modes,
             "timings": dict(self.timings),
+            "propagator_steps": int(self.floquet.n_steps),
+            "error_estimate": float(self.floquet.error_estimate),
+            "dominant_error_estimate": float(self.dominant_error_estimate),
         }
 
 
@@ -279,6 +300,7 @@ def analyze(
     orbit: Optional[PeriodicOrbit] = None,
     verify_orbit: bool = True,
     small_multipliers: str = "flag",
+    frame: str = "modal",
     **options: Any,
 ) -> ModelFloquetResult:
     """Orbit, constraint-correct linearisation and labelled Floquet multipliers of a model.
@@ -298,6 +320,15 @@ def analyze(
         The default ``magnus2`` (exponential midpoint) keeps every factor an exact
         matrix exponential, robust for the stiff, strongly damped modes of PD-controlled
         flexible models; its step-doubling estimate watches the moduli.
+    frame : {"modal", "model"}
+        Coordinates the propagator runs in (same multipliers): ``"modal"`` (default)
+        the frozen-eigenvector basis of :class:`stability.modal.FrozenModalSystem`, in
+        which the stiff part of ``P(t)`` is nearly constant (the midpoint product then
+        converges with a few dozen steps, at order 2, and with ``magnus2`` and a fixed
+        ``n_steps`` the multipliers are Richardson-extrapolated from ``n_steps``,
+        ``n_steps/2`` and ``n_steps/4``: 4th order, see :func:`stability.modal.modal_floquet`;
+        falls back to ``"model"`` when no smooth basis exists); ``"model"`` the
+        linearisation's own coordinates (needs thousands of steps for stiff flexible models).
     orbit : PeriodicOrbit, optional
         Reuse an orbit (must be for ``omega``).
     verify_orbit : bool
@@ -319,41 +350,73 @@ def analyze(
         No periodic orbit.
     """
     from stability import floquet
+    from stability.modal import modal_floquet
 
+    if frame not in FRAMES:
+        raise ValueError(f"frame must be one of {FRAMES}, got {frame!r}")
     timings: dict = {}
-    tic = time.perf_counter()
+    cpu_timings: dict = {}
+    tic, ctic = time.perf_counter(), time.process_time()
     if orbit is None:
         orbit = find_orbit(model, omega, samples=samples, verify=verify_orbit, **options)
     elif abs(orbit.omega - float(omega)) > 1e-12 * float(omega):
         raise ValueError(f"the given orbit is for omega = {orbit.omega}, not {omega}")
     timings["orbit"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["orbit"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     lin = linearize_orbit(orbit, kp, kd)
     timings["linearization"] = time.perf_counter() - tic
-    tic = time.perf_counter()
+    cpu_timings["linearization"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     sm = small_multipliers if method != "paper" else "flag"
-    if method == "magnus2":
+    if frame == "modal" and method == "magnus2":
+        res = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm,
+                            extrapolate=True)
+    elif frame == "modal" and method != "paper":
+        res = modal_floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
+    elif method == "magnus2":
         res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
     else:
         res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     timings["floquet"] = time.perf_counter() - tic
-    est = float(res.error_estimate)
-    if math.isfinite(est) and est > PROPAGATOR_WARNING:
-        msg = (f"Floquet step-doubling estimate {est:.1e} (relative) with {res.n_steps} {res.method} steps: "
-               f"the multipliers are not converged; increase n_steps (--method/adaptive n_steps=None)")
-        warnings.warn(msg, RuntimeWarning, stacklevel=2)
-    tic = time.perf_counter()
+    cpu_timings["floquet"] = time.process_time() - ctic
+    tic, ctic = time.perf_counter(), time.process_time()
     modes = label_multipliers(lin, orbit, res)
     timings["labels"] = time.perf_counter() - tic
+    cpu_timings["labels"] = time.process_time() - ctic
     dom = _dominant(res, modes, orbit.drive_names)
+    dom_est = _multiplier_estimate(res, dom)
+    worst = max(_multiplier_estimate(res, res.multipliers[0]), dom_est)
+    if math.isfinite(worst) and worst > PROPAGATOR_WARNING:
+        msg = (f"Floquet step-doubling estimate {worst:.1e} (relative, spectral radius / dominant multiplier) "
+               f"with {res.n_steps} {res.method} steps: the multipliers are not converged; increase n_steps "
+               f"(--method/adaptive n_steps=None)")
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    est = float(res.error_estimate)
+    if math.isfinite(est) and est > PROPAGATOR_WARNING:
+        logger.info("secondary multipliers less accurate: step-doubling estimate %.1e over all moduli", est)
     logger.info("Floquet of %s at omega=%.4g: spectral radius %.6f, dominant |rho| %.6f", orbit.model.name, omega,
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
-                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings)
+                              kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
+                              cpu_timings=cpu_timings, dominant_error_estimate=dom_est)
 
 
-#: Sub-intervals of the Floquet evaluations inside a tuning loop.
-TUNING_PROPAGATOR_STEPS = 256
+def _multiplier_estimate(res: Any, mu: complex) -> float:
+    """Step-doubling estimate of one multiplier's relative error (from ``reliable_digits``;
+    NaN when the result has none)."""
+    if not math.isfinite(float(res.error_estimate)):
+        return math.nan
+    i = int(np.argmin(np.abs(np.asarray(res.multipliers) - mu)))
+    return float(10.0 ** -float(res.reliable_digits[i]))
+
+
+#: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame, basis
+#: computed once per plant at the linearised gains, Richardson-extrapolated; see :class:`ModelPlant`).
+#: Measured on the 8-element single link at the Table 3 gains (basis at gains 0): the hub multiplier
+#: off 9e-8, 9e-7, 5.8e-5, 3.9e-5 at 2, 4, 6, 8 pi, ~0.25 s CPU per evaluation (32 steps:
+#: up to 3.4e-4; the former 256 plain steps: up to ~1e-2 at ~2 s).
+TUNING_PROPAGATOR_STEPS = 64
 
 
 @dataclass(frozen=True)
@@ -379,11 +442,30 @@ class ModelPlant:
     def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
 
-    def floquet(self, kp, kd, n_steps: Optional[int] = None):
-        from stability import floquet
+    @functools.cached_property
+    def modal_basis(self):
+        """Frozen-modal basis of the linearisation (gains as linearised), shared by all gains;
+        ``None`` when none exists (then each evaluation propagates in the model's coordinates)."""
+        from stability.modal import ModalBasisError, modal_system
 
-        return floquet(self.with_gains(kp, kd), method="magnus2", n_steps=n_steps or self.n_steps,
-                       error_estimate=False, accuracy="moduli")
+        try:
+            return modal_system(self.linearization)
+        except ModalBasisError as exc:
+            logger.info("no frozen-modal basis for the plant (%s)", exc)
+            return None
+
+    def floquet(self, kp, kd, n_steps: Optional[int] = None):
+        """Floquet multipliers at ``(kp, kd)`` (exponential midpoint in the plant's frozen-modal basis)."""
+        from stability import floquet
+        from stability.modal import modal_floquet
+
+        lin = self.with_gains(kp, kd)
+        steps = n_steps or self.n_steps
+        if self.modal_basis is None:
+            return floquet(lin, method="magnus2", n_steps=max(steps, DEFAULT_PROPAGATOR_STEPS * 8),
+                           error_estimate=False, accuracy="moduli")
+        return modal_floquet(lin, basis=self.modal_basis, method="magnus2", n_steps=steps, error_estimate=False,
+                             accuracy="moduli", extrapolate=True)
 
     def spectral_measure(self, kp, kd) -> float:
         lin = self.with_gains(kp, kd)

@@ -39,9 +39,22 @@ matrices, so they are samples of a smooth periodic function, and ``N'``,
 ``N''`` are their spectral derivatives.  The transport runs in a co-rotating
 frame (:func:`corotating_frame`, ``N = F(t) N_hat``): any periodic basis gives
 the same multipliers, but in the co-rotating one the axial stiffness of a
-swinging beam does not rotate, so the propagator needs far fewer steps.  ``det H = -1`` (a non-orientable
+swinging beam does not rotate.  ``det H = -1`` (a non-orientable
 tangent bundle along the orbit) has no real logarithm: it is reported as an
 error.
+
+Propagator convergence (measured, single link, Table 3 gains): no choice of
+*configuration* coordinates makes the stiff part of the first-order ``P(t)``
+constant.  In these coordinates and in the hand-derived hub frame alike the
+frozen eigenvalues of ``P(t)`` are nearly constant (``|Im lambda|`` varies
+< 1e-3 relative over the period at 8 pi), but the frozen eigenvectors turn with
+the motion (the stiff block of ``P`` in the modal coordinates of its mean
+varies by 0.4-1 of ``|lambda|`` at 8 pi in both), and the exponential midpoint
+product converges erratically in both (2 elements, 8 pi, relative error of the
+hub multiplier at 256 / 1024 / 4096 steps: 1.2e-4 / 1.3e-5 / 3e-7 here,
+8e-3 / 2.9e-4 / 5.4e-6 in the hub frame).  The cure is a *state-space* frame,
+:mod:`stability.modal` (frozen-eigenvector basis ``x = V(t) y``), which
+:func:`linearize.analysis.analyze` uses by default.
 """
 from __future__ import annotations
 

@@ -80,6 +80,7 @@ class ExudynSystem:
         self._zero_jacobian = np.zeros((self.n + self.m_exudyn, self.n + self.m_exudyn))
         self._mass_constant: bool | None = None
         self._mass0: np.ndarray | None = None
+        self._coupling_pattern = None
         self.active = np.arange(self.m_exudyn)
         if self.m_exudyn:
             # Exudyn keeps an equation "lambda_i = 0" for each axis a joint leaves free
@@ -150,6 +151,15 @@ class ExudynSystem:
         J0 = self.constraint_jacobian(self.q_initial, 0.0)
         J1 = self.constraint_jacobian(self.q_initial + 1e-3 * rng.standard_normal(self.n), 0.0)
         return np.flatnonzero(np.any(J0 != 0.0, axis=0) | np.any(J1 != 0.0, axis=0))
+
+    def coupling_pattern(self):
+        """Structural coupling of the forces and constraint reactions
+        (:func:`linearize.collocation_solver.coupling_pattern`), computed once."""
+        if self._coupling_pattern is None:
+            from linearize.collocation_solver import coupling_pattern
+
+            self._coupling_pattern = coupling_pattern(self)
+        return self._coupling_pattern
 
     def mass_is_constant(self, q: np.ndarray) -> bool:
         """Whether ``M`` does not depend on ``q`` (tested once with a generic perturbation)."""

@@ -16,15 +16,24 @@ Method
 Trigonometric collocation: all ODE2 coordinates ``q``, multipliers ``lambda``
 and torques ``tau`` are unknown at ``K`` equispaced samples; rates and
 accelerations are spectral derivatives (``D1 q``, ``D2 q``).  Newton's method
-(damped, with a natural monotonicity test) solves the ``K (n + m + d)``
-equations at once, with the Jacobian blocks
+solves the ``K (n + m + d)`` equations at once: first with full steps (at most
+:data:`FULL_STEP_ITERATIONS`; the Newton matrix is refreshed unless the last
+step cut the residual :data:`CHORD_REUSE_FACTOR`-fold), and if that does not
+reach the tolerance, damped with a natural monotonicity test from the same
+guess, with the Jacobian blocks
 ``K_k delta_kj + C_k D1_kj + M_k D2_kj`` built from (Richardson-extrapolated)
 central differences of
 Exudyn's functions (:func:`tangent_blocks`; ``K_k`` contains the mass-matrix
-dependence and the constraint-reaction stiffness).  The guess is one period of
+dependence and the constraint-reaction stiffness, the latter by column-compressed
+differences on the constraints' structural pattern).  The guess is one period of
 Exudyn's own integrator from the model file's initial state with the drives
-prescribed.  If Newton fails, natural continuation in ``omega`` from
-``omega/2`` (the model is rebuilt at each ``omega``).
+prescribed; if full steps from it fail, full steps from the quasi-static guess
+(the drives on their motions, the model in static equilibrium at every sample,
+:func:`_quasi_static_guess`) are tried before the damped Newton.  If all fail,
+natural continuation in ``omega`` from ``omega/2`` (the model is rebuilt at each
+``omega``).  Measured on the single link (8 elements, 32 samples): full steps from
+the simulated period converge at 1 to 8.5 pi and 10 pi, the quasi-static guess
+rescues 9 pi, 9.5 pi and 12 pi; 11 pi still needs continuation.
 
 Check in Exudyn itself (:attr:`PeriodicOrbit.shooting_residual`): one period of
 Exudyn's generalised-alpha integrator (spectral radius 0.9) from the orbit's state at ``t = 0`` with the drives prescribed by
@@ -82,6 +91,26 @@ STAGNATION_ITERATIONS = 8
 EARLY_GIVE_UP_ITERATIONS = 5
 EARLY_GIVE_UP_FACTOR = 0.5
 MAX_STEP_HALVINGS = 12
+#: Full-step Newton iterations tried before the damped Newton.  A full step from
+#: the simulated guess typically first over-stretches the ANCF beams (their linearised
+#: motion in absolute coordinates leaves the rotation's circle) and the next step
+#: undoes it; the natural monotonicity test of the damped Newton rejects such steps,
+#: which is why it failed on the single link at 6 pi and 8 pi (8 elements) and needed
+#: a long continuation in omega.  Measured full-step iterations to 1e-6 on the
+#: single link (8 elements, 32 samples): 3, 5, 5, 6 at 2, 4, 6, 8 pi; two-link 3, 5
+#: at 2, 4 pi.
+FULL_STEP_ITERATIONS = 10
+#: ... and continues beyond it (up to ``max_iterations``) only while every step at least
+#: halves the residual (slow but steady convergence near a resonance, e.g. 12 pi).
+FULL_STEP_CONTRACTION = 0.5
+#: The full-step phase gives up early when after this many iterations the residual
+#: has not fallen below :data:`FULL_STEP_PROGRESS` times its start.
+FULL_STEP_CHECK = 5
+FULL_STEP_PROGRESS = 0.1
+#: The Newton matrix of the full-step phase is reused (chord step) only after a step
+#: that cut the residual this much (the quadratic phase, where the old matrix still
+#: contracts fast); otherwise it is rebuilt at the new iterate.
+CHORD_REUSE_FACTOR = 0.01
 #: Continuation in omega: start factor, first increment, smallest increment, solves.
 CONTINUATION_START = 0.5
 CONTINUATION_STEP = 0.1
@@ -216,6 +245,11 @@ class PeriodicOrbit:
     planar_pairs : tuple
         Planar vector coordinates ``(i_x, i_y, ref_x, ref_y)`` (for the co-rotating basis).
     wall_time : float
+    timings, cpu_timings : dict
+        Wall-clock and CPU seconds per stage: ``build`` (model and collocation set-up),
+        ``guess`` (the simulated period), ``newton`` (continuation included),
+        ``tangent`` (the accurate linearisation blocks at the converged samples) and
+        ``shooting`` (the check in Exudyn, 0 when not run).
     """
 
     model: ModelDefinition = field(repr=False)
@@ -238,6 +272,8 @@ class PeriodicOrbit:
     slope_nodes: tuple = field(repr=False, default=())
     planar_pairs: tuple = field(repr=False, default=())
     wall_time: float = 0.0
+    timings: dict = field(default_factory=dict, repr=False)
+    cpu_timings: dict = field(default_factory=dict, repr=False)
 
     @property
     def samples(self) -> int:
@@ -346,6 +382,58 @@ def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> 
     return True
 
 
+def _reaction_stiffness(system: ExudynSystem, q: np.ndarray, lam: np.ndarray, t: float, step: float,
+                        accurate: bool, pattern) -> np.ndarray:
+    """``d(C_q(q, t)^T lambda)/dq`` by column-compressed differences (Curtis-Powell-Reid).
+
+    Columns of the constraint objects' coordinates that share no row of the structural
+    reaction pattern (:func:`linearize.collocation_solver.coupling_pattern`) are perturbed
+    together: row ``i`` depends on at most one column of a colour, so every entry is the
+    same difference (rule and step) as with one column at a time, for a fraction of the
+    evaluations (two-link arm: 10 colours for 21 columns).  One random directional
+    difference checks the pattern; a mismatch beyond
+    :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE` (a constraint reading
+    coordinates outside its object) falls back to one column at a time on
+    :meth:`ExudynSystem.reaction_columns`.
+    """
+    n = q.size
+    hq = fd_steps(q, step)
+
+    def reaction(x):
+        return system.constraint_jacobian(x, t).T @ lam
+
+    def derivative(e):  # d/ds reaction(q + s e) at 0
+        if accurate:
+            return _richardson(reaction, q, e, 1.0)
+        return 0.5 * (reaction(q + e) - reaction(q - e))
+
+    Kr = np.zeros((n, n))
+    for cols in pattern.reaction_colours:
+        e = np.zeros(n)
+        e[cols] = hq[cols]
+        dcol = derivative(e)
+        for j in cols:
+            rows = pattern.reaction[:, j]
+            Kr[rows, j] = dcol[rows] / hq[j]
+    rng = np.random.default_rng(_REACTION_CHECK_SEED)
+    e = hq * rng.uniform(-1.0, 1.0, n)
+    size = float(np.max(np.abs(Kr) @ np.abs(e)))
+    if size > 0.0:
+        mismatch = float(np.max(np.abs(Kr @ e - derivative(e)))) / size
+        if not mismatch <= structured.PATTERN_CHECK_TOLERANCE:
+            logger.info("constraint reactions depend on coordinates outside their objects (directional check "
+                        "%.1e): one difference per column", mismatch)
+            Kr[:] = 0.0
+            for j in system.reaction_columns():
+                e = np.zeros(n)
+                e[j] = hq[j]
+                Kr[:, j] = derivative(e) / hq[j]
+    return Kr
+
+
+_REACTION_CHECK_SEED = 20261127
+
+
 def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np.ndarray, A: np.ndarray,
                    L: np.ndarray, *, step: float = RICHARDSON_STEP, use_exudyn_jacobian: Optional[bool] = None,
                    accurate: bool = True) -> TangentBlocks:
@@ -370,7 +458,7 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     const_mass = system.mass_is_constant(Q[0])
     if use_exudyn_jacobian is None:
         use_exudyn_jacobian = _exudyn_jacobians_ok(system, Q[0], V[0], A[0], float(times[0]), step, const_mass)
-    cols = system.reaction_columns()
+    pattern = system.coupling_pattern() if m else None
     for k in range(Kn):
         q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
         Ms[k] = system.mass(q, t)
@@ -379,18 +467,9 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
             Kf[k], Cd[k] = system.force_jacobians(q, v, t)
         else:
             Kf[k], Cd[k] = _force_fd(system, q, v, a, t, step, const_mass)
-        if m:
-            def reaction(x, lam=lam, t=t):
-                return system.constraint_jacobian(x, t).T @ lam
-
-            hq = fd_steps(q, step if accurate else CENTRAL_DIFFERENCE_STEP)
-            for j in cols:
-                e = np.zeros(n)
-                e[j] = hq[j]
-                if accurate:
-                    Kr[k, :, j] = _richardson(reaction, q, e / hq[j], hq[j])
-                else:
-                    Kr[k, :, j] = (reaction(q + e) - reaction(q - e)) / (2 * hq[j])
+        if m and np.any(lam != 0.0):  # C_q(x)^T 0 = 0 for every x: no reaction stiffness
+            Kr[k] = _reaction_stiffness(system, q, lam, t, step if accurate else CENTRAL_DIFFERENCE_STEP,
+                                        accurate, pattern)
     return TangentBlocks(M=Ms, K_force=Kf, K_reaction=Kr, C=Cd, Cq=Cqs, exudyn_jacobian=bool(use_exudyn_jacobian))
 
 
@@ -419,7 +498,7 @@ class _Collocation:
         if solver == "auto":
             solver = "structured" if self.K * self.s > structured.STRUCTURED_THRESHOLD else "dense"
         self.solver = solver
-        self.pattern = structured.coupling_pattern(self.system) if solver == "structured" else None
+        self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
@@ -488,28 +567,32 @@ class _Collocation:
         self.exudyn_jacobian = tb.exudyn_jacobian
         Kn, n, m, s = self.K, self.n, self.m, self.s
         J = np.zeros((Kn, s, Kn, s))
-        for k in range(Kn):
-            J[k, :n, k, :n] += tb.K[k]
-            J[k, :n, :, :n] += self.D1[k][None, :, None] * tb.C[k][:, None, :] + self.D2[k][None, :, None] * tb.M[k][:, None, :]
-            if m:
-                J[k, :n, k, n:n + m] = tb.Cq[k].T
-                J[k, n:n + m, k, :n] = tb.Cq[k]
-            J[k, :n, k, n + m:] = -self.B
-            J[k, n + m:, k, :n] = self.B.T
+        # row block k, column block j: D1_kj C_k + D2_kj M_k (+ K_k on the diagonal)
+        J[:, :n, :, :n] = self.D1[:, None, :, None] * tb.C[:, :, None, :]
+        J[:, :n, :, :n] += self.D2[:, None, :, None] * tb.M[:, :, None, :]
+        k = np.arange(Kn)
+        J[k, :n, k, :n] += tb.K
+        if m:
+            J[k, :n, k, n:n + m] = np.transpose(tb.Cq, (0, 2, 1))
+            J[k, n:n + m, k, :n] = tb.Cq
+        J[k, :n, k, n + m:] = -self.B
+        J[k, n + m:, k, :n] = self.B.T
         return J.reshape(Kn * s, Kn * s), tb
 
 
 def _solve(J: np.ndarray):
     """Factorise the Newton matrix (dense LU; one place to swap in a sparse solver)."""
-    # column scaling equilibrates metres, radians and newtons
-    scale = np.max(np.abs(J), axis=0)
-    scale[scale == 0] = 1.0
-    if not np.all(np.isfinite(J)):
+    # column scaling equilibrates metres, radians and newtons (J is scaled in place: it is
+    # built for this factorisation only); a NaN or inf entry makes its column's maximum NaN / inf
+    scale = np.maximum(np.max(J, axis=0), -np.min(J, axis=0))
+    if not np.all(np.isfinite(scale)):
         raise OrbitConvergenceError("the collocation Newton matrix contains NaN or inf (the model's forces "
                                     "are not finite along the guess)", [])
+    scale[scale == 0] = 1.0
+    J /= scale
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", scipy.linalg.LinAlgWarning)
-        lu = scipy.linalg.lu_factor(J / scale, check_finite=False)
+        lu = scipy.linalg.lu_factor(J, overwrite_a=True, check_finite=False)
     pivots = np.abs(np.diagonal(lu[0]))
     if not np.all(pivots > 0.0):
         raise OrbitConvergenceError(
@@ -551,7 +634,58 @@ def _polish(col: _Collocation, X: np.ndarray, solve, res: float, qscale: float, 
     return X
 
 
-def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
+def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
+    """Undamped Newton (see :data:`FULL_STEP_ITERATIONS`); returns ``(X, history, ok, tangent)``."""
+    history: list = []
+    qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
+    solve = tb = None
+    for it in range(1, max_iterations + 1):
+        out, fscale = col.residual(X)
+        res = col.relative(out, fscale, qscale)
+        history.append(res)
+        logger.debug("orbit full-step Newton %d: relative residual %.3e", it, res)
+        if not math.isfinite(res):
+            return X, history, False, tb
+        if res <= tol:
+            return _polish(col, X, solve, res, qscale, history), history, True, tb
+        if it > FULL_STEP_CHECK and min(history) > FULL_STEP_PROGRESS * history[0]:
+            break
+        if it > FULL_STEP_ITERATIONS and (it == 1 or not history[-1] <= FULL_STEP_CONTRACTION * history[-2]):
+            break  # past the budget and no longer contracting
+        if solve is None or not history[-1] <= CHORD_REUSE_FACTOR * history[-2]:
+            try:
+                solve, tb = col.newton_solver(X)
+            except (OrbitConvergenceError, np.linalg.LinAlgError):
+                if it == 1:
+                    raise
+                break  # a singular matrix away from the guess: leave it to the damped Newton
+        X = X + solve(-out.reshape(-1)).reshape(X.shape)
+    return X, history, False, tb
+
+
+def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False,
+            second_guess=None):
+    """Full-step Newton from ``X``, then (if given and it fails) from ``second_guess(col)``,
+    then damped Newton from ``X``; returns ``(X, history, ok, tangent)``."""
+    Xf, history, ok, tb = _full_step_newton(col, X, tol, max_iterations)
+    if ok:
+        return Xf, history, True, tb
+    if second_guess is not None:
+        logger.debug("orbit: full-step Newton from the simulated guess stopped at %.2e; quasi-static guess",
+                     history[-1] if history else math.nan)
+        X2 = second_guess(col)
+        if X2 is not None:
+            Xf, h2, ok, tb = _full_step_newton(col, X2, tol, max_iterations)
+            history += h2
+            if ok:
+                return Xf, history, True, tb
+    logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess",
+                 history[-1] if history else math.nan)
+    X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up)
+    return X, history + h2, ok, tb
+
+
+def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = None
@@ -666,6 +800,91 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     return X
 
 
+#: Quasi-static guess: Newton iterations per static solve, the relative residual they must
+#: reach, and how often the step from one sample time to the next may be halved.
+QUASI_STATIC_ITERATIONS = 10
+QUASI_STATIC_TOLERANCE = 1e-8
+QUASI_STATIC_HALVINGS = 6
+
+
+def _static_solve(col: _Collocation, y: np.ndarray, t: float, use: Optional[bool]):
+    """Newton for the static equilibrium at time ``t`` with the drives at ``r(t)`` from
+    ``y = (q, lambda, tau)``; returns ``(y, use)`` or ``(None, use)``."""
+    sysm = col.system
+    n, m = col.n, col.m
+    zero = np.zeros(n)
+    r_t = np.array([dr.evaluate(t)[0] for dr in col.built.drives], dtype=float)
+    J = np.zeros((col.s, col.s))
+    J[:n, n + m:] = -col.B
+    J[n + m:, :n] = col.B.T
+    y = y.copy()
+    for _ in range(QUASI_STATIC_ITERATIONS):
+        q, lam, tau = y[:n], y[n:n + m], y[n + m:]
+        f = sysm.rhs(q, zero, t)
+        r = -f - col.B @ tau
+        g = np.zeros(0)
+        if m:
+            r = r + sysm.constraint_jacobian(q, t).T @ lam
+            g = sysm.constraints(q, t)
+        geo = np.concatenate([g, col.B.T @ q - r_t])
+        res = max(float(np.max(np.abs(r))) / max(float(np.max(np.abs(f))), 1e-300),
+                  float(np.max(np.abs(geo), initial=0.0)) / max(1.0, float(np.max(np.abs(q)))))
+        if not math.isfinite(res):
+            return None, use
+        if res <= QUASI_STATIC_TOLERANCE:
+            return y, use
+        tb = tangent_blocks(sysm, np.array([t]), q[None], zero[None], zero[None], lam[None],
+                            use_exudyn_jacobian=use, accurate=False)
+        use = tb.exudyn_jacobian
+        J[:n, :n] = tb.K[0]
+        J[:n, n:n + m] = tb.Cq[0].T
+        J[n:n + m, :n] = tb.Cq[0]
+        y = y + np.linalg.solve(J, -np.concatenate([r, geo]))
+    return None, use
+
+
+def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
+    """The drives' motions with the model in static equilibrium at every sample (no inertia).
+
+    At each sample ``t_k`` Newton solves ``-f(q, 0, t_k) + C_q^T lambda - B tau = 0``,
+    ``C(q, t_k) = 0``, ``B^T q = r(t_k)``, marching in time from the model file's initial
+    state (natural continuation: each solve starts from the previous one; a step that
+    does not converge is halved, at most :data:`QUASI_STATIC_HALVINGS` times).  For a
+    driven flexible arm this is the rigid motion with the static (gravity) deflection, a
+    guess in the right configuration at every sample, which the simulated period (with
+    the free vibration its start excites) need not be.  Returns ``None`` when no
+    equilibrium is found (e.g. a model without a static equilibrium).
+    """
+    n, m, d = col.n, col.m, col.d
+    use = col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians
+    y = np.concatenate([np.asarray(col.system.q_initial, dtype=float), np.zeros(m + d)])
+    X = np.empty((col.K, col.s))
+    t_now = 0.0
+    try:
+        for k in range(col.K):
+            t_k = float(col.times[k])
+            h = t_k - t_now
+            halvings = 0
+            while True:
+                t_try = t_k if t_now + h >= t_k else t_now + h
+                y_new, use = _static_solve(col, y, t_try, use)
+                if y_new is None:
+                    halvings += 1
+                    if halvings > QUASI_STATIC_HALVINGS or k == 0:
+                        logger.debug("quasi-static guess: no equilibrium at t = %.4g", t_try)
+                        return None
+                    h *= 0.5
+                    continue
+                y, t_now = y_new, t_try
+                if t_now >= t_k:
+                    break
+            X[k] = y
+    except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
+        logger.debug("quasi-static guess failed: %s", exc)
+        return None
+    return X if np.all(np.isfinite(X)) else None
+
+
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
@@ -692,6 +911,7 @@ def find_orbit(
     verify: bool = True,
     continuation: bool = True,
     solver: str = "auto",
+    guess: Optional[PeriodicOrbit] = None,
     **options: Any,
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
@@ -712,12 +932,16 @@ def find_orbit(
     verify : bool
         Run the one-period shooting check in Exudyn.
     continuation : bool
-        Continue in omega from omega/2 when Newton fails from the guess.
+        Continue in omega from omega/2 when Newton fails from both guesses.
     solver : {"auto", "dense", "structured"}
         Newton matrix: dense differences and LU, or column-compressed differences
         and a sparse LU (:mod:`linearize.collocation_solver`); ``"auto"`` takes the
         structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
         unknowns.  Both solve the same equations to the same tolerance.
+    guess : PeriodicOrbit, optional
+        Start Newton from this orbit's samples (same model and ``samples``, usually a
+        nearby omega: continuation along an omega sweep) instead of one simulated
+        period; if Newton fails from it, the usual guess and continuation follow.
     **options
         Keyword options for ``build``.
 
@@ -734,17 +958,43 @@ def find_orbit(
         On a bad model.
     """
     tic = time.perf_counter()
+    timings: dict = {}
+    cpu_timings: dict = {}
+    clock = [time.perf_counter(), time.process_time()]
+
+    def lap(stage: str) -> None:
+        w, c = time.perf_counter(), time.process_time()
+        timings[stage] = timings.get(stage, 0.0) + w - clock[0]
+        cpu_timings[stage] = cpu_timings.get(stage, 0.0) + c - clock[1]
+        clock[:] = [w, c]
+
     if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
         raise ValueError(f"tol must be finite and > 0, got {tol!r}")
     definition = resolve_model(model, **options)
     built = build_model(definition, omega)
     col = _Collocation(built, samples, solver)
-    X = _guess(col, definition)
-    X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation)
+    lap("build")
+    history: list = []
+    ok = False
+    if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
+            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
+        X = np.hstack([guess.q, guess.lambdas, guess.torques])
+        X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
+        if not ok:
+            logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
+        lap("newton")
+    if not ok:
+        X = _guess(col, definition)
+    lap("guess")
+    if not ok:
+        X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
+                                second_guess=_quasi_static_guess)
+        history += h1
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
         X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)
         history += h2
+    lap("newton")
     if not ok:
         raise OrbitConvergenceError(
             f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
@@ -762,9 +1012,12 @@ def find_orbit(
     # the linearisation is always the accurate one (Exudyn's checked Jacobians, Richardson reaction
     # stiffness); the structured solver's compressed blocks serve Newton only
     tb = tangent_blocks(col.system, col.times, Q, V, A, L, use_exudyn_jacobian=(col.exudyn_jacobian if col.exudyn_jacobian is not None else col._exudyn_jacobians))
+    lap("tangent")
     shooting = math.nan
     if verify:
         shooting = _shooting_defect(definition, float(omega), Q, V, samples)
+    lap("shooting")
+    if verify:
         if not shooting <= SHOOTING_TOLERANCE:
             raise OrbitConvergenceError(
                 f"periodic orbit of {definition.name} at omega = {float(omega):.6g}: collocation residual "
@@ -778,6 +1031,7 @@ def find_orbit(
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
+        timings=timings, cpu_timings=cpu_timings,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)

@@ -12,6 +12,10 @@ from stability.periodic import first_order_matrix
 
 __all__ = ["LinearizedPeriodicSystem"]
 
+#: Points of the periodic trapezoidal rule for :meth:`LinearizedPeriodicSystem.trace_integral`
+#: (as ``stability.floquet.TRACE_POINTS``).
+TRACE_POINTS = 512
+
 
 @dataclass(frozen=True)
 class LinearizedPeriodicSystem:
@@ -155,6 +159,14 @@ class LinearizedPeriodicSystem:
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
+
+    def trace_integral(self, points: int = TRACE_POINTS) -> float:
+        """``int_0^T tr P dt = -int_0^T tr(M^-1 C) dt`` (periodic trapezoidal rule on ``points``
+        points, spectrally accurate; only ``M`` and ``C`` are interpolated, no ``P`` is built)."""
+        t = np.arange(points) * (self.period / points)
+        M = trig_interpolate(self.M, self.period, t)
+        C = trig_interpolate(self.C, self.period, t)
+        return float(-np.trace(np.linalg.solve(M, C), axis1=1, axis2=2).sum() * self.period / points)
 
     def with_gains(self, kp, kd) -> "LinearizedPeriodicSystem":
         """The same system with the PD gains replaced.

@@ -86,10 +86,21 @@ MAX_STEPS = 2**15
 #: Moduli below this fraction of the spectral radius are not used for the
 #: error estimate (their absolute error is what matters for stability).
 ESTIMATE_FLOOR = 1e-6
-#: Points of the periodic trapezoidal rule for the Liouville trace integral
-#: (spectrally accurate for smooth periodic integrands; independent of the
-#: Gauss points the Magnus methods use).
+#: Largest number of points of the periodic trapezoidal rule for the Liouville
+#: trace integral (spectrally accurate for smooth periodic integrands; independent
+#: of the Gauss points the Magnus methods use).  The rule is nested: it starts
+#: with ``TRACE_MIN_POINTS // 2`` points and doubles until two successive sums
+#: agree to :data:`TRACE_RTOL` (at least ``TRACE_MIN_POINTS`` points), so a
+#: large system whose ``P`` costs milliseconds per evaluation (a 516-state
+#: linearisation: 40 ms) is not evaluated 512 times for one scalar.
 TRACE_POINTS = 512
+#: Fewest points of the trace rule (two nested sums of 32 and 64 points must agree).
+TRACE_MIN_POINTS = 64
+#: Agreement of two nested trace sums, relative to ``int |tr P| dt``: the
+#: trapezoidal error of a smooth periodic integrand falls exponentially with the
+#: points, so the change from ``K`` to ``2 K`` bounds the error of the ``K`` sum;
+#: 1e-13 is above the rounding of a 512-term sum (~ 9 eps).
+TRACE_RTOL = 1e-13
 
 
 @dataclass(frozen=True)
@@ -164,6 +175,14 @@ class FloquetResult:
         error of the multiplier's direction) from the same refinement; it is
         reported whatever ``accuracy`` is, but the refinement drives it below
         ``rtol`` only with ``accuracy="multipliers"``.  NaN when not computed.
+    companion_steps, companion_monodromies : tuple
+        ``magnus2`` with a fixed ``n_steps = N`` (a multiple of 3) on a system
+        larger than ``SMALL_N`` with ``error_estimate``: the step counts
+        ``N / 3`` (and ``N / 9`` when 9 divides ``N``) and the monodromy matrices
+        of the exponential midpoint rule with them, formed from the factors of
+        the ``N``-step solve (``expm(3 h P) = expm(h P)^3``, no new exponentials);
+        the ``N / 3`` one gives ``error_estimate``.  Empty otherwise.  For
+        Richardson extrapolation with ratio 3 (e.g. :mod:`stability.modal`).
     """
 
     multipliers: np.ndarray
@@ -186,6 +205,8 @@ class FloquetResult:
     elapsed: float = 0.0
     accuracy: str = "moduli"
     phase_error_estimate: float = math.nan
+    companion_steps: tuple = ()
+    companion_monodromies: tuple = ()
 
     @property
     def moduli(self) -> np.ndarray:
@@ -291,9 +312,19 @@ def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> f
     closed_form = getattr(P, "trace_integral", None)
     if callable(closed_form):
         return float(closed_form())
-    t = np.arange(TRACE_POINTS) * (period / TRACE_POINTS)
-    tr = np.trace(wrapped.evaluate(t), axis1=1, axis2=2)
-    return float(np.sum(tr) * period / TRACE_POINTS)
+    K = TRACE_MIN_POINTS // 2
+    tr = np.trace(wrapped.evaluate(np.arange(K) * (period / K)), axis1=1, axis2=2)
+    total, abs_total = float(np.sum(tr)), float(np.sum(np.abs(tr)))
+    integral = total * period / K
+    while K < TRACE_POINTS:
+        new = np.trace(wrapped.evaluate((np.arange(K) + 0.5) * (period / K)), axis1=1, axis2=2)
+        total += float(np.sum(new))
+        abs_total += float(np.sum(np.abs(new)))
+        K *= 2
+        previous, integral = integral, total * period / K
+        if abs(integral - previous) <= TRACE_RTOL * abs_total * period / K:
+            break
+    return integral
 
 
 def _verdict(rho: float, tol: float) -> str:
@@ -335,6 +366,7 @@ class _Propagation:
     changes: Optional[np.ndarray]  # per-multiplier relative error estimate of the result
     factors: Optional[np.ndarray] = None  # sub-interval propagators of the final solve, if kept
     phase_error_estimate: float = math.nan  # largest phase change estimate (radians), reported
+    companions: tuple = ()  # (n_steps, monodromy) of the N / 3^l midpoint rules from the same factors
 
 
 @dataclass(frozen=True)
@@ -344,6 +376,8 @@ class _Solve:
     spectrum: _Spectrum
     log_abs_det: float
     factors: Optional[np.ndarray]
+    #: the companion solve with ``N / 3`` sub-intervals (magnus2, see :func:`_third_companion`)
+    third: Optional["_Solve"] = None
 
 
 #: First sub-interval count of the adaptive factor methods.  Magnus schemes
@@ -375,6 +409,14 @@ MEMORY_LIMIT = 1.5e9
 #: Number of ``(N, n, n)``-sized work arrays alive at once in a solve (P at the
 #: Gauss points, exponents, commutators, Pade terms).
 WORK_ARRAYS = 12
+#: Companion solves ``N / 3, N / 9`` formed from the factors of a fixed-``N`` magnus2 solve
+#: (see :func:`_third_companion`; levels as far as ``3^l`` divides ``N``).
+COMPANION_LEVELS = 2
+#: Memory for the work arrays of one chunk of a streamed solve (systems larger than
+#: ``SMALL_N`` whose full stack of work arrays would exceed this are propagated in
+#: chunks of consecutive sub-intervals, so that memory is ``O(n^2)`` in ``N``; the
+#: chunks stay large enough that the per-call cost of evaluating ``P`` is shared).
+CHUNK_MEMORY = 4.0e8
 #: ``T * ||P||`` (balanced) beyond which the period is too long for double precision:
 #: ``ln rho = T lambda`` carries an absolute rounding error ``eps T |lambda|``,
 #: so at 1e12 not even the first digits of the phases are left (and moduli
@@ -437,16 +479,82 @@ def _memory_check(scheme: MagnusScheme, N: int, n: int) -> None:
         )
 
 
+def _stream_chunk(scheme: MagnusScheme, n: int) -> int:
+    """Sub-intervals per chunk of a streamed solve: the work arrays of one chunk within :data:`CHUNK_MEMORY`."""
+    return max(1, int(CHUNK_MEMORY // (WORK_ARRAYS * len(scheme.nodes) * n * n * 8.0)))
+
+
+def _third_companion(scheme: MagnusScheme, N: int, n: int) -> bool:
+    """Whether a fixed-``N`` solve also forms the ``N / 3`` solve from its own factors.
+
+    The exponential midpoint rule with ``N / 3`` sub-intervals of length ``3 h``
+    samples ``P`` at ``(3 j + 3/2) h``, the midpoint of fine sub-interval
+    ``3 j + 1``, and ``expm(3 h P) = expm(h P)^3``: its factors are the cubes of
+    every third fine factor, so the pair ``(N, N / 3)`` of the step-doubling
+    (here step-tripling) estimate costs two matrix products per coarse factor
+    instead of ``N / 2`` more exponentials.  Large systems only (``n > SMALL_N``),
+    where the exponentials dominate.
+    """
+    return scheme.order == 2 and n > SMALL_N and N % 3 == 0 and N >= 3
+
+
+def _ladder_levels(N: int, levels: int) -> int:
+    """The largest ``L <= levels`` with ``3^L`` dividing ``N`` (companions ``N / 3, ..., N / 3^L``)."""
+    L = 0
+    while L < levels and N % 3 ** (L + 1) == 0:
+        L += 1
+    return L
+
+
+def _cubes(E: np.ndarray) -> np.ndarray:
+    """Factors of the ``N / 3`` midpoint rule, ``C_j = E_{3j+1}^3``, from ``N`` factors (a multiple of 3)."""
+    mid = E[1::3]
+    return mid @ mid @ mid
+
+
+def _companions(E: np.ndarray, Om: np.ndarray, levels: int) -> list[tuple[np.ndarray, float]]:
+    """``(product, sum of traces)`` of the ``N / 3^l`` midpoint rules, ``l = 1 .. levels``, from ``N`` factors
+    (``N`` a multiple of ``3^levels``; the exponent of a level-``l`` factor is ``3^l`` times a fine one)."""
+    out = []
+    F, Ol = E, Om
+    for level in range(1, levels + 1):
+        F, Ol = _cubes(F), Ol[1::3]
+        out.append((ordered_product(F), 3.0**level * float(np.sum(np.trace(Ol, axis1=1, axis2=2)))))
+    return out
+
+
+def _chain(N: int, companions: list[tuple[np.ndarray, float]]) -> Optional["_Solve"]:
+    """The companions as a chain of :class:`_Solve` (``N / 3`` with its ``third`` = ``N / 9`` ...)."""
+    solve = None
+    for level in range(len(companions), 0, -1):
+        Phi, log_det = companions[level - 1]
+        solve = _Solve(N // 3**level, Phi, _spectrum(Phi), log_det, None, solve)
+    return solve
+
+
 def _magnus_solve(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, keep_factors: bool,
-    strict: bool = True,
+    strict: bool = True, third: int = 0,
 ) -> _Solve:
     """One propagation with ``N`` sub-intervals; raises :class:`_Unresolved` if it means nothing.
 
+    ``third = L > 0`` (magnus2, ``n > SMALL_N``): also the companion solves with
+    ``N / 3, ..., N / 3^L`` sub-intervals from the same factors
+    (:func:`_third_companion`), as far as ``3^l`` divides ``N``, chained in
+    ``_Solve.third``.
+
     ``strict=False`` (a step count fixed by the caller) skips the
-    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.
+    :data:`COMMUTATOR_LIMIT` test and fails only on overflow.  With a fixed
+    step count (``strict=False``), large systems whose ``N`` work arrays exceed
+    :data:`CHUNK_MEMORY` are propagated in chunks (:func:`_magnus_solve_streamed`)
+    unless the factors are to be kept; the adaptive refinement keeps
+    :data:`MEMORY_LIMIT` as its limit of effort (a stiff, fast system that no
+    step count resolves fails at the limit instead of refining to ``max_steps``).
     """
     n = wrapped.n
+    third = _ladder_levels(N, int(third)) if _third_companion(scheme, N, n) else 0
+    if not strict and not keep_factors and n > SMALL_N and N > _stream_chunk(scheme, n):
+        return _magnus_solve_streamed(scheme, wrapped, period, N, strict, _stream_chunk(scheme, n), third)
     _memory_check(scheme, N, n)
     h = period / N
     nodes = np.asarray(scheme.nodes)
@@ -477,7 +585,70 @@ def _magnus_solve(
                 genuine_overflow=True,
             )
     log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
-    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None)
+    companion = _chain(N, _companions(E, Om, third)) if third else None
+    return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None, companion)
+
+
+def _magnus_solve_streamed(
+    scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, N: int, strict: bool, chunk: int,
+    third: int = 0,
+) -> _Solve:
+    """:func:`_magnus_solve` with ``O(chunk n^2)`` memory: the factors of ``chunk`` consecutive sub-intervals
+    are formed, multiplied (pairwise) into one and applied to the running product ``Phi``, then dropped.
+
+    Maths: the same factors ``E_k = expm(Omega_k)`` and the same product
+    ``Phi = E_N ... E_1`` as the stored solve, associated differently:
+    ``Phi = (E_N ... E_{N-c+1}) ... (E_c ... E_1)``.  Each association of a
+    product of ``N`` factors ``n x n`` is exact up to the first-order rounding
+    bound ``|fl(Phi) - Phi| <= (N - 1) n eps |E_N| ... |E_1|`` (elementwise,
+    Higham 2002, Sec. 3.5), so the two results differ by at most twice that
+    (``tests/test_floquet_streamed.py`` checks it).
+    """
+    n = wrapped.n
+    h = period / N
+    nodes = np.asarray(scheme.nodes)
+    q = len(nodes)
+    third = int(third)
+    if third:
+        g = 3**third
+        chunk = max(g, chunk - chunk % g)  # whole groups of 3^L in every chunk
+    Phi = np.eye(n)
+    ladder = [[np.eye(n), 0.0] for _ in range(third)]
+    log_det = 0.0
+    om_max = 0.0
+    for start in range(0, N, chunk):
+        idx = np.arange(start, min(N, start + chunk))
+        times = (idx[:, None] + nodes[None, :]) * h
+        Pg = wrapped.evaluate(times.ravel()).reshape(idx.size, q, n, n)
+        with np.errstate(over="ignore", invalid="ignore"):
+            Om = magnus_exponents(scheme, Pg, h)
+            if strict and scheme.order > 2:
+                _commutator_limit(scheme, Om, Pg, h, N)
+            del Pg
+            om_max = max(om_max, float(np.abs(Om).sum(axis=1).max()))
+            log_det += float(np.sum(np.trace(Om, axis1=1, axis2=2)))
+            E = expm_stack(Om)
+            for rung, (product, traces) in zip(ladder, _companions(E, Om, third)):
+                rung[0] = product @ rung[0]
+                rung[1] += traces
+            del Om
+            if not np.isfinite(E).all():
+                raise _Unresolved(
+                    f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
+                    f"(h*||P|| up to {om_max:.3g})",
+                    genuine_overflow=True,
+                )
+            Phi = ordered_product(E) @ Phi
+            del E
+            if not np.isfinite(Phi).all():
+                raise _Unresolved(
+                    f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
+                    f"within one period)",
+                    genuine_overflow=True,
+                )
+    logger.debug("%s: %d sub-intervals of %dx%d streamed in chunks of %d", scheme.name, N, n, n, chunk)
+    companion = _chain(N, [(p, t) for p, t in ladder]) if third else None
+    return _Solve(N, Phi, _spectrum(Phi), log_det, None, companion)
 
 
 @functools.lru_cache(maxsize=64)
@@ -613,10 +784,10 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         evaluations = 0
         phase_estimate = [math.nan]  # of the last pair (reported, certified only with accuracy="multipliers")
 
-        def solve(N: int, strict: bool = True) -> _Solve:
+        def solve(N: int, strict: bool = True, third: int = 0) -> _Solve:
             nonlocal evaluations
             evaluations += q * N
-            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict)
+            return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict, third)
 
         def solve_pair(N: int) -> tuple[_Solve, _Solve]:
             """Solves with ``N`` and ``2 N`` sub-intervals (one batch for small systems)."""
@@ -645,11 +816,14 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
 
         if n_steps is not None:
             try:
-                fine = solve(n_steps, strict=False)
+                fine = solve(n_steps, strict=False, third=COMPANION_LEVELS if error_estimate else 0)
             except _Unresolved as exc:
                 raise FloquetError(f"{exc}; use more steps (n_steps) or method='magnus2'") from None
             changes, est = None, math.nan
-            if error_estimate and n_steps >= 2:
+            if error_estimate and fine.third is not None:
+                # the N / 3 solve came with the fine one (magnus2, large n): ratio 3, factor 3^2 - 1
+                changes, est, _ = pair_estimate(fine, fine.third)
+            elif error_estimate and n_steps >= 2:
                 try:
                     changes, est, _ = pair_estimate(fine, solve(n_steps // 2, strict=False))
                 except _Unresolved:
@@ -657,8 +831,13 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
         else:
             fine, changes, est = _adaptive(solve, solve_pair, pair_estimate, rtol, max_steps, scheme,
                                            lambda: _start_steps(scheme, wrapped, period, max_steps, probe))
+        companions = []
+        link = fine.third if n_steps is not None else None
+        while link is not None:
+            companions.append((link.n_steps, link.monodromy))
+            link = link.third
         return _Propagation(fine.monodromy, fine.spectrum, fine.log_abs_det, fine.n_steps, evaluations,
-                            est, changes, fine.factors, phase_estimate[0])
+                            est, changes, fine.factors, phase_estimate[0], tuple(companions))
 
     run.__name__ = f"_run_{scheme.name}"
     return run
@@ -1179,6 +1358,9 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
         elapsed=time.perf_counter() - t0,
         accuracy=accuracy,
         phase_error_estimate=prop.phase_error_estimate,
+        companion_steps=tuple(int(N) for N, _ in prop.companions),
+        companion_monodromies=tuple(Phi if scale is None else Phi * scale[:, None] / scale[None, :]
+                                    for _, Phi in prop.companions),
     )
     logger.debug(
         "floquet(%s): rho=%.6g steps=%d est=%.2e liouville=%.2e",

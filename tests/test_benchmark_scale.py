@@ -47,8 +47,8 @@ def test_growth_exponent_recovers_power_laws(bench):
 
 
 @pytest.mark.slow
-def test_worker_on_two_elements(bench):
-    rec = bench.worker(2, 16, 64, True, True, 4)
+def test_worker_on_four_elements(bench):
+    rec = bench.worker(4, 16, 48, True, True, 4)
     assert rec["orbit_residual"] <= rec["orbit_tolerance"]
     assert rec["states"] > 0 and rec["peak_rss_mb"] > 0
     assert all(v["ok"] for v in rec["stages"].values())
@@ -56,4 +56,4 @@ def test_worker_on_two_elements(bench):
     # equal to the dense ones to the backward error 1e-10 times a small condition number
     assert rec["implicit"]["max_diff_to_dense"] <= 1e-8
     table = bench.markdown([rec], bench.growth_exponents([rec]))
-    assert "| 2 |" in table
+    assert "| 4 |" in table

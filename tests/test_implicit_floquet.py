@@ -105,3 +105,34 @@ def test_bad_arguments(kwargs, pattern):
     P, _ = _block_system(6, 1.0, seed=1)
     with pytest.raises(ValueError, match=pattern):
         implicit_floquet(P, period=1.0, **kwargs)
+
+
+def test_residuals_reject_the_ritz_pairs_of_a_wrong_operator():
+    """Eigenpairs of a map with one propagator wrong (step 20 used twice) fail the certificate
+    of the true map, while they pass that of the map they belong to."""
+    from stability.implicit import residuals
+    from stability.magnus import ordered_product
+
+    P, _ = _block_system(6, 1.0, seed=1)
+    E = propagators(PeriodicMatrixFunction(P, 1.0), 1.0, 64, MAGNUS6)
+    wrong = E.copy()
+    wrong[5] = E[20]
+    vals, vecs = np.linalg.eig(ordered_product(wrong))
+    top = np.argsort(-np.abs(vals))[:4]
+    assert np.all(residuals(wrong, vals[top], vecs[:, top]) <= RESIDUAL_TOL)
+    assert np.all(residuals(E, vals[top], vecs[:, top]) > 1e3 * RESIDUAL_TOL)
+    # and the true pairs pass the true map
+    tv, tvec = np.linalg.eig(ordered_product(E))
+    ttop = np.argsort(-np.abs(tv))[:4]
+    assert np.all(residuals(E, tv[ttop], tvec[:, ttop]) <= RESIDUAL_TOL)
+
+
+def test_magnus2_step_tripling_estimate_is_the_error():
+    """magnus2 with n_steps a multiple of 3: the estimate from the cubes of every third factor
+    (the N/3 midpoint rule, no new propagators) is the true error of the moduli within the
+    O(h^2) correction of Richardson's model (20 %, as in test_floquet_streamed)."""
+    P, exact = _block_system(16, 1.0, seed=3)
+    res = implicit_floquet(P, period=1.0, k=6, n_steps=96, method="magnus2")
+    assert np.all(res.certified)
+    true = max(abs(abs(z) / np.abs(exact[np.argmin(np.abs(exact - z))]) - 1.0) for z in res.multipliers)
+    assert abs(res.error_estimate / true - 1.0) <= 0.2

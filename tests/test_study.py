@@ -218,6 +218,20 @@ def test_stage_records_carry_wall_and_cpu_and_the_exudyn_stage_ran_beside(study)
     assert list(m["stages"]) == ["table2", "table3", "exudyn"]  # report order = stage order
 
 
+def test_quick_exudyn_tuning_is_checked_at_the_full_step_count(study):
+    """--quick tunes with half the propagator steps; the reported multiplier is at the full count.
+
+    magnus2 is second order, so the loop's error at the tuned gains is ~ 4/3 |r_n - r_2n| (the
+    recorded estimate); it must stay below a quarter of the tuning tolerance (else the stage tunes
+    again at the full count), so the full-count value is within tolerance + estimate of rho_d.
+    """
+    row = json.loads((study.out / "exudyn.json").read_text())["rows"][0]
+    tol = 1e-3 * row["target"]  # TuningConfig's default tolerance
+    assert row["tuning_propagator_steps"] == row["propagator_steps"] // 2
+    assert row["tuning_step_doubling_estimate"] is not None and row["tuning_step_doubling_estimate"] <= tol / 4
+    assert abs(row["tuned_dominant"] - row["target"]) <= tol + row["tuning_step_doubling_estimate"]
+
+
 @pytest.mark.parametrize("jobs", [0, -1, True, 1.5])
 def test_bad_jobs(jobs, tmp_path):
     with pytest.raises(ValueError, match="jobs"):

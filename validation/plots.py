@@ -202,10 +202,10 @@ def plot_multiplier_plane(
         ax.axvline(0, color="0.85", lw=0.5)
         if r.diverged:
             verdict = "diverged"
+        elif r.agrees and not r.agrees_all:
+            verdict = "agrees (resolved multipliers); a smaller one not resolved in h"
         elif r.agrees:
             verdict = "agrees"
-        elif r.measured.size and not r.step_converged and r.agrees_dominant:
-            verdict = "dominant agrees; a smaller multiplier not converged in h"
         elif r.measured.size and not r.step_converged:
             verdict = "no verdict: step refinement not converging"
         else:

@@ -349,7 +349,7 @@ def multiplier_markdown(rows: Sequence[MultiplierCase], *, elements: int, figure
     t3 = [r for r in rows if r.name == "Table 3"]
     if t3:
         worst = max(float(r.result.per_multiplier()[0]["relative_error"]) for r in t3 if r.result.measured.size)
-        ok = all(r.result.agrees for r in t3)
+        ok = all(r.result.agrees_all for r in t3)
         ok_dom = all(r.result.agrees_dominant for r in t3)
         lines += [
             "",

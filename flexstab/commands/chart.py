@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, omega_type, positive_float, resolve_omega
+from flexstab.options import (add_model_options, dump_json, gain_list, omega_type, positive_float,
+                              resolve_omega)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -17,21 +18,33 @@ def register(sub) -> None:
     p = sub.add_parser(
         "chart",
         help="max|rho| over a (kp, kd) grid and against Omega",
-        description="Stability charts (reduced model). Interrupted sweeps resume from what they wrote.",
+        description="Stability charts. Interrupted sweeps resume from what they wrote.",
     )
-    p.add_argument("--model", choices=["reduced", "exudyn"], default="reduced",
-                   help="reduced (default) or exudyn (dominant damped multiplier; slower: use --grid ~11)")
-    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    p.add_argument("--model", default="reduced", metavar="MODEL",
+                   help="reduced (default), exudyn (dominant damped multiplier; slower: use --grid ~11), a built-in "
+                        "model file (single-link, two-link) or a model file PATH.py (dominant labelled multiplier; "
+                        "gain chart over one drive's (kp, kd), Omega chart with the orbit continued in Omega)")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and built-in models)")
+    p.add_argument("--drive", default=None, metavar="NAME",
+                   help="model files: the drive whose (kp, kd) the gain chart varies (default: the first), or 'all' "
+                        "(the same gains on every drive); the others stay at --kp/--kd")
+    p.add_argument("--samples", type=int, default=None,
+                   help="model files: collocation samples per period (even; default 32)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="model files: magnus2 sub-intervals per Floquet evaluation (default: the tuning's, "
+                        "linearize.analysis.TUNING_PROPAGATOR_STEPS)")
     add_model_options(p)
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
     p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
     p.add_argument("--grid", type=int, default=None, help="points per gain axis (default 41; exudyn 11)")
     p.add_argument("--target", type=positive_float, default=None, help="rho_d contour and Taguchi path")
     p.add_argument("--omega-range", type=omega_type, nargs=2, metavar=("LO", "HI"), default=None,
-                   help="Omega range of the second chart (default pi 10pi)")
-    p.add_argument("--omega-points", type=int, default=None, help="default 181; exudyn 8")
-    p.add_argument("--kp", type=float, default=None, help="fixed gains of the Omega chart (default: tuned)")
-    p.add_argument("--kd", type=float, default=None)
+                   help="Omega range of the second chart (default pi 10pi; model files 0.5 and 1.5 x Omega)")
+    p.add_argument("--omega-points", type=int, default=None, help="default 181; exudyn 8; model files 9")
+    p.add_argument("--kp", type=gain_list, default=None, metavar="KP",
+                   help="fixed gains of the Omega chart (default: tuned); model files: one value or one per "
+                        "drive a,b,...: the gains of the drives the gain chart does not vary (default 0)")
+    p.add_argument("--kd", type=gain_list, default=None, metavar="KD")
     p.add_argument("--no-taguchi", action="store_true", help="do not draw the Taguchi path")
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
@@ -54,6 +67,18 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = cfg if cfg is not None else load_config(args.config)
+    model = getattr(args, "model", "reduced")
+    if model not in ("reduced", "exudyn"):
+        return model_charts(args, cfg, progress=progress)
+    for flag in ("drive", "samples", "steps"):
+        if getattr(args, flag, None) is not None:
+            raise ValueError(f"--{flag} applies to model files only")
+    for flag in ("kp", "kd"):
+        v = getattr(args, flag, None)
+        if isinstance(v, (list, tuple)):
+            if len(v) != 1:
+                raise ValueError(f"--{flag}: --model {model} has one drive (the hub), got {len(v)} values")
+            setattr(args, flag, float(v[0]))
     omega = resolve_omega(args, cfg)
     kp_rng = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
@@ -130,12 +155,147 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     return summary
 
 
+def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
+    """``--kp``/``--kd`` of a model file: one value for every drive, or one per drive (default 0)."""
+    if values is None:
+        return (0.0,) * n_drives
+    if len(values) == 1:
+        return tuple(values) * n_drives
+    if len(values) != n_drives:
+        raise ValueError(f"--{flag}: the model has {n_drives} drive(s); give one value or {n_drives}, got {len(values)}")
+    return tuple(values)
+
+
+def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
+    """Both charts of a model file (``--model PATH.py`` or a built-in model file).
+
+    Gain chart: the dominant labelled multiplier over the (kp, kd) grid of one drive (``--drive``)
+    with the other drives at ``--kp``/``--kd``, at the chart Omega.  Omega chart: uncontrolled and
+    at the tuned (else the fixed) gains, each Omega's orbit continued from the nearest one computed.
+    Runs in this process (the model is loaded from a file).  Returns the JSON-ready summary.
+    """
+    import dataclasses
+    import hashlib
+
+    from flexstab.charts import ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart
+    from flexstab.executor import make_executor
+    from flexstab.options import resolve_model_definition
+    from linearize.analysis import TUNING_PROPAGATOR_STEPS
+    from linearize.periodic_orbit import DEFAULT_SAMPLES
+    from taguchi.tuning import TuningConfig, check_gain_range, taguchi_tune
+
+    # every option is checked before the first orbit
+    if args.scheduler or (args.workers not in (None, 1)):
+        raise ValueError("--scheduler/--workers: model-file charts run in this process (the model is loaded "
+                         "from a file and the orbits are continued point to point)")
+    omega = resolve_omega(args, cfg)
+    kp_rng = check_gain_range(args.kp_range if args.kp_range else cfg.kp_range, "--kp-range")
+    kd_rng = check_gain_range(args.kd_range if args.kd_range else cfg.kd_range, "--kd-range")
+    grid = args.grid if args.grid is not None else 11
+    kp = check_grid(*kp_rng, grid, "kp")
+    kd = check_grid(*kd_rng, grid, "kd")
+    w_lo, w_hi = args.omega_range if args.omega_range else (0.5 * omega, 1.5 * omega)
+    omegas = check_grid(w_lo, w_hi, args.omega_points if args.omega_points is not None else 9, "omega")
+    samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
+    if isinstance(samples, bool) or samples < 4 or samples % 2:
+        raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
+    steps = args.steps if args.steps is not None else TUNING_PROPAGATOR_STEPS
+    if steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {steps}")
+    target = args.target if args.target is not None else cfg.target
+    definition, options = resolve_model_definition(args.model, cfg, args.elements)
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+
+    task = ModelRadius(definition, options, samples=samples, n_steps=steps)
+    drives = task.plant(omega).drives  # the orbit at the chart's Omega: the drives, and the first check
+    nd = len(drives)
+    if args.drive in (None, "all"):
+        idx = None if args.drive == "all" else 0
+    elif args.drive in drives:
+        idx = drives.index(args.drive)
+    else:
+        raise ValueError(f"--drive {args.drive!r}: the model's drives are {', '.join(drives) or '(none)'}")
+    fkp, fkd = _fixed_gains(args.kp, nd, "kp"), _fixed_gains(args.kd, nd, "kd")
+    task = dataclasses.replace(task, drive=idx, fixed_kp=fkp, fixed_kd=fkd)  # same plants (cache shared)
+    charted = ("all drives" if idx is None else drives[idx]) if nd else None
+
+    source = definition.source
+    code = hashlib.sha1(Path(source).read_bytes()).hexdigest()[:8] if source else definition.name
+    fingerprint = hashlib.sha1(json.dumps(
+        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps]
+    ).encode()).hexdigest()[:8]
+    tag = f"{definition.name}_w{omega:.6g}_{fingerprint}"
+    label = f"model {definition.name} (dominant labelled multiplier, {steps} magnus2 steps)"
+
+    path = tuned = None
+    gc = None
+    with make_executor("serial") as ex:
+        if nd:
+            if not args.no_taguchi:
+                def objective(g):  # (kp, kd) of the charted drive -> response at the chart Omega
+                    return task({"omega": float(omega), "kp": float(g[0]), "kd": float(g[1])})
+
+                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
+                path = [it.incumbent_gains for it in tuned.iterations]
+            ctag = f"{tag}_{'all' if idx is None else idx}_" + hashlib.sha1(
+                json.dumps([fkp, fkd]).encode()).hexdigest()[:6]
+            gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{ctag}.jsonl", target=target,
+                            progress=progress)
+        if tuned is not None:
+            gkp, gkd = task.gains(tuned.kp, tuned.kd, nd)
+        else:
+            gkp, gkd = list(fkp), list(fkd)
+        otag = hashlib.sha1(json.dumps([gkp, gkd]).encode()).hexdigest()[:6]
+        oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{tag}_{otag}.jsonl", progress=progress)
+    # propagator check at the chart point of the Omega chart's gains: second order, the error of n
+    # steps is ~ 4/3 |r_n - r_2n|
+    plant = task.plant(omega)
+    r_n = plant.spectral_measure(gkp, gkd)
+    r_2n = dataclasses.replace(plant, n_steps=2 * steps).spectral_measure(gkp, gkd)
+    estimate = 4.0 / 3.0 * abs(r_n - r_2n)
+    drawn = hashlib.sha1(json.dumps(
+        [tag, charted, fkp, fkd, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
+    ).encode()).hexdigest()[:8]
+    name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
+    figures = []
+    if gc is not None:
+        figures.append(str(plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label,
+                                           drive="" if nd == 1 else charted)))
+    figures.append(str(plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
+                                        ylabel="dominant |ρ| (drive modes / bending 1)")))
+    summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
+               "taguchi_path": [list(p) for p in path] if path else None,
+               "tuned": ({"kp": tuned.kp, "kd": tuned.kd, "response": tuned.spectral_radius, "status": tuned.status,
+                          "evaluations": tuned.evaluations} if tuned is not None else None),
+               "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
+               "propagator_steps": steps, "propagator_error_estimate": estimate,
+               "inputs": {"model": args.model, "source": source, "options": {k: repr(v) for k, v in options.items()},
+                          "omega": omega, "grid": [kp.size, kd.size], "kp_range": list(kp_rng),
+                          "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],
+                          "omega_points": int(omegas.size), "samples": samples},
+               "figures": figures, "json": str(out / f"chart_{name}.json")}
+    if gc is None:
+        summary["note"] = "the model has no drives: no gain chart (the Omega chart's two curves coincide)"
+    from stability.serialization import json_ready
+
+    (out / f"chart_{name}.json").write_text(json.dumps(json_ready(summary)))
+    return summary
+
+
 def run(args: argparse.Namespace) -> int:
     s = make_charts(args, progress=not args.json and sys.stderr.isatty())
     if args.json:
         dump_json(s, sys.stdout)
     else:
         g = s["gain_chart"]
-        print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, {g['n_computed']} computed)")
+        if g is not None:
+            print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, "
+                  f"{g['n_computed']} computed)")
+        if s.get("note"):
+            print(s["note"])
         print("figures: " + ", ".join(s["figures"]))
     return 0

@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, gain_list, is_model_file, non_negative_float
+from flexstab.options import dump_json, add_model_options, gain_list, non_negative_float
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -95,22 +95,10 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
     """Floquet analysis of a model file (``--model PATH.py`` or a built-in model file)."""
     from linearize.analysis import analyze
     from linearize.periodic_orbit import DEFAULT_SAMPLES
-    from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
+    from flexstab.options import resolve_model_definition
 
-    if is_model_file(args.model):
-        model = load_model_file(args.model)
-        options: dict = {}
-        if args.elements is not None or args.bending_damping or args.axial_damping:
-            raise ValueError("--elements, --bending-damping and --axial-damping apply to built-in models only")
-    elif args.model in BUILTIN_MODELS:
-        options = {"elements": args.elements if args.elements is not None else cfg.elements,
-                   "bending_damping": args.bending_damping, "axial_damping": args.axial_damping}
-        if args.model == "single-link":
-            options["params"] = cfg.manipulator
-        model = builtin_model(args.model)
-    else:
-        raise ValueError(f"unknown model {args.model!r}: use reduced, exudyn, "
-                         f"{', '.join(sorted(BUILTIN_MODELS))} or a model file PATH.py")
+    model, options = resolve_model_definition(args.model, cfg, args.elements, bending_damping=args.bending_damping,
+                                              axial_damping=args.axial_damping)
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
                   small_multipliers=args.small_multipliers, **options)

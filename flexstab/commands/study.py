@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
+from flexstab.options import omega_type
 
 __all__ = ["register", "run"]
 
@@ -26,13 +27,52 @@ def register(sub) -> None:
                    help="processes: 2 (default) runs the Exudyn stages beside the others; 1 runs all in one")
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every stage (default: reuse finished stages whose inputs are unchanged)")
+    p.add_argument("--model", default=None, metavar="MODEL",
+                   help="study a model file PATH.py (or a built-in model file: single-link, two-link) instead of "
+                        "the paper's study: orbit, labelled multipliers, Taguchi-tuned gains of every drive, charts, "
+                        "nonlinear validation (target and gain ranges from --config)")
+    p.add_argument("--omega", type=omega_type, default=None, metavar="W",
+                   help="--model: frequency of the periodic motion, rad/s or like '2pi' (default: [study] omega of "
+                        "--config, else 2pi)")
+    p.add_argument("--samples", type=int, default=None, help="--model: collocation samples per period (default 32)")
     p.set_defaults(func=run)
+
+
+def run_model(args: argparse.Namespace, cfg) -> int:
+    """``flexstab study --model PATH.py``: :func:`flexstab.model_study.run_model_study`."""
+    from flexstab.model_study import ModelStudyOptions, run_model_study
+    from flexstab.options import resolve_omega
+    from linearize.periodic_orbit import DEFAULT_SAMPLES
+
+    for flag, bad in (("--stages", args.stages is not None), ("--scheduler", args.scheduler is not None),
+                      ("--jobs", args.jobs != 2)):
+        if bad:
+            raise ValueError(f"{flag} applies to the paper's study, not to --model (a model study runs in this "
+                             "process, every stage recomputed)")
+    samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
+    if samples < 4 or samples % 2:
+        raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
+    opts = ModelStudyOptions(out=Path(args.out), omega=resolve_omega(args, cfg), target=cfg.target,
+                             kp_range=tuple(cfg.kp_range), kd_range=tuple(cfg.kd_range), samples=samples,
+                             quick=args.quick, log=None if sys.stderr.isatty() else
+                             (lambda line: print(line, file=sys.stderr, flush=True)))
+    res = run_model_study(args.model, cfg, opts)
+    failed = [k for k, v in res.stages.items() if v.get("status") == "failed"]
+    print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
+    for k in failed:
+        print(f"stage {k} failed: {res.stages[k]['error']}", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def run(args: argparse.Namespace) -> int:
     from flexstab.study import StudyOptions, run_study
 
     cfg = load_config(args.config)
+    if args.model is not None:
+        return run_model(args, cfg)
+    for flag in ("omega", "samples"):
+        if getattr(args, flag) is not None:
+            raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
     if args.scheduler:
         from flexstab.executor import validate_scheduler_address
 

@@ -12,7 +12,7 @@ from flexstab.options import dump_json, add_model_options, positive_float, resol
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS"]
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant"]
 
 
 def register(sub) -> None:
@@ -52,23 +52,10 @@ def register(sub) -> None:
 def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
     """The plant object (``with_gains(kp, kd)``) for the chosen model."""
     if model not in ("reduced", "exudyn"):
-        from flexstab.options import is_model_file
+        from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
-        from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
 
-        if is_model_file(model):
-            if elements is not None:
-                raise ValueError("--elements applies to built-in models only")
-            definition, options = load_model_file(model), {}
-        elif model in BUILTIN_MODELS:
-            definition = builtin_model(model)
-            if model == "single-link":  # the configured link and its mesh
-                options = {"elements": elements or cfg.elements, "params": cfg.manipulator}
-            else:  # other built-ins (two-link) keep their own default mesh unless --elements is given
-                options = {"elements": elements} if elements is not None else {}
-        else:
-            raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
-                             f"or a model file PATH.py")
+        definition, options = resolve_model_definition(model, cfg, elements)
         plant = model_plant(definition, omega, **options)
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
@@ -244,6 +231,55 @@ def _pairs(gains, n_drives: int):
     return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])
 
 
+def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
+    """Taguchi tuning of a model-file plant with the step-doubling check at the tuned gains.
+
+    ``plant`` (a :class:`~linearize.analysis.ModelPlant`, e.g. from :func:`propagator_steps`) is tuned
+    with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
+    compared (second order: the error of ``n`` steps is ``~ 4/3 |r_n - r_2n|``); above a quarter of
+    the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
+    budget is per pass), up to :data:`MAX_TUNING_STEPS`.
+
+    Returns
+    -------
+    (TaguchiResult, plant, passes)
+        The last pass's result, the plant it used and one dict per pass (``propagator_steps``,
+        ``evaluations``, ``spectral_radius``, ``check_2n``, ``converged``).
+    """
+    import dataclasses
+
+    from taguchi.tuning import _recentre, taguchi_tune
+
+    n_drives = len(plant.drives)
+    passes: list = []
+    full_cfg = tcfg
+    while True:
+        res = taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress)
+        kp, kd = _pairs(res.gains, n_drives)
+        finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
+        r2 = finer.spectral_measure(kp, kd)
+        passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
+                       "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
+        if not res.converged and tcfg is not full_cfg:
+            # the narrowed window of a warm restart missed the target: this pass again from the full ranges
+            logger.info("warm restart with %d steps did not converge: tuning again from the initial ranges",
+                        plant.n_steps)
+            tcfg = full_cfg
+            continue
+        if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
+                or finer.n_steps > MAX_TUNING_STEPS):
+            return res, plant, passes
+        logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
+                    res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
+        plant = finer
+        # warm restart: the finer propagator moves the answer by about the step-doubling difference, so the
+        # next pass starts from the tuned gains with ranges narrowed to RESTART_WIDTH of each initial width
+        # (shifted to stay inside it) instead of from scratch
+        narrowed = tuple(_recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi))
+                         for g, (lo, hi) in zip(res.gains, full_cfg.factor_ranges))
+        tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
@@ -292,43 +328,13 @@ def tune_report(args: argparse.Namespace) -> dict:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
         kind = "process" if hill and args.workers != 1 else "serial"
-    passes: list = []
-    full_cfg = tcfg
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
-        while True:
-            res = taguchi_tune(objective, tcfg, executor=ex, progress=not args.json and sys.stderr.isatty())
-            if not model_file or hill:
-                break
-            # the step-doubling check at the tuned gains: second order, error of n steps ~ 4/3 |r_n - r_2n|;
-            # too large -> tune again with 2n steps, warm-started (below; the budget is per pass)
-            import dataclasses
-
-            kp, kd = _pairs(res.gains, n_drives)
-            finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
-            r2 = finer.spectral_measure(kp, kd)
-            passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
-                           "spectral_radius": res.spectral_radius, "check_2n": r2, "converged": res.converged})
-            if not res.converged and tcfg is not full_cfg:
-                # the narrowed window of a warm restart missed the target: this pass from the full ranges
-                logger.info("warm restart with %d steps did not converge: tuning again from the initial ranges",
-                            plant.n_steps)
-                tcfg = full_cfg
-                continue
-            if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
-                    or finer.n_steps > MAX_TUNING_STEPS):
-                break
-            logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
-                        res.spectral_radius, plant.n_steps, r2, finer.n_steps, finer.n_steps)
-            plant = finer
-            objective = DrivesObjective(plant)
-            # warm restart: the finer propagator moves the answer by about the step-doubling
-            # difference, so the next pass starts from the tuned gains with narrowed ranges
-            # (RESTART_WIDTH of each initial width, shifted to stay inside it) instead of from scratch
-            from taguchi.tuning import _recentre
-
-            init = full_cfg.factor_ranges
-            narrowed = tuple(_recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi)) for g, (lo, hi) in zip(res.gains, init))
-            tcfg = dataclasses.replace(tcfg, ranges=narrowed)
+        progress = not args.json and sys.stderr.isatty()
+        if model_file and not hill:
+            res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
+            objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
+        else:  # Hill plants have no propagator steps to refine: one pass
+            res, passes = taguchi_tune(objective, tcfg, executor=ex, progress=progress), []
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)

@@ -51,15 +51,19 @@ def register(sub) -> None:
                    help="frequency of the fundamental motion, rad/s or like '2pi' (default: config, else 2pi)")
     p.add_argument("--kp", default=None, help="proportional gain(s) (N m/rad), comma-separated per drive")
     p.add_argument("--kd", default=None, help="derivative gain(s) (N m s/rad), comma-separated per drive")
-    p.add_argument("--elements", default=None, help="ANCF elements (default 4)")
+    p.add_argument("--elements", default=None,
+                   help="ANCF elements (default 4 for the built-in link; built-in model files: passed to their "
+                        "build, per link for two-link; default: the model's own)")
     p.add_argument("--samples", default="16", help="orbit / linearisation samples per period (default 16)")
     p.add_argument("--step", default=None,
-                   help="coarsest generalised-alpha step in s (default 1e-3 for the single link, T/128 for model files)")
+                   help="coarsest generalised-alpha step in s (default 1e-3 for the single link; for model files "
+                        "T/n chosen so that strongly damped modes get no spurious multiplier, see "
+                        "validation.multipliers.suggested_step)")
     p.add_argument("--spectral-radius", default="1",
                    help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
     p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4)")
-    p.add_argument("--amplitude", default="1e-3",
-                   help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3)")
+    p.add_argument("--amplitude", default=None,
+                   help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3; 1e-2 for model files)")
     p.add_argument("--compare", default="2", help="number of multipliers compared (default 2; pairs kept whole)")
     p.add_argument("--growth-periods", default=None,
                    help="periods of the multi-period growth run (default: 3 if the prediction is unstable, else 0)")
@@ -150,7 +154,8 @@ def validation_report(args: argparse.Namespace):
     refinements = _number("refinements", args.refinements, minimum=0, integer=True)
     if refinements > 4:
         raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
-    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True)
+    amplitude = _number("amplitude", args.amplitude if args.amplitude is not None else "1e-3", minimum=0.0,
+                        strict=True)
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
     if step >= 2 * math.pi / omega:
@@ -188,24 +193,27 @@ def _model_file_report(args: argparse.Namespace):
         raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
     if args.predict_reference != "periodic":
         raise ValueError("--predict-reference rigid applies to the built-in single link only")
-    if args.elements is not None:
-        raise ValueError("--elements applies to the built-in single link only")
-    from mbs_models.model_file import resolve_model
+    from mbs_models.model_file import BUILTIN_MODELS, resolve_model
 
-    definition = resolve_model(args.model)
+    options: dict = {}
+    if args.elements is not None:
+        if args.model not in BUILTIN_MODELS:
+            raise ValueError("--elements applies to the built-in models only (a model file sets its own mesh)")
+        options["elements"] = _number("elements", args.elements, minimum=1, integer=True)
+    definition = resolve_model(args.model, **options)
     omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
     T = 2 * math.pi / omega
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
     samples = _number("samples", args.samples, minimum=4, integer=True)
     if samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
-    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else T / 128
-    if step >= T:
+    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
+    if step is not None and step >= T:
         raise ValueError(f"--step must be smaller than the period T = {T:.6g} s, got {args.step!r}")
     refinements = _number("refinements", args.refinements, minimum=0, integer=True)
     if refinements > 4:
         raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
-    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True)
+    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True) if args.amplitude is not None else None
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
     if args.out is not None:
@@ -219,7 +227,7 @@ def _model_file_report(args: argparse.Namespace):
                                      samples=samples, config=config)
     d = res.to_dict()
     d["gains_source"] = "command line" if (kps or kds) else "none given (0 for every drive)"
-    d.setdefault("elements", None)
+    d.setdefault("elements", definition.options.get("elements"))
     return d, res
 
 
@@ -235,7 +243,10 @@ def _text(d: dict) -> str:
         return "n/a" if x is None else format(x, fmt)
 
     steps = ", ".join(f"{h:g}" for h in d["steps"])
-    what = f"{d['elements']} elements" if d.get("elements") else f"model {d['model']}"
+    if d.get("model") == "exudyn":
+        what = f"{d['elements']} elements"
+    else:
+        what = f"model {d['model']}" + (f", {d['elements']} elements" if d.get("elements") else "")
     gains = ", ".join(f"{g['name']}: kp = {g['kp']:.6g}, kd = {g['kd']:.6g}" for g in d.get("drives", [])) or "no drives"
     lines = [
         f"nonlinear multiplier measurement (Exudyn, {what}, {d['integrator']}, h = {steps} s)",
@@ -264,7 +275,11 @@ def _text(d: dict) -> str:
         verdict = ("no measurement" if alt["distance"] is None
                    else ("consistent with" if alt["consistent"] else "excluded by") + " the measurement")
         lines.append(f"alternative: {alt['name']}: distance {f(alt['distance'])} -> {verdict}")
-    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'} (dominant: {'yes' if d['agrees_dominant'] else 'no'}); "
+    for u in d.get("unresolved", []):
+        lines.append(f"not resolved (no verdict): {u['mode']} {_c(u['predicted'])}, levels "
+                     + ", ".join(_c(z) for z in u["levels"]) + f" -- criterion: {d['resolved_criterion']}")
+    lines.append(f"agrees: {'yes' if d['agrees'] else 'no'} (dominant: {'yes' if d['agrees_dominant'] else 'no'}; "
+                 f"every compared multiplier: {'yes' if d.get('agrees_all') else 'no'}); "
                  f"the measurement confirms: {', '.join(d['confirms']) or 'none'}")
     g = d.get("growth")
     if g:

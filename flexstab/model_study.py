@@ -1,0 +1,315 @@
+"""The study of a user's model file, as one command (``flexstab study --model PATH.py``).
+
+Stages, in this process (the model is loaded from a file), each writing its JSON
+beside the report:
+
+1. ``floquet``  -- periodic orbit (collocation residual and the one-period Exudyn
+   shooting check), constraint-correct linearisation and the uncontrolled
+   multipliers with their mode labels (:func:`linearize.analysis.analyze`);
+2. ``tuning``   -- Taguchi tuning of the ``2 N`` gains of the ``N`` drives to
+   ``rho_d`` (:func:`flexstab.commands.tune.tune_model_plant`: step-doubling
+   check at the tuned gains) and the labelled multipliers at the tuned gains
+   from a separate evaluation (twice the loop's ``magnus2`` steps, at least
+   512 and at most 4096, with its own step-doubling estimate);
+3. ``charts``   -- the gain chart of the first drive (the others at their tuned
+   gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
+4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
+   tuned closed loop (:func:`validation.multipliers.validate_model_multipliers`).
+
+A model without drives has no gains: stages 2 and the gain chart are skipped
+and the validation runs uncontrolled.  A failed stage is reported (its error
+in the report, exit code 1) and the study goes on.  Every stage is recomputed
+on each run (no resuming, unlike the built-in study).
+
+``quick``: coarser charts (5 x 5 gains, 3 Omegas), one step refinement in the
+validation, 300 Floquet evaluations per tuning pass (else 600); the orbit,
+linearisation, tuning tolerance and Floquet checks are the same.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import resource
+import time
+import traceback
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+from flexstab.report import figure, table, text, to_html, to_markdown
+from flexstab.study import StudyResult
+
+__all__ = ["ModelStudyOptions", "run_model_study"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ModelStudyOptions:
+    """Options of :func:`run_model_study`.
+
+    Attributes
+    ----------
+    out : Path
+        Output folder (created).
+    omega : float
+        Frequency of the model's periodic motion (rad/s).
+    target : float
+        ``rho_d`` of the tuning.
+    kp_range, kd_range : (float, float)
+        Initial ranges of every drive's kp and kd.
+    samples : int
+        Collocation samples per period.
+    quick : bool
+        Coarser charts and validation (see the module docstring).
+    log : callable, optional
+        Called with one line when a stage starts or ends.
+    """
+
+    out: Path = Path("results")
+    omega: float = 2 * math.pi
+    target: float = 0.3
+    kp_range: tuple = (0.0, 60.0)
+    kd_range: tuple = (0.0, 40.0)
+    samples: int = 32
+    quick: bool = False
+    log: Optional[Callable[[str], None]] = None
+
+
+def _cpu() -> float:
+    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + ch.ru_utime + ch.ru_stime
+
+
+def _c(z) -> str:
+    return f"{z.real:+.6f}{z.imag:+.6f}i"
+
+
+def _gains_text(names, kp, kd) -> str:
+    return "; ".join(f"{n}: kp = {a:.4g}, kd = {b:.4g}" for n, a, b in zip(names, kp, kd))
+
+
+def _multiplier_blocks(res, what: str, tail: str = "") -> list:
+    """A paragraph (``what``, the step count, estimate, spectral radius, dominant |rho|) and the
+    table of the 12 largest labelled multipliers of ``res`` (a ModelFloquetResult)."""
+    f = res.floquet
+    rows = [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
+            for i, (mu, m) in enumerate(zip(f.multipliers, res.modes))]
+    return [text(f"{what} ({f.n_steps} `{f.method}` steps, step-doubling estimate {f.error_estimate:.1e}): dominant "
+                 f"labelled multiplier |ρ| = {abs(res.dominant_multiplier):.6f}{tail}; spectral radius "
+                 f"{f.spectral_radius:.6f}. All multipliers: `multipliers.csv`."),
+            table(["#", "ρ", "|ρ|", "mode", "Exudyn item", "undamped"], rows[:12])]
+
+
+def _write_csv(path: Path, results: dict) -> None:
+    """One row per multiplier of every labelled Floquet result in ``results`` (name -> ModelFloquetResult)."""
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["case", "index", "re", "im", "modulus", "mode", "group", "undamped"])
+        for case, res in results.items():
+            for i, (mu, m) in enumerate(zip(res.floquet.multipliers, res.modes)):
+                w.writerow([case, i + 1, repr(float(mu.real)), repr(float(mu.imag)), repr(float(abs(mu))),
+                            m["mode"], m.get("group", ""), bool(m["undamped"])])
+
+
+def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResult:
+    """Run the model-file study (see the module docstring) and write ``report.md`` / ``report.html``.
+
+    Parameters
+    ----------
+    model : str
+        A model file ``PATH.py`` or a built-in model name.
+    cfg : flexstab.config.StudyConfig
+        Decides the built-in single link's parameters and mesh (:func:`flexstab.options.resolve_model_definition`).
+    opts : ModelStudyOptions
+
+    Raises
+    ------
+    ValueError
+        Bad model file or options (before any stage runs).
+    """
+    import argparse
+
+    from flexstab.commands.chart import model_charts
+    from flexstab.commands.tune import MAX_TUNING_STEPS, _pairs, factor_ranges, propagator_steps, tune_model_plant
+    from flexstab.options import resolve_model_definition
+    from flexstab.study import validation_blocks
+    from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, ModelPlant, analyze
+    from mbs_models.model_file import ModelFileError
+    from taguchi.tuning import TuningConfig
+
+    t0, c0 = time.perf_counter(), _cpu()
+    definition, options = resolve_model_definition(model, cfg, None)
+    out = Path(opts.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
+        (out / f).unlink(missing_ok=True)
+    TuningConfig(target=opts.target, kp_range=opts.kp_range, kd_range=opts.kd_range)  # checks before the orbit
+    omega = float(opts.omega)
+    say = opts.log or (lambda line: None)
+    stages: dict = {}
+    sections: list = []
+    state: dict = {}
+
+    def run(name: str, title: str, fn: Callable[[], list]) -> None:
+        say(f"study: {name} started")
+        ts, cs = time.perf_counter(), _cpu()
+        try:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                blocks = fn()
+            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report
+            notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
+            blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
+            for n in notes:
+                say(f"study: {name}: warning: {n}")
+        except ModelFileError:
+            raise  # a bad model file is a usage error (one line, exit 2), not a failed stage
+        except Exception as exc:  # a failed stage is reported, the study goes on
+            el = time.perf_counter() - ts
+            err = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
+            logger.error("stage %s failed: %s", name, err)
+            logger.debug("%s", "".join(traceback.format_exception(exc)))
+            stages[name] = {"status": "failed", "error": err, "elapsed": el}
+            sections.append((title, [text(f"**Stage failed:** `{err}`")]))
+            say(f"study: {name} failed after {el:.1f} s: {err}")
+            return
+        el, cpu = time.perf_counter() - ts, _cpu() - cs
+        stages[name] = {"status": "computed", "json": f"{name}.json", "elapsed": el, "cpu": cpu}
+        sections.append((title, [text(f"Data: `{name}.json`; {el:.1f} s (CPU {cpu:.1f} s)")] + blocks))
+        say(f"study: {name} finished in {el:.1f} s")
+
+    def floquet_stage() -> list:
+        res = analyze(definition, omega, samples=opts.samples, **options)
+        state["uncontrolled"] = res
+        doc = res.summary()
+        doc.update(omega=omega, floquet=res.floquet.to_dict())
+        (out / "floquet.json").write_text(json.dumps(_ready(doc), indent=2))
+        _write_csv(out / "multipliers.csv", {"uncontrolled": res})
+        o = res.orbit
+        return [
+            text(f"Model `{definition.name}`" + (f" (`{definition.source}`)" if definition.source else "")
+                 + f"; drives: {', '.join(res.drives) or 'none'}; {o.size} Exudyn coordinates, "
+                 f"{res.linearization.size} independent. Periodic orbit by trigonometric collocation "
+                 f"({o.samples} samples): relative residual {o.residual:.1e} (tolerance {o.tolerance:.0e}); one "
+                 f"period in Exudyn from its state returns with a relative defect {o.shooting_residual:.1e}."),
+            *_multiplier_blocks(res, "Uncontrolled multipliers, all gains 0"),
+        ]
+
+    def tuning_stage() -> list:
+        base = state["uncontrolled"]
+        nd = len(base.drives)
+        names, ranges = factor_ranges(nd, opts.kp_range, opts.kd_range, None)
+        tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
+                            max_evaluations=300 if opts.quick else 600)
+        plant = propagator_steps(ModelPlant(base.linearization, base.orbit), tcfg)
+        res, plant, passes = tune_model_plant(plant, tcfg)
+        kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in _pairs(res.gains, nd))
+        state["gains"] = (kp, kd)
+        # beside the loop's evaluations: twice its propagator steps (at least analyze's 512, at most the
+        # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
+        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit,
+                        n_steps=max(DEFAULT_PROPAGATOR_STEPS, min(2 * plant.n_steps, MAX_TUNING_STEPS)), **options)
+        state["tuned"] = check
+        _write_csv(out / "multipliers.csv", {"uncontrolled": base, "tuned": check})
+        doc = {"drives": list(base.drives), "target": opts.target, "tolerance": tcfg.effective_tolerance,
+               "kp": kp, "kd": kd, "tuning": res.to_dict(), "propagator_passes": passes,
+               "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
+                         "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
+                         "modes": check.modes}}
+        (out / "tuning.json").write_text(json.dumps(_ready(doc), indent=2))
+        last = passes[-1]
+        return [
+            text(f"Iterative Taguchi ({tcfg.orthogonal_array().name}, {len(names)} factors "
+                 f"{', '.join(names)}) to the dominant labelled multiplier |ρ| = ρ_d = {opts.target:g} "
+                 f"(tolerance {tcfg.effective_tolerance:.1e}), initial ranges kp ∈ [{opts.kp_range[0]:g}, "
+                 f"{opts.kp_range[1]:g}], kd ∈ [{opts.kd_range[0]:g}, {opts.kd_range[1]:g}] for every drive: "
+                 f"{res.status} after {sum(p['evaluations'] for p in passes)} Floquet evaluations in "
+                 f"{len(passes)} pass(es) with {last['propagator_steps']} `magnus2` steps (response "
+                 f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})."),
+            table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
+                  [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
+            *_multiplier_blocks(check, "Check at the tuned gains, an independent evaluation",
+                                f" (ρ_d = {opts.target:g})"),
+        ]
+
+    def charts_stage() -> list:
+        base = state["uncontrolled"]
+        kp, kd = state.get("gains", ([], []))
+        args = argparse.Namespace(
+            model=model, elements=None, drive=None, samples=opts.samples, steps=None,
+            kp=tuple(kp) or None, kd=tuple(kd) or None, kp_range=list(opts.kp_range), kd_range=list(opts.kd_range),
+            grid=5 if opts.quick else 11, omega_points=3 if opts.quick else 9, omega_range=None,
+            target=opts.target, no_taguchi=True, out=str(out), scheduler=None, workers=None, omega=omega,
+            config=None, constants="auto",
+        )
+        s = model_charts(args, cfg, progress=False)
+        (out / "charts.json").write_text(json.dumps(_ready(s), indent=2))
+        figs = [Path(f).name for f in s["figures"]]
+        o = s["omega_chart"]
+        blocks = []
+        if s["gain_chart"] is not None:
+            g = s["gain_chart"]
+            others = [d for d in base.drives if d != s["charted_drive"]]
+            blocks.append(figure(figs[0], f"Dominant |ρ| over the (kp, kd) plane of drive {s['charted_drive']} "
+                                          f"({len(g['kp'])} × {len(g['kd'])} grid)"
+                                 + (f", {', '.join(others)} at the tuned gains" if others else "")
+                                 + f"; the ρ_d = {opts.target:g} contour dashed."))
+        blocks.append(figure(figs[-1], f"Dominant |ρ| against Ω ({len(o['omega'])} values from "
+                                       f"{o['omega'][0]:.4g} to {o['omega'][-1]:.4g} rad/s, each orbit continued "
+                                       "from the previous), uncontrolled and at the tuned gains."))
+        blocks.insert(0, text(f"{s['propagator_steps']} `magnus2` steps per point; step-doubling estimate at Ω = "
+                              f"{omega:.4g} rad/s and the tuned gains {s['propagator_error_estimate']:.1e}."))
+        return blocks
+
+    def validation_stage() -> list:
+        from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
+        from validation.plots import plot_multiplier_plane
+
+        kp, kd = state.get("gains", ([], []))
+        base = state.get("uncontrolled")
+        T = 2 * math.pi / omega
+        check = MultiplierCheckConfig(step=T / 128, refinements=1 if opts.quick else 2)
+        v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
+        d = v.to_dict()
+        (out / "validation.json").write_text(json.dumps(_ready(d), indent=2, default=float))
+        fig = "validation_multipliers.png"
+        plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],
+                              suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
+        gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
+        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).", check.steps, fig)
+
+    run("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage)
+    has_drives = "uncontrolled" in state and bool(state["uncontrolled"].drives)
+    if has_drives:
+        run("tuning", f"PD gains by Taguchi tuning (ρ_d = {opts.target:g})", tuning_stage)
+    elif "uncontrolled" in state:
+        sections.append(("PD gains by Taguchi tuning", [text("The model has no drives: no gains to tune.")]))
+    if "uncontrolled" in state:
+        run("charts", "Stability charts", charts_stage)
+        run("validation", "Nonlinear validation", validation_stage)
+    elapsed, cpu = time.perf_counter() - t0, _cpu() - c0
+    preamble = [
+        text(f"Model `{definition.name}`" + (f" from `{definition.source}`" if definition.source else "")
+             + f" at Ω = {omega:.6g} rad/s (T = {2 * math.pi / omega:.6g} s); mode: {'quick' if opts.quick else 'full'}"
+             + "; every number below comes from the JSON file named under its section (same folder)."),
+        text(f"Wall time {elapsed:.1f} s, CPU {cpu:.1f} s."),
+    ]
+    md, html_path = out / "report.md", out / "report.html"
+    md.write_text(to_markdown(f"flexstab study: model {definition.name}", preamble, sections))
+    html_path.write_text(to_html(f"flexstab study: model {definition.name}", preamble, sections))
+    (out / "study.json").write_text(json.dumps({"model": model, "omega": omega, "quick": opts.quick,
+                                                "elapsed": elapsed, "cpu": cpu, "stages": stages}, indent=2))
+    return StudyResult(out, md, html_path, stages, elapsed)
+
+
+def _ready(obj):
+    from stability.serialization import json_ready
+
+    return json_ready(obj)

@@ -1,0 +1,166 @@
+"""Newton strategy of the generic periodic orbit (linearize.periodic_orbit) at high Omega.
+
+Oracles: the orbit's own checked residual (never loosened), the one-period
+shooting check in Exudyn's integrator (independent of the collocation) and the
+hand-derived hub-frame route (``linearize.link_orbit``, independent code and
+coordinates).  Each strategy is also shown to matter: with it switched off the
+same call ends in :class:`OrbitConvergenceError`, so the tests reject the old
+behaviour (damped Newton alone from the simulated period, which needed a long
+continuation in omega at 6 pi and 8 pi).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from linearize import periodic_orbit as po
+from linearize.periodic_orbit import OrbitConvergenceError, find_orbit
+
+ELEMENTS = 2
+
+
+def _no_quasi_static(col):  # noqa: ARG001 - same signature as po._quasi_static_guess
+    return None
+
+
+@pytest.mark.parametrize("k", [6, 8])
+def test_high_omega_converges_from_the_simulated_guess_without_continuation(k):
+    """Full-step Newton from one simulated period reaches the default tolerance at 6 pi and 8 pi
+    (32 samples, no continuation, no quasi-static fallback), and Exudyn's integrator confirms it."""
+    orbit = find_orbit("single-link", k * math.pi, samples=32, elements=ELEMENTS, continuation=False, verify=True,
+                       solver="dense")
+    assert orbit.tolerance == po.DEFAULT_TOLERANCE
+    assert orbit.residual <= orbit.tolerance
+    assert orbit.shooting_residual <= po.SHOOTING_TOLERANCE
+    assert orbit.iterations <= po.FULL_STEP_ITERATIONS + po.POLISH_STEPS
+    assert set(orbit.cpu_timings) == {"build", "guess", "newton", "tangent", "shooting"}
+
+
+def test_damped_newton_alone_fails_where_full_steps_converge(monkeypatch):
+    """The damped Newton (natural monotonicity test) from the same guess does not converge at 6 pi:
+    its rejected first steps are what full steps fix, so the test above rejects the old strategy."""
+    monkeypatch.setattr(po, "FULL_STEP_ITERATIONS", 0)
+    monkeypatch.setattr(po, "_quasi_static_guess", _no_quasi_static)
+    with pytest.raises(OrbitConvergenceError, match="did not converge") as err:
+        find_orbit("single-link", 6 * math.pi, samples=32, elements=ELEMENTS, continuation=False, verify=False,
+                   solver="dense", max_iterations=12)
+    assert min(err.value.residuals) > po.DEFAULT_TOLERANCE
+    assert len(str(err.value).splitlines()) == 1 and "best" in str(err.value)
+
+
+def test_quasi_static_guess_rescues_where_the_simulated_period_fails(monkeypatch):
+    """2 elements, 16 samples, 6 pi: full steps from the simulated period do not converge, from the
+    quasi-static guess they do; the orbit is the hand-derived route's (not another periodic solution).
+
+    Tolerance of the comparison with the hand route at the same 16 samples: the two
+    collocations use different coordinates (absolute vs. hub frame) and so have different
+    truncation errors; the generic one is measured 2.4e-5 of the largest torque against its
+    own 32-sample orbit (which equals the hand route to 1e-6 in test_model_file), the hand
+    one 1.4e-7.  A different periodic orbit differs at O(1); 1e-3 leaves a factor 40.
+    """
+    from linearize.link_orbit import find_periodic_orbit
+    from mbs_models.exudyn_link import ExudynLinkConfig
+
+    omega = 6 * math.pi
+    opts = dict(samples=16, elements=ELEMENTS, continuation=False, solver="dense")
+    orbit = find_orbit("single-link", omega, verify=True, **opts)
+    assert orbit.residual <= orbit.tolerance == po.DEFAULT_TOLERANCE
+    assert orbit.shooting_residual <= po.SHOOTING_TOLERANCE
+    hand = find_periodic_orbit(None, ExudynLinkConfig(elements=ELEMENTS, drive="free", omega=omega), samples=16,
+                               verify=False)
+    scale = float(np.max(np.abs(hand.hub_torques)))
+    assert float(np.max(np.abs(orbit.torques[:, 0] - hand.hub_torques))) <= 1e-3 * scale
+    # the hub angle follows the drive at every sample (the orbit is on the prescribed motion)
+    b = orbit.drive_vectors[:, 0]
+    reference = np.array([0.5 * math.pi * (1.0 + math.sin(omega * t)) for t in orbit.times])
+    assert np.max(np.abs(orbit.q @ b - reference)) <= 1e-9
+    # without the quasi-static guess the same call fails: the fallback is what converged
+    monkeypatch.setattr(po, "_quasi_static_guess", _no_quasi_static)
+    with pytest.raises(OrbitConvergenceError, match="did not converge"):
+        find_orbit("single-link", omega, verify=False, max_iterations=6, **opts)
+
+
+def test_quasi_static_guess_is_in_equilibrium_on_the_drive():
+    """Each sample of the quasi-static guess satisfies the static equations it claims to:
+    ``-f(q, 0, t) + C_q^T lambda - B tau = 0``, ``C = 0``, ``B^T q = r(t)`` (checked with Exudyn's
+    functions directly, relative to the gravity / elastic force scale)."""
+    from mbs_models.model_file import build_model, resolve_model
+
+    omega = 4 * math.pi
+    col = po._Collocation(build_model(resolve_model("single-link", elements=ELEMENTS), omega), 8, "dense")
+    X = po._quasi_static_guess(col)
+    assert X is not None
+    Q, L, U = col.split(X)
+    zero = np.zeros(col.n)
+    for k, t in enumerate(col.times):
+        f = col.system.rhs(Q[k], zero, float(t))
+        r = -f + col.system.constraint_jacobian(Q[k], float(t)).T @ L[k] - col.B @ U[k]
+        assert np.max(np.abs(r)) <= 10 * po.QUASI_STATIC_TOLERANCE * np.max(np.abs(f))
+        assert np.max(np.abs(col.system.constraints(Q[k], float(t)))) <= 1e-9
+        assert abs(float(col.B[:, 0] @ Q[k]) - col.R[k, 0]) <= 1e-9
+    # the hub torque holds the link against gravity: tau = -m g x_c cos(angle) summed over the link
+    # (statics: the torque balances gravity about O), a number independent of Exudyn
+    from mbs_models.parameters import ManipulatorParameters
+
+    p = ManipulatorParameters()
+    angle = col.R[:, 0]
+    moment = p.gravity * (p.mass_per_length * p.length ** 2 / 2 + p.tip_mass * p.length) * np.cos(angle)
+    # the static deflection shortens the lever arm by O(deflection / length) ~ 1e-3
+    np.testing.assert_allclose(U[:, 0], moment, rtol=0, atol=5e-3 * float(np.max(np.abs(moment))))
+
+
+def _two_link_state():
+    from linearize.exudyn_system import ExudynSystem
+    from mbs_models.model_file import build_model, resolve_model
+
+    system = ExudynSystem(build_model(resolve_model("two-link", elements=2), 2 * math.pi))
+    rng = np.random.default_rng(5)
+    q = system.q_initial + 1e-3 * rng.standard_normal(system.n)
+    lam = rng.standard_normal(system.m)
+    return system, q, lam, 0.13
+
+
+def _per_column(system, q, lam, t):
+    """One Richardson difference per coordinate (every column, no pattern)."""
+    h = po.fd_steps(q, po.RICHARDSON_STEP)
+    out = np.zeros((system.n, system.n))
+    for j in range(system.n):
+        e = np.zeros(system.n)
+        e[j] = 1.0
+        out[:, j] = po._richardson(lambda x: system.constraint_jacobian(x, t).T @ lam, q, e, h[j])
+    return out
+
+
+def test_coloured_reaction_stiffness_equals_one_column_at_a_time():
+    """Two-link arm (revolute elbow, two clamps): the compressed differences of d(C_q^T lambda)/dq
+    equal one difference per column (same rule and steps; a row sees one column per colour, so
+    only round-off of the shared evaluation differs: <= 1e-12 of the largest entry), with fewer
+    evaluations."""
+    system, q, lam, t = _two_link_state()
+    pattern = system.coupling_pattern()
+    Kr = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, pattern)
+    ref = _per_column(system, q, lam, t)
+    assert np.max(np.abs(ref)) > 0
+    assert np.max(np.abs(Kr - ref)) <= 1e-12 * np.max(np.abs(ref))
+    assert len(pattern.reaction_colours) < len(system.reaction_columns())
+
+
+def test_wrong_reaction_pattern_is_caught_by_the_directional_check(monkeypatch):
+    """A colouring that puts coupled columns together gives a wrong stiffness; the directional
+    check must notice and fall back to one column at a time (switching the check off shows
+    the wrong answer it prevents)."""
+    from linearize import collocation_solver as cs
+
+    system, q, lam, t = _two_link_state()
+    good = system.coupling_pattern()
+    cols = np.flatnonzero(np.any(good.reaction, axis=0))
+    wrong = cs.CouplingPattern(force=good.force, reaction=good.reaction, force_colours=good.force_colours,
+                               reaction_colours=(cols,))
+    ref = _per_column(system, q, lam, t)
+    fixed = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, wrong)
+    assert np.max(np.abs(fixed - ref)) <= 1e-12 * np.max(np.abs(ref))
+    monkeypatch.setattr(cs, "PATTERN_CHECK_TOLERANCE", math.inf)
+    unchecked = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, wrong)
+    assert np.max(np.abs(unchecked - ref)) > 1e-3 * np.max(np.abs(ref))
