@@ -905,7 +905,7 @@ PREDICTION_MAX_DOUBLINGS = 5
 
 def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[str], k: int,
                         allowed: Optional[Sequence[str]], frequencies: Optional[Sequence[float]] = None,
-                        h_min: float = 0.0) -> Prediction:
+                        h_min: float = 0.0, frame: str = "model", start_steps: Optional[int] = None) -> Prediction:
     """Prediction from the linearisation's monodromy with a converged propagator.
 
     The exponential-midpoint product of ``res`` (``N`` steps) is refined by step doubling
@@ -918,7 +918,10 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     single link (2 pi, 4 elements) the hub multiplier at 512 / 1024 / 2048 / 4096 steps is
     0.29981183 / 203 / 214 / 218 (ratio 1.8, 2.75): the plain last change (2.0e-7 at 1024)
     under-reads the error (the measurement, stable to 1e-8 from T/4096 to T/16384, gives
-    0.29981227).  Why refine at all:
+    0.29981227).  ``frame="modal"`` (model files): the products run in the frozen-modal frame
+    of :func:`stability.modal.modal_floquet` (same multipliers; there the midpoint product is
+    in its asymptotic range after a few dozen steps instead of thousands), starting from
+    ``start_steps``.  Why refine at all:
     measured at Omega = 8 pi, Table 3 gains, 2 elements, the dominant multiplier at
     512 / 1024 / 2048 / 4096 / 8192 steps is 0.3947036 / 0.3946826 / 0.3946488 / 0.3946468 /
     0.3946463: the default 512 steps are 5.7e-5 off, more than the nonlinear measurement's
@@ -941,15 +944,27 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             out.append(lab)
         return out
 
-    previous = np.asarray(res.monodromy)
-    n = int(res.n_steps)
+    if frame == "modal":
+        from stability.modal import modal_floquet
+
+        def propagate(steps: int) -> Any:
+            return modal_floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    else:
+        def propagate(steps: int) -> Any:
+            return floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    if start_steps is not None:
+        n = int(start_steps)
+        previous = np.asarray(propagate(n).monodromy)
+    else:
+        previous = np.asarray(res.monodromy)
+        n = int(res.n_steps)
     pred = None
     last = None  # (multipliers, differences) of the previous doubling
     errors = None
     for _ in range(PREDICTION_MAX_DOUBLINGS):
         n *= 2
         try:
-            fine = floquet(lin, method="magnus2", n_steps=n, error_estimate=False, accuracy="moduli")
+            fine = propagate(n)
         except (ArithmeticError, MemoryError, ValueError, RuntimeError) as exc:  # e.g. the engine's work-array limit
             if pred is None:
                 raise
@@ -1144,6 +1159,15 @@ def validate_link_multipliers(
 
 
 # --------------------------------------------------------------------------- model files (generic path)
+#: Orbit samples of the model-file path.  Why 32 and not 16: the nonlinear runs take their
+#: feed-forward torque by trigonometric interpolation of the orbit samples; with 16 the closed
+#: loop runs about a slightly different orbit.  Measured on the 4-element single link at 6 pi
+#: (Table 3 gains): the hub multiplier converged under step refinement to 0.2968932 with 16
+#: samples, 0.2968809 with 32, against the prediction 0.2968808 (the same for 16 and 32: the
+#: linearisation is converged in the samples, the interpolated torque is not).
+MODEL_SAMPLES = 32
+#: First propagator level of the model-file prediction (frozen-modal frame, doubled from here).
+MODAL_START_STEPS = 64
 #: Newton tolerance of the model-file runs, on the Newton *increment* (Exudyn's
 #: ``residualMode = 1``, relative and absolute tolerance equal, as Exudyn asks).  Why not the
 #: residual (Exudyn's default): its round-off floor grows as the step shrinks (index-3
@@ -1319,7 +1343,7 @@ def validate_model_multipliers(
     kp: "float | Sequence[float]" = 0.0,
     kd: "float | Sequence[float]" = 0.0,
     *,
-    samples: int = 16,
+    samples: int = MODEL_SAMPLES,
     config: MultiplierCheckConfig = MultiplierCheckConfig(step=None, amplitude=None),
     predicted_gains: Optional[tuple] = None,
     quiet: bool = True,
@@ -1345,7 +1369,8 @@ def validate_model_multipliers(
     kp, kd : float or sequence
         PD gains per drive (or one for all).
     samples : int
-        Orbit / linearisation samples.
+        Orbit / linearisation samples (default :data:`MODEL_SAMPLES`; the nonlinear runs
+        get their feed-forward torque by trigonometric interpolation of these samples).
     config : MultiplierCheckConfig
     predicted_gains : (kp, kd), optional
         Gains of the prediction under test (default: the simulated ones).
@@ -1397,7 +1422,7 @@ def validate_model_multipliers(
         prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
                                          config.compare, None,
                                          [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
-                                         config.steps[-1])
+                                         config.steps[-1], frame="modal", start_steps=MODAL_START_STEPS)
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)

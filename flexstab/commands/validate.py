@@ -54,7 +54,9 @@ def register(sub) -> None:
     p.add_argument("--elements", default=None,
                    help="ANCF elements (default 4 for the built-in link; built-in model files: passed to their "
                         "build, per link for two-link; default: the model's own)")
-    p.add_argument("--samples", default="16", help="orbit / linearisation samples per period (default 16)")
+    p.add_argument("--samples", default=None,
+                   help="orbit / linearisation samples per period (default 16 for the built-in link, 32 for model "
+                        "files: their feed-forward is interpolated from the samples)")
     p.add_argument("--step", default=None,
                    help="coarsest generalised-alpha step in s (default 1e-3 for the single link; for model files "
                         "T/n chosen so that strongly damped modes get no spurious multiplier, see "
@@ -147,7 +149,7 @@ def validation_report(args: argparse.Namespace):
     kd = kds[0] if kds else None
     elements = _number("elements", args.elements, minimum=1, integer=True)
     elements = 4 if elements is None else elements
-    samples = _number("samples", args.samples, minimum=4, integer=True)
+    samples = _number("samples", args.samples if args.samples is not None else "16", minimum=4, integer=True)
     if samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
     step = _number("step", args.step if args.step is not None else "1e-3", minimum=0.0, strict=True)
@@ -204,7 +206,10 @@ def _model_file_report(args: argparse.Namespace):
     omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
     T = 2 * math.pi / omega
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
-    samples = _number("samples", args.samples, minimum=4, integer=True)
+    from validation.multipliers import MODEL_SAMPLES
+
+    samples = _number("samples", args.samples if args.samples is not None else str(MODEL_SAMPLES), minimum=4,
+                      integer=True)
     if samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
     step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
