@@ -257,7 +257,11 @@ class HillModelPlant:
             labels = [self.hill_label(x) for x in h.states]
             ok = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
                   if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
-            mismatch = np.abs(np.log(h.multipliers[ok] / np.array([picks[j][1] for j in ok]))) if ok else np.array([])
+            # a magnus2 main-mode estimate must be near its refined value (the refinement of another
+            # candidate may land on a main mode from afar: that is a find, not a mismatch)
+            both = [j for j in ok if picks[j][0] in main]
+            mismatch = (np.abs(np.log(h.multipliers[both] / np.array([picks[j][1] for j in both])))
+                        if both else np.array([]))
             if ok and np.all(mismatch <= MATCH_TOLERANCE):
                 break
             logger.info("Hill refinement: %s main-mode candidates, log mismatch %.3g: labelling again with %d steps",

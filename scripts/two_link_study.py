@@ -56,6 +56,8 @@ def main(argv=None) -> int:
     ap.add_argument("--target", type=float, default=0.3)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--compare", action="store_true", help="tune: also Nelder-Mead and differential evolution")
+    ap.add_argument("--direct-from", default=None, metavar="JSON",
+                    help="tune: take the Nelder-Mead / DE rows from a two_link_speed.json of the benchmark")
     ap.add_argument("--grid", type=int, default=4, help="robust: points per noise factor of the worst-case grid")
     ap.add_argument("--robust-iterations", type=int, default=4)
     ap.add_argument("--robust-workers", type=int, default=1)
@@ -111,6 +113,13 @@ def main(argv=None) -> int:
                    "workers": args.workers, "check": chk.to_dict(), "check_cpu_s": cpu() - c0}
             print(f"{k}pi tuned {[round(g, 5) for g in res.gains]}: Hill {res.spectral_radius:.6f}, magnus2 "
                   f"{chk.to_dict()['streamed_moduli']} ({res.evaluations} evaluations, {cpu_s:.1f} s CPU)", flush=True)
+            if args.direct_from:  # Nelder-Mead / DE measured by benchmarks/two_link_speed.py --compare
+                bench = {round(r["omega"] / math.pi): r for r in json.loads(Path(args.direct_from).read_text())}
+                if k in bench and bench[k].get("direct"):
+                    row["direct"] = bench[k]["direct"]
+                    row["direct_source"] = str(args.direct_from)
+                    row["benchmark"] = {key: bench[k][key] for key in ("tuning_cpu_s", "tuning_evaluations",
+                                                                       "analysis_cpu_s", "cpu_seconds")}
             if args.compare:
                 cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
                 obj = HillGainObjective(hill_plant(lin, o, cfg))
