@@ -660,6 +660,8 @@ def _prepare_out(out: Path) -> None:
 #: Stages that run in the second process when the study runs on two processes (``jobs=2``): the
 #: Exudyn chain (``validation`` reads the gains ``exudyn`` tuned).  Only that process imports Exudyn.
 EXUDYN_LANE = ("exudyn", "validation", "two_link")
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+FULL_ONLY = ("two_link",)
 
 
 def _cpu_now() -> float:
@@ -717,7 +719,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     c0 = _cpu_now()
     if isinstance(opts.jobs, bool) or not isinstance(opts.jobs, int) or opts.jobs < 1:
         raise ValueError(f"jobs must be a positive integer, got {opts.jobs!r}")
-    stages = opts.stages or tuple(STAGES)
+    stages = opts.stages or tuple(s for s in STAGES if not (opts.quick and s in FULL_ONLY))
     unknown = [s for s in stages if s not in STAGES]
     if unknown:
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")
