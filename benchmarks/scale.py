@@ -94,7 +94,8 @@ def _cplx(z) -> list:
 
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
-           floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True) -> dict:
+           floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
+           implicit_limit: float | None = None) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -116,10 +117,10 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     rec["states"] = 2 * int(lin.size)
     system = lin
     if frame == "modal":
-        from stability.modal import FrozenModalSystem
+        from stability.modal import modal_system
 
         with _Stage(st, "modal_basis"):
-            system = FrozenModalSystem(lin)
+            system = modal_system(lin)  # the nested frozen-modal frames analyze() uses
         rec["modal_condition"] = float(system.condition)
     dense_mult = None
     res = None
@@ -144,7 +145,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                         "top": [_cplx(z) for z in dense_mult[:k]]}
     imp = None
     if implicit:
-        with _Stage(st, "floquet_implicit", floquet_limit):
+        with _Stage(st, "floquet_implicit", floquet_limit if implicit_limit is None else implicit_limit):
             imp = implicit_floquet(system, k=k, n_steps=n_steps, method="magnus2")
     if implicit and imp is not None:
         mult = np.asarray(imp.multipliers)
@@ -250,13 +251,15 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
     ap.add_argument("--floquet-limit", type=float, default=300.0,
                     help="CPU seconds per Floquet stage before it is recorded as not finished")
+    ap.add_argument("--implicit-limit", type=float, default=None,
+                    help="CPU seconds for the implicit stage (default: --floquet-limit)")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
-                     args.floquet_limit, args.frame, not args.no_extrapolate)
+                     args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit)
         print(json.dumps(rec))
         return 0
     records = []
@@ -267,6 +270,8 @@ def main(argv=None) -> int:
                "--floquet-limit", str(args.floquet_limit), "--frame", args.frame]
         if args.no_extrapolate:
             cmd.append("--no-extrapolate")
+        if args.implicit_limit is not None:
+            cmd += ["--implicit-limit", str(args.implicit_limit)]
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

@@ -14,9 +14,10 @@ turn in the state space with the motion, in any coordinates built from the
 model (the hand-derived hub frame as much as the generic co-rotating null-space
 basis).  Every step boundary then moves the quasi-static equilibrium of the
 stiff modes abruptly; the frozen step excites them (a "kick" of phase
-``omega h``), and the dominant multiplier converges erratically (measured, 2
-elements, 8 pi: relative error 1.2e-4 at 256 steps, 3e-7 at 4096; 8 elements
-needs even more).
+``omega h``), and the multipliers converge erratically (measured, single link,
+2 elements, 8 pi: the largest damped multiplier 1.2e-4 off at 256 steps, 3e-7 at
+4096; the hub multiplier 1.1e-2 off at 512 steps with a step-doubling estimate
+of 4.5e-4; 8 elements need even more).
 
 In the frozen-modal coordinates ``x = V(t) y`` (``V(t)`` a smooth
 T-periodic real basis of the eigenvectors of ``P(t)``, complex pairs as their
@@ -27,8 +28,15 @@ real and imaginary parts),
 ``P_hat`` is nearly block diagonal with slowly varying 1x1 / 2x2 blocks (the
 frozen eigenvalues, whose blocks commute with each other at different times);
 only the small coupling ``-V^-1 V'`` (rate of turn of the mode shapes) varies
-within a step, and the exponential midpoint converges with a few dozen steps
-(measured on the single link, 2 elements, 2 pi .. 8 pi: 1e-7 at 32 steps).
+within a step.  Measured on the 8-element single link (Table 3 gains), relative
+error of the hub multiplier with 128 midpoint steps: 1.5e-9, 9e-7, 4.3e-5,
+1.7e-4 at 2, 4, 6, 8 pi (512 steps in the model's coordinates: 6.5e-5 at 4 pi,
+5.2e-3 at 8 pi), now converging cleanly at order 2 (ratio 3.9-4.0 per
+doubling), so that Richardson extrapolation (:func:`modal_floquet`,
+``extrapolate=True``) lifts it to order 4.  A second frame built the same way on
+``P_hat`` (:func:`modal_system`, a superadiabatic iteration) removes the
+first-order coupling between the modes; with both, 128 steps leave 9e-11 ..
+3.3e-7 (see :data:`MODAL_LEVELS`).
 
 Exactness
 ---------
@@ -36,14 +44,20 @@ For *any* smooth, T-periodic, invertible ``V(t)`` the multipliers of ``P_hat``
 equal those of ``P`` (``Phi(T) = V(0) Phi_hat(T) V(0)^-1``): ``V`` only has to
 be a good basis, not exact eigenvectors.  Here ``V`` is the trigonometric
 interpolant of eigenvector samples and ``V'`` its *exact* derivative, so the
-transformation is an exact similarity whatever the sample count.  The
-eigenvectors are continued from sample to sample by matching eigenvalues and
-scaling each new eigenvector to unit projection on the previous left
-eigenvector (a discrete parallel transport); the holonomy after one lap (a
-complex factor per mode) is removed with ``exp(-g t / T)`` as in
+transformation is an exact similarity whatever the sample count.  The frozen
+eigenvalues are grouped into clusters by modulus: a cut between two consecutive
+moduli (sorted) wherever they stay apart by :data:`CLUSTER_GAP` over the whole
+period, so that each cluster's invariant subspace is a smooth function of ``t``
+(a crossing, or the hub pair turning from complex to real and back at 6 pi,
+stays inside one cluster; conjugate pairs always do).  Each cluster's real basis
+(real eigenvectors, real and imaginary parts of the complex ones) is continued
+from sample to sample with unit projection on the previous left basis (a
+discrete parallel transport); the holonomy after one lap (a small real block per
+cluster) is removed with ``expm(-G t / T)``, ``G`` its real logarithm, as in
 :func:`linearize.constrained.null_space_basis`.  A continuation that does not
-close (modes exchanged over a lap, a complex pair turning real, a real mode
-that reverses) raises :class:`ModalBasisError`; :func:`modal_floquet` then
+close (a block without a real logarithm, a subspace turning by ~90 degrees
+between samples, a nearly singular basis) raises :class:`ModalBasisError`;
+:func:`modal_system` retries with more samples, and :func:`modal_floquet` then
 propagates ``P`` itself.
 
 References
@@ -72,9 +86,10 @@ logger = logging.getLogger(__name__)
 
 #: Samples of the eigenvector basis per period (:func:`modal_system` doubles them, up to
 #: :data:`MAX_MODAL_SAMPLES`, when the continuation fails).  The basis only has to be smooth,
-#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link,
-#: 16 and 32 samples give the same multipliers to 1e-9, and 16 halve the eigenvalue solves.
-DEFAULT_MODAL_SAMPLES = 16
+#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link
+#: 16 and 32 samples give the same multipliers to 1e-9, but on the two-link arm (4 pi, no gains)
+#: 16 samples leave 9e-4 at 128 steps where 32 leave 1.6e-5.
+DEFAULT_MODAL_SAMPLES = 32
 MAX_MODAL_SAMPLES = 64
 #: Largest condition number of a sampled basis ``V(t_k)`` (balanced) accepted; beyond it the
 #: eigenvectors are nearly dependent (a near-defective ``P``) and the similarity loses digits.
@@ -339,11 +354,12 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     reliable_all = bool((moduli > 100.0 * fine.noise_floor).all())
     mult_liouville = _liouville(float(spec.log_moduli.sum()), fine.trace_integral) if reliable_all else math.nan
     liouville = mult_liouville if fine.liouville_source == "multipliers" and reliable_all else fine.liouville_residual
-    # the verdict band: the largest estimated *absolute* error of a modulus (a strongly damped
-    # stiff multiplier of modulus 1e-5 may carry a large relative estimate, but cannot reach |rho| = 1)
+    # the verdict band: stable only if every modulus plus its estimated error stays below 1, i.e.
+    # tol = max_i |rho_i| (1 + e_i) - rho (a strongly damped stiff multiplier of modulus 1e-4 may carry
+    # a large relative estimate without coming near |rho| = 1)
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(1e-6)
-    abs_err = float(np.max(np.where(np.isfinite(changes[keep]), changes[keep] * moduli[keep], np.inf)))
-    tol = max(float(options.get("stability_tol", 1e-8)), abs_err)
+    upper = float(np.max(np.where(np.isfinite(changes[keep]), moduli[keep] * (1.0 + changes[keep]), np.inf)))
+    tol = max(float(options.get("stability_tol", 1e-8)), upper - rho)
     return replace(fine, multipliers=spec.values, log_moduli=spec.log_moduli, monodromy=R1, spectral_radius=rho,
                    verdict=_verdict(rho, tol), stability_tolerance=tol, liouville_residual=liouville,
                    multiplier_liouville_residual=mult_liouville, error_estimate=est, reliable_digits=digits,
@@ -356,10 +372,13 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
 #: between the modes (a superadiabatic iteration).  Measured on the 8-element single link at
 #: 6 pi / 8 pi (extrapolated, 128 steps): hub multiplier 2.1e-6 / ~2e-6 off with one frame
 #: (and no longer converging cleanly), 7e-8 / 3e-7 with two (4th order from 64 to 128 steps).
+#: Not always better: on the two-link arm with gains (4 pi) 5.7e-5 with two frames against 1.4e-7
+#: with one (see :func:`linearize.analysis.analyze`, which then tries one frame).
 MODAL_LEVELS = 2
 
 
-def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None) -> "FrozenModalSystem":
+def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None,
+                 period: Optional[float] = None) -> "FrozenModalSystem":
     """``levels`` nested frozen-modal frames of ``P`` (fewer if a deeper one has no smooth basis).
 
     The first frame is retried with twice the samples (up to :data:`MAX_MODAL_SAMPLES`) when
@@ -368,7 +387,7 @@ def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = No
     K = int(samples if samples is not None else DEFAULT_MODAL_SAMPLES)
     while True:
         try:
-            system = FrozenModalSystem(P, K)
+            system = FrozenModalSystem(P, K, period)
             break
         except ModalBasisError:
             if 2 * K > MAX_MODAL_SAMPLES:
@@ -399,21 +418,23 @@ def _rebase(system: "FrozenModalSystem", P: Any) -> "FrozenModalSystem":
 
 
 def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[FrozenModalSystem] = None,
-                  extrapolate: bool = False, **options: Any):
+                  extrapolate: bool = False, levels: int = MODAL_LEVELS, **options: Any):
     """:func:`stability.floquet` of ``P`` propagated in frozen-modal coordinates.
 
     Builds :class:`FrozenModalSystem` (falls back to ``P`` itself, logged, on
     :class:`ModalBasisError`), runs :func:`stability.floquet` with ``options``
     on it and returns its :class:`~stability.FloquetResult` with the monodromy
     matrix mapped back to the coordinates of ``P``.  ``basis``: reuse the
-    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`).
+    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`);
+    ``levels``: nested frames (:func:`modal_system`).
 
     ``extrapolate=True`` (a fixed ``n_steps`` divisible by 4, ``method="magnus2"``,
     no ``small_multipliers="qr"``): the multipliers are those of the
     Richardson-extrapolated monodromy ``(4 Phi_N - Phi_{N/2}) / 3`` (4th order),
     with the error estimate from its change against ``(4 Phi_{N/2} - Phi_{N/4}) / 3``
     (see :func:`_extrapolated`); ``monodromy`` is the extrapolated matrix, and the
-    verdict band is the largest estimated absolute error of a modulus.  With
+    verdict band is ``max_i |rho_i| (1 + e_i) - rho`` (stable only if every modulus plus
+    its estimated error is below 1).  With
     ``n_steps`` divisible by 9 on a system larger than ``stability.floquet.SMALL_N``
     the ratio is 3 instead, ``(9 Phi_N - Phi_{N/3}) / 8`` against
     ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
@@ -428,7 +449,7 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         system = _rebase(basis, P)
     else:
         try:
-            system = modal_system(P, MODAL_LEVELS, samples)
+            system = modal_system(P, levels, samples, options.get("period"))
         except ModalBasisError as exc:
             logger.info("frozen-modal basis not available (%s): propagating P itself", exc)
             return floquet(P, **options)
