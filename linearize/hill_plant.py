@@ -284,8 +284,13 @@ class HillModelPlant:
                                refined=[(labels[i], complex(h.multipliers[i])) for i in pool],
                                hill_error_estimate=float(h.error_estimate[j]), label_steps=steps, confirmed=False)
         j = max(ok, key=lambda i: abs(h.multipliers[i]))
+        distinct: list = []  # two candidates refined onto the same exponent are listed once
+        for i in ok:
+            z = complex(h.multipliers[i])
+            if all(abs(z - w) > 1e-9 * max(abs(z), 1e-300) for _, w in distinct):
+                distinct.append((labels[i], z))
         return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
-                           refined=[(labels[i], complex(h.multipliers[i])) for i in ok],
+                           refined=distinct,
                            hill_error_estimate=float(h.error_estimate[j]), label_steps=steps)
 
     def spectral_measure(self, kp, kd) -> float:
