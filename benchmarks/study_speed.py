@@ -5,7 +5,8 @@ Each mode runs as its own ``flexstab study --no-resume`` subprocess into a tempo
 (``--keep DIR`` keeps the folders).  Per stage the script prints the wall time and the CPU
 time that the study recorded in ``<stage>.stage.json`` (``time.process_time`` of the process
 that ran the stage plus ``getrusage(RUSAGE_CHILDREN)`` of its worker pools), which process ran it
-(``main`` or the second process of ``--jobs 2``), and for the whole run the wall time and the
+(``main`` or ``exudyn-k``, the process of the k-th chain of
+``flexstab.study.EXUDYN_CHAINS`` with ``--jobs 2``), and for the whole run the wall time and the
 CPU time of the study and all its children measured here (``RUSAGE_CHILDREN`` of this script).
 
 The machine's load (``os.getloadavg``) before and after each run is printed beside the times:
@@ -34,8 +35,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = ("table2", "table3", "charts", "transients", "exudyn", "validation")
-EXUDYN_LANE = ("exudyn", "validation")
+sys.path.insert(0, str(ROOT))
+from flexstab.study import EXUDYN_CHAINS, STAGES  # noqa: E402  (the study's own stage list and processes)
 
 
 def _children_cpu() -> float:
@@ -66,11 +67,12 @@ def run_mode(mode: str, out: Path, jobs: int, config: str | None) -> dict:
         rec_path = out / f"{name}.stage.json"
         if rec_path.exists():
             rec = json.loads(rec_path.read_text())
+            chain = [i for i, c in enumerate(EXUDYN_CHAINS) if name in c]
             stages[name] = {"wall": rec.get("elapsed"), "cpu": rec.get("cpu"),
-                            "process": "second" if (jobs >= 2 and name in EXUDYN_LANE) else "main"}
-    lanes = {"main": 0.0, "second": 0.0}
+                            "process": f"exudyn-{chain[0] + 1}" if (jobs >= 2 and chain) else "main"}
+    lanes: dict = {}
     for s in stages.values():
-        lanes[s["process"]] += s["cpu"] or 0.0
+        lanes[s["process"]] = lanes.get(s["process"], 0.0) + (s["cpu"] or 0.0)
     return {"mode": mode, "jobs": jobs, "returncode": proc.returncode, "wall": wall, "cpu": cpu,
             "load_before": list(load0), "load_after": list(load1), "stages": stages,
             "cpu_per_process": lanes,
@@ -87,7 +89,7 @@ def print_mode(r: dict) -> None:
         print(f"| {name} | {s['process']} | {s['wall']:.1f} | {s['cpu']:.1f} |")
     print(f"| **total** | | **{r['wall']:.1f}** | **{r['cpu']:.1f}** |")
     lanes = r["cpu_per_process"]
-    print(f"stage CPU by process: main {lanes['main']:.1f} s, second {lanes['second']:.1f} s (each with its "
+    print("stage CPU by process: " + ", ".join(f"{k} {v:.1f} s" for k, v in lanes.items()) + " (each with its "
           f"pools); total CPU / {os.cpu_count()} = {r['cpu'] / (os.cpu_count() or 1):.1f} s: the wall time on an "
           "idle machine with these cores cannot be less")
 

@@ -9,8 +9,9 @@ beside the report:
 2. ``tuning``   -- Taguchi tuning of the ``2 N`` gains of the ``N`` drives to
    ``rho_d`` (:func:`flexstab.commands.tune.tune_model_plant`: step-doubling
    check at the tuned gains) and the labelled multipliers at the tuned gains
-   from a separate evaluation (twice the loop's ``magnus2`` steps, at least
-   512 and at most 4096, with its own step-doubling estimate);
+   from a separate evaluation (:func:`~linearize.analysis.analyze` with twice
+   the loop's steps, at least its default and at most 4096, with its own
+   step-doubling estimate);
 3. ``charts``   -- the gain chart of the first drive (the others at their tuned
    gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
 4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
@@ -212,7 +213,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         res, plant, passes = tune_model_plant(plant, tcfg)
         kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in _pairs(res.gains, nd))
         state["gains"] = (kp, kd)
-        # beside the loop's evaluations: twice its propagator steps (at least analyze's 512, at most the
+        # beside the loop's evaluations: twice its propagator steps (at least analyze's default, at most the
         # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
         check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit,
                         n_steps=max(DEFAULT_PROPAGATOR_STEPS, min(2 * plant.n_steps, MAX_TUNING_STEPS)), **options)
@@ -235,7 +236,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                  f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})."),
             table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
                   [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
-            *_multiplier_blocks(check, "Check at the tuned gains, an independent evaluation",
+            *_multiplier_blocks(check, "Check at the tuned gains, a separate evaluation",
                                 f" (ρ_d = {opts.target:g})"),
         ]
 
@@ -274,8 +275,10 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
 
         kp, kd = state.get("gains", ([], []))
         base = state.get("uncontrolled")
-        T = 2 * math.pi / omega
-        check = MultiplierCheckConfig(step=T / 128, refinements=1 if opts.quick else 2)
+        # the validation path's own step rule (suggested_step: unresolved damped modes keep spurious
+        # multipliers below 1e-2) and amplitude; three step levels in every mode, so the step error bar
+        # rests on an observed convergence order (two levels cannot show one)
+        check = MultiplierCheckConfig(step=None, amplitude=None, refinements=2)
         v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
         d = v.to_dict()
         (out / "validation.json").write_text(json.dumps(_ready(d), indent=2, default=float))

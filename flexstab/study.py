@@ -47,15 +47,18 @@ names the error instead of the study crashing.
 
 Processes
 ---------
-With ``jobs=2`` (default) the Exudyn chain (:data:`EXUDYN_LANE`: ``exudyn`` then
-``validation``, which reads the gains ``exudyn`` tuned) runs in a second
-process, forked once from the main thread with matplotlib and pydoe already
-imported (only that process imports Exudyn), while this process runs the other
+With ``jobs >= 2`` (default 2) each chain of :data:`EXUDYN_CHAINS` -- the Exudyn
+chain (``exudyn`` then ``validation``, which reads the gains ``exudyn`` tuned)
+and the two-link section -- runs in a process of its own, forked once from the
+main thread with matplotlib, pydoe and the compiled Floquet kernel already
+loaded (only those processes import Exudyn), while this process runs the other
 stages in order; the transient cases and the chart points run in process pools
-of their own.  Every record is written by this process as its stage finishes,
-with the stage's wall time and CPU time (``time.process_time`` of the process
-that ran it plus ``RUSAGE_CHILDREN`` of its pools).  A new stage that runs
-Exudyn belongs in :data:`EXUDYN_LANE`.
+of their own.  (The two-link section has its own process because in the Exudyn
+chain it made that chain the longest: ``--quick`` 13.4 s CPU against 8.8 s here.)
+Every record is written by this process as its stage finishes, with the stage's
+wall time and CPU time (``time.process_time`` of the process that ran it plus
+``RUSAGE_CHILDREN`` of its pools).  A new stage that runs Exudyn belongs in a
+chain of :data:`EXUDYN_CHAINS`.
 """
 from __future__ import annotations
 
@@ -107,8 +110,8 @@ class StudyOptions:
     resume : bool
         Reuse finished stages whose inputs are unchanged (default True).
     jobs : int
-        Processes (default 2): with 2, the Exudyn chain (:data:`EXUDYN_LANE`) runs in a second
-        process beside the other stages; 1 runs every stage in this process.
+        Processes (default 2): with 2 or more, each chain of :data:`EXUDYN_CHAINS` runs in a
+        process of its own beside the other stages; 1 runs every stage in this process.
     """
 
     out: Path = Path("results")
@@ -657,9 +660,14 @@ def _prepare_out(out: Path) -> None:
         raise ValueError(f"output folder {str(out)!r} cannot be written: {exc.strerror}") from None
 
 
-#: Stages that run in the second process when the study runs on two processes (``jobs=2``): the
-#: Exudyn chain (``validation`` reads the gains ``exudyn`` tuned).  Only that process imports Exudyn.
-EXUDYN_LANE = ("exudyn", "validation", "two_link")
+#: Chains of stages that each run in a process of their own beside this one when the study runs on
+#: several processes (``jobs >= 2``): the Exudyn chain (``validation`` reads the gains ``exudyn``
+#: tuned) and the independent two-link section.  Only those processes import Exudyn.
+EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
+#: Every stage of :data:`EXUDYN_CHAINS`.
+EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+FULL_ONLY = ("two_link",)
 
 
 def _cpu_now() -> float:
@@ -695,7 +703,7 @@ def _preload(stages: Sequence[str]) -> None:
 
 
 def _lane_worker_init(parent_pid: int) -> None:
-    """Initializer of the study's second process: quiet, and ends with the parent."""
+    """Initializer of the study's Exudyn processes: quiet, and end with the parent."""
     from flexstab.executor import exit_with_parent
 
     exit_with_parent(parent_pid)
@@ -704,9 +712,9 @@ def _lane_worker_init(parent_pid: int) -> None:
 def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOptions()) -> StudyResult:
     """Run the study's stages and write ``report.md`` / ``report.html`` to ``opts.out``.
 
-    With ``opts.jobs >= 2`` and stages on both sides, the Exudyn chain (:data:`EXUDYN_LANE`) runs
-    in a second process while this process runs the other stages in order; every stage record
-    is written here, as each stage finishes.
+    With ``opts.jobs >= 2``, each chain of :data:`EXUDYN_CHAINS` runs in a process of its own while
+    this process runs the other stages in order (with no other stages, the first chain runs here);
+    every stage record is written here, as each stage finishes.
 
     Raises
     ------
@@ -717,7 +725,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     c0 = _cpu_now()
     if isinstance(opts.jobs, bool) or not isinstance(opts.jobs, int) or opts.jobs < 1:
         raise ValueError(f"jobs must be a positive integer, got {opts.jobs!r}")
-    stages = opts.stages or tuple(STAGES)
+    stages = opts.stages or tuple(s for s in STAGES if not (opts.quick and s in FULL_ONLY))
     unknown = [s for s in stages if s not in STAGES]
     if unknown:
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")
@@ -826,28 +834,30 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         else:
             finished(name, p[0], p[1], r, el, cpu)
 
-    lane = [s for s in stages if s in EXUDYN_LANE] if opts.jobs >= 2 else []
-    here = [s for s in stages if s not in lane]
-    if not here:  # nothing to overlap with
-        here, lane = lane, []
-    pool = None
-    helper = None
+    chains = [[s for s in stages if s in chain] for chain in EXUDYN_CHAINS] if opts.jobs >= 2 else []
+    chains = [c for c in chains if c]
+    here = [s for s in stages if not any(s in c for c in chains)]
+    if not here and chains:  # nothing else to overlap with: the first chain runs here
+        here, chains = chains[0], chains[1:]
+    pools: list = []
+    helpers: list = []
     lane_error: list = []
-    if lane:
+    if chains:
         import concurrent.futures as cf
         import multiprocessing
 
-        pool = cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                      initializer=_lane_worker_init, initargs=(os.getpid(),))
-        # start the process now, from this thread while it is the only one: a fork from the helper
-        # thread could copy a lock (the import lock) that the main thread holds at that moment
-        _preload(stages)  # imported once here, inherited by the forked process
-        pool.submit(int).result()
+        _preload(stages)  # imported once here, inherited by the forked processes
+        for _ in chains:
+            # start each process now, from this thread while it is the only one: a fork from a helper
+            # thread could copy a lock (the import lock) that the main thread holds at that moment
+            pools.append(cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
+                                                initializer=_lane_worker_init, initargs=(os.getpid(),)))
+            pools[-1].submit(int).result()
         remote = replace(opts, progress=False, log=None)
 
-        def drive_lane() -> None:  # waits on the second process (no CPU here) and records its stages
+        def drive_lane(chain: list, pool) -> None:  # waits on its process (no CPU here), records its stages
             try:
-                for name in lane:
+                for name in chain:
                     p = prepare(name)
                     if p is None:
                         continue
@@ -862,22 +872,24 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
             except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread)
                 lane_error.append(exc)
 
-        helper = threading.Thread(target=drive_lane, name="flexstab-study-lane", daemon=True)
-        helper.start()
+        for chain, pool in zip(chains, pools):
+            helpers.append(threading.Thread(target=drive_lane, args=(chain, pool), name="flexstab-study-lane",
+                                            daemon=True))
+            helpers[-1].start()
     try:
         for name in here:
             run_here(name)
-        if helper is not None:
+        for helper in helpers:
             helper.join()
     except BaseException:
-        if pool is not None:  # interrupted: stop the second process now, do not wait for its stage
+        for pool in pools:  # interrupted: stop the other processes now, do not wait for their stages
             for proc in list(getattr(pool, "_processes", {}).values()):
                 proc.terminate()
             pool.shutdown(wait=False, cancel_futures=True)
-            pool = None
+        pools = []
         raise
     finally:
-        if pool is not None:
+        for pool in pools:
             pool.shutdown(wait=True)
         if bar is not None:
             bar.close()

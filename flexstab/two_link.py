@@ -274,6 +274,9 @@ class TunedCheck:
         ``{n_steps: multiplier}`` of the streamed magnus2 product nearest Hill's value.
     magnus_error_estimate : float
         ``4/3 |rho_2n - rho_n|`` of the two finest products (second order), absolute.
+    modal : dict, optional
+        ``steps``, ``multiplier``, ``error_estimate`` of :func:`stability.modal.modal_floquet`
+        (frozen-modal coordinates, Richardson-extrapolated).
     difference : float
         ``| |rho_hill| - |rho_magnus,finest| |``.
     seconds : dict
@@ -288,10 +291,15 @@ class TunedCheck:
     magnus_error_estimate: float
     difference: float
     seconds: dict
+    modal: Optional[dict] = None
 
     def to_dict(self) -> dict:
         c = lambda z: [float(np.real(z)), float(np.imag(z))]  # noqa: E731
-        return {"gains": list(self.gains), "hill": c(self.hill), "hill_modulus": float(abs(self.hill)),
+        md = None if self.modal is None else {
+            "steps": self.modal["steps"], "multiplier": c(self.modal["multiplier"]),
+            "modulus": float(abs(self.modal["multiplier"])), "error_estimate": self.modal["error_estimate"],
+            "difference": float(abs(abs(self.modal["multiplier"]) - abs(self.hill)))}
+        return {"modal_magnus2": md, "gains": list(self.gains), "hill": c(self.hill), "hill_modulus": float(abs(self.hill)),
                 "hill_error_estimate": self.hill_error_estimate, "harmonics": self.harmonics, "mode": self.mode,
                 "streamed_magnus2": {str(k): c(v) for k, v in self.streamed.items()},
                 "streamed_moduli": {str(k): float(abs(v)) for k, v in self.streamed.items()},
@@ -300,8 +308,9 @@ class TunedCheck:
 
 
 def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Sequence[int] = CHECK_STEPS,
-                     harmonics: int = 32) -> TunedCheck:
-    """Dominant labelled multiplier at ``gains`` by Hill and by streamed magnus2 products at ``steps``."""
+                     harmonics: int = 32, modal_steps: Optional[int] = 512) -> TunedCheck:
+    """Dominant labelled multiplier at ``gains`` by Hill, by streamed magnus2 products at ``steps`` and
+    (``modal_steps``) by the Richardson-extrapolated magnus2 product in frozen-modal coordinates."""
     from stability.streamed import streamed_floquet
 
     g = [float(v) for v in gains]
@@ -316,9 +325,21 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
         secs[f"magnus2_{n}"] = time.perf_counter() - t0
     mods = [abs(streamed[int(n)]) for n in steps]
     est = 4.0 / 3.0 * abs(mods[-1] - mods[-2]) if len(mods) > 1 else math.nan
+    modal = None
+    if modal_steps:
+        # a third method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-
+        # extrapolated from modal_steps and modal_steps / 2 (fourth order), with its own error estimate
+        from stability.modal import modal_floquet
+
+        t0 = time.perf_counter()
+        r = modal_floquet(lg, method="magnus2", n_steps=int(modal_steps), extrapolate=True)
+        w = np.asarray(r.multipliers)
+        modal = {"steps": int(modal_steps), "multiplier": complex(w[int(np.argmin(np.abs(w - m.dominant)))]),
+                 "error_estimate": float(r.error_estimate)}
+        secs["modal_magnus2"] = time.perf_counter() - t0
     return TunedCheck(gains=tuple(g), hill=m.dominant, hill_error_estimate=m.hill_error_estimate, harmonics=harmonics,
                       mode=m.mode, streamed=streamed, magnus_error_estimate=est,
-                      difference=abs(abs(m.dominant) - mods[-1]), seconds=secs)
+                      difference=abs(abs(m.dominant) - mods[-1]), seconds=secs, modal=modal)
 
 
 @dataclass(frozen=True)

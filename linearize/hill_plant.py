@@ -126,6 +126,9 @@ class HillMeasure:
     hill_error_estimate : float
         Hill's relative H vs H/2 change of the dominant (NaN when not computed).
     label_steps : int
+    confirmed : bool
+        False when Hill's labels and the magnus2 estimates did not agree at any step
+        count tried (the value is then the best candidate, see :meth:`HillModelPlant.measure`).
     """
 
     dominant: complex
@@ -134,6 +137,7 @@ class HillMeasure:
     refined: list = field(default_factory=list)
     hill_error_estimate: float = math.nan
     label_steps: int = LABEL_STEPS
+    confirmed: bool = True
 
 
 class HillModelPlant:
@@ -204,41 +208,89 @@ class HillModelPlant:
         res = self._workspace(steps or self.label_steps).floquet(g)
         return lin, res, label_multipliers(lin, self.orbit, res)
 
+    def frozen(self):
+        """Frozen-time modes (gain-independent), computed once."""
+        fm = self._workspaces.get("frozen")
+        if fm is None:
+            from linearize.analysis import frozen_modes
+
+            fm = frozen_modes(self.linearization, self.orbit)
+            self._workspaces["frozen"] = fm
+        return fm
+
+    def hill_label(self, state: np.ndarray) -> str:
+        """Label of a Floquet state ``[z; z']`` at t = 0: the frozen mode of largest modal energy
+        (the rule of :func:`linearize.analysis.label_multipliers`)."""
+        fm = self.frozen()
+        r = self.linearization.size
+        Vinv = self._workspaces.get("Vinv")
+        if Vinv is None:
+            Vinv = np.linalg.inv(fm.shapes)
+            self._workspaces["Vinv"] = Vinv
+        eta, eta_t = Vinv @ state[:r], Vinv @ state[r:]
+        energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
+        return fm.labels[int(np.argmax(energy))]
+
     def measure(self, kp, kd, *, error_estimate: bool = False) -> HillMeasure:
-        """Dominant drive-mode / ``bending 1`` multiplier, labelled by magnus2 and measured by Hill."""
+        """Dominant drive-mode / ``bending 1`` multiplier, measured and labelled by Hill.
+
+        Candidates: every magnus2 multiplier labelled as a main mode, and every other
+        one off the unit circle at least as large as the largest main one (a coarse
+        product can mislabel the slow mode on a fine mesh); each is refined by Hill and
+        labelled again from Hill's Floquet vector; the response is the largest refined
+        one whose Hill label is a main mode and which is off the unit circle.
+        """
         from stability.hill import hill_multipliers
 
         steps = self.label_steps
+        main = set(self.orbit.drive_names) | {"bending 1"}
         for _ in range(3):
             lin, res, modes = self.labelled(kp, kd, steps)
-            main = set(self.orbit.drive_names) | {"bending 1"}
-            picks = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
-                     if m["mode"] in main and not m["undamped"] and np.imag(mu) >= 0]
-            if not picks:  # as linearize.analysis: the largest one off the unit circle
-                picks = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
-                         if not m["undamped"] and np.imag(mu) >= 0][:1]
-            # below the product's rounding floor a multiplier (and its label) is noise; the
-            # response is the largest, so the few largest estimates are refined
             floor = max(NOISE_FACTOR * float(res.noise_floor), 1e-300)
-            picks = sorted((p for p in picks if abs(p[1]) > floor), key=lambda p: -abs(p[1]))
-            picks = [p for p in picks if abs(p[1]) >= RELATIVE_CUTOFF * abs(picks[0][1])][:MAX_REFINED] if picks else []
+            upper = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
+                     if not m["undamped"] and np.imag(mu) >= 0 and abs(mu) > floor]
+            mains = sorted((p for p in upper if p[0] in main), key=lambda p: -abs(p[1]))
+            top = abs(mains[0][1]) if mains else 0.0
+            picks = [p for p in mains if abs(p[1]) >= RELATIVE_CUTOFF * top][:MAX_REFINED]
+            picks += [p for p in upper if p[0] not in main and abs(p[1]) >= top]
             if not picks:
                 return HillMeasure(dominant=complex(res.multipliers[0]), mode=modes[0]["mode"],
                                    estimate=complex(res.multipliers[0]), label_steps=steps)
             h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks], harmonics=self.harmonics,
                                  error_estimate=error_estimate)
-            mismatch = np.abs(np.log(h.multipliers / np.array([p[1] for p in picks])))
-            if np.all(mismatch <= MATCH_TOLERANCE):
+            labels = [self.hill_label(x) for x in h.states]
+            ok = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
+                  if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
+            # a magnus2 main-mode estimate must be near its refined value (the refinement of another
+            # candidate may land on a main mode from afar: that is a find, not a mismatch)
+            both = [j for j in ok if picks[j][0] in main]
+            mismatch = (np.abs(np.log(h.multipliers[both] / np.array([picks[j][1] for j in both])))
+                        if both else np.array([]))
+            if ok and np.all(mismatch <= MATCH_TOLERANCE):
                 break
-            logger.info("Hill refinement moved an estimate by %.3g in log rho: labelling again with %d steps",
-                        float(np.max(mismatch)), 2 * steps)
+            logger.info("Hill refinement: %s main-mode candidates, log mismatch %.3g: labelling again with %d steps",
+                        len(ok), float(np.max(mismatch)) if mismatch.size else math.nan, 2 * steps)
             steps *= 2
         else:
-            raise ArithmeticError(f"the magnus2 estimates do not match Hill's multipliers "
-                                  f"(log mismatch {float(np.max(mismatch)):.3g} with {steps // 2} steps)")
-        j = int(np.argmax(np.abs(h.multipliers)))
-        return HillMeasure(dominant=complex(h.multipliers[j]), mode=picks[j][0], estimate=picks[j][1],
-                           refined=[(p[0], complex(m)) for p, m in zip(picks, h.multipliers)],
+            # not confirmed at any step count: the largest Hill-labelled main mode (mismatch ignored), else the
+            # largest refined magnus2 main-mode candidate, else the largest refined one -- flagged, logged
+            steps //= 2
+            main_est = [j for j, p in enumerate(picks) if p[0] in main]
+            pool = ok or main_est or list(range(len(picks)))
+            logger.warning("Hill's method did not confirm the magnus2 labels at gains kp=%s kd=%s (up to %d steps); "
+                           "using the %s", kp, kd, steps, "Hill-labelled main mode" if ok else "best candidate")
+            j = max(pool, key=lambda i: abs(h.multipliers[i]))
+            return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
+                               refined=[(labels[i], complex(h.multipliers[i])) for i in pool],
+                               hill_error_estimate=float(h.error_estimate[j]), label_steps=steps, confirmed=False)
+        j = max(ok, key=lambda i: abs(h.multipliers[i]))
+        distinct: list = []  # two candidates refined onto the same exponent are listed once
+        for i in ok:
+            z = complex(h.multipliers[i])
+            if all(abs(z - w) > 1e-9 * max(abs(z), 1e-300) for _, w in distinct):
+                distinct.append((labels[i], z))
+        return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
+                           refined=distinct,
                            hill_error_estimate=float(h.error_estimate[j]), label_steps=steps)
 
     def spectral_measure(self, kp, kd) -> float:

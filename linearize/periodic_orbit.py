@@ -96,9 +96,9 @@ MAX_STEP_HALVINGS = 12
 #: motion in absolute coordinates leaves the rotation's circle) and the next step
 #: undoes it; the natural monotonicity test of the damped Newton rejects such steps,
 #: which is why it failed on the single link at 6 pi and 8 pi (8 elements) and needed
-#: a long continuation in omega.  Measured full-step iterations to 1e-6 on the
-#: single link (8 elements, 32 samples): 3, 5, 5, 6 at 2, 4, 6, 8 pi; two-link 3, 5
-#: at 2, 4 pi.
+#: a long continuation in omega.  Measured full Newton steps to 1e-6 from the simulated
+#: period on the single link (8 elements, 32 samples): 2, 5, 5, 5 at 2, 4, 6, 8 pi;
+#: two-link (default mesh) 2, 4 at 2, 4 pi.
 FULL_STEP_ITERATIONS = 10
 #: ... and continues beyond it (up to ``max_iterations``) only while every step at least
 #: halves the residual (slow but steady convergence near a resonance, e.g. 12 pi).

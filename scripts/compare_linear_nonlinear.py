@@ -13,16 +13,80 @@ circle, zoom on the dominant multiplier) to ``results/`` (or ``--out``).
 error of the nonlinear runs against the linear response,
 ``linear_vs_nonlinear*``).  ``--quick``: 2 elements, h and h/2, the 8pi
 cases only.
+
+``--model-files``: the same measurement through the generic model-file path
+(:func:`validation.multipliers.validate_model_multipliers`): the built-in
+``single-link`` model file at the Table 3 gains, four Omegas (``--elements``,
+default 4), and the built-in ``two-link`` arm at the tuned four gains of
+:data:`TWO_LINK_TUNED` (2 elements per link), default steps
+(:func:`~validation.multipliers.suggested_step`), rho_inf = 1; writes
+``multipliers_model_files.json`` / ``.md`` / ``.png``.  With ``--quick``: the
+single link at 8pi with 2 elements and h, h/2 only.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+#: Tuned two-link gains (issue 11, session 3 tuning to rho_d = 0.3): Omega/pi -> ((kp1, kp2), (kd1, kd2)).
+TWO_LINK_TUNED = {2: ((15.0, 7.1484), (8.9453, 1.4531)), 4: ((21.406, 6.1719), (7.8516, 1.8867))}
+
+
+def model_file_study(out: Path, *, elements: int = 4, quick: bool = False) -> list:
+    """Measured vs predicted multipliers through the model-file path (see the module docstring)."""
+    from mbs_models.paper_data import TABLE3_PRINTED
+    from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
+    from validation.plots import plot_multiplier_plane
+
+    cases = [("single-link", k, (kp,), (kd,), {"elements": 2 if quick else elements})
+             for k, _rho, kp, kd, _ in TABLE3_PRINTED if not quick or k == 8]
+    if not quick:
+        cases += [("two-link", k, kp, kd, {"elements": 2}) for k, (kp, kd) in TWO_LINK_TUNED.items()]
+    config = MultiplierCheckConfig(step=None, amplitude=None, refinements=1 if quick else 2)
+    rows, results = [], []
+    for model, k, kp, kd, opts in cases:
+        tic = time.process_time()
+        r = validate_model_multipliers(model, k * math.pi, kp=list(kp), kd=list(kd), config=config, **opts)
+        d = r.to_dict()
+        d.update({"case": f"{model}, {k}pi", "elements_per_link": opts["elements"],
+                  "cpu_seconds": time.process_time() - tic})
+        rows.append(d)
+        results.append((f"{model}, Ω = {k}π", r))
+    lines = [
+        "# Measured vs predicted multipliers through the model-file path",
+        "",
+        "Nonlinear Exudyn runs (drives released, feed-forward + PD inside Exudyn, perturbations on the "
+        "constraints), generalised-α ρ∞ = 1, steps h, h/2, h/4 from validation.multipliers.suggested_step, "
+        "Newton on the increment (1e-10); bar = GCI step error + amplitude error + the prediction's "
+        "propagator error (GCI of its step doublings).",
+        "",
+        "| case | el. | mode | predicted | measured | abs. error | rel. error | bar | step err. | ampl. err. | "
+        "pred. err. | resolved | agrees | h (s) | CPU (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for d in rows:
+        for m in d["multipliers"]:
+            c = lambda z: "n/a" if z is None else f"{z[0]:+.7f}{z[1]:+.7f}i"  # noqa: E731
+            g = lambda x: "n/a" if x is None else f"{x:.2e}"  # noqa: E731
+            lines.append(
+                f"| {d['case']} | {d['elements_per_link']} | {m['mode']} | {c(m['predicted'])} | {c(m.get('measured'))} | "
+                f"{g(m.get('abs_error'))} | {g(m.get('relative_error'))} | {g(m.get('error_bar'))} | "
+                f"{g(m.get('step_error'))} | {g(m.get('amplitude_error'))} | {g(m.get('prediction_error'))} | "
+                f"{'yes' if m.get('step_converged') else 'NO'} | {'yes' if m.get('agrees') else 'no'} | "
+                f"{d['steps'][0]:.3g} | {d['cpu_seconds']:.0f} |")
+    (out / "multipliers_model_files.json").write_text(json.dumps(rows, indent=2))
+    (out / "multipliers_model_files.md").write_text("\n".join(lines) + "\n")
+    plot_multiplier_plane([r for _, r in results], out / "multipliers_model_files.png",
+                          titles=[t for t, _ in results], suptitle="Model-file path: measured vs predicted multipliers")
+    print("\n".join(lines))
+    return rows
 
 
 def main(argv=None) -> int:
@@ -36,10 +100,18 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder (default results/)")
     ap.add_argument("--elements", type=int, default=4, help="ANCF elements (default 4)")
     ap.add_argument("--refinements", type=int, default=2, help="step halvings (default 2: h, h/2, h/4)")
-    ap.add_argument("--step", type=float, default=1e-3, help="coarsest step (default 1e-3 s)")
+    ap.add_argument("--step", type=float, default=None,
+                    help="coarsest step (default: validation.multipliers.suggested_step, at most 1e-3 s)")
     ap.add_argument("--quick", action="store_true", help="2 elements, h and h/2, the 8pi cases only")
     ap.add_argument("--transients", action="store_true", help="also the time-series comparison (slow)")
+    ap.add_argument("--model-files", action="store_true",
+                    help="only the model-file path: single-link (Table 3, four Omegas) and two-link (tuned gains)")
     args = ap.parse_args(argv)
+    if args.model_files:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        model_file_study(out, elements=args.elements, quick=args.quick)
+        return 0
     elements, refinements = args.elements, args.refinements
     cases = MULTIPLIER_CASES
     if args.quick:

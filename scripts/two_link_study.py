@@ -56,8 +56,11 @@ def main(argv=None) -> int:
     ap.add_argument("--target", type=float, default=0.3)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--compare", action="store_true", help="tune: also Nelder-Mead and differential evolution")
-    ap.add_argument("--grid", type=int, default=5, help="robust: points per noise factor of the worst-case grid")
-    ap.add_argument("--robust-iterations", type=int, default=6)
+    ap.add_argument("--direct-from", default=None, metavar="JSON",
+                    help="tune: take the Nelder-Mead / DE rows from a two_link_speed.json of the benchmark")
+    ap.add_argument("--grid", type=int, default=4, help="robust: points per noise factor of the worst-case grid")
+    ap.add_argument("--robust-iterations", type=int, default=4)
+    ap.add_argument("--robust-workers", type=int, default=1)
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     stages = [s for s in args.stages.split(",") if s]
@@ -110,6 +113,13 @@ def main(argv=None) -> int:
                    "workers": args.workers, "check": chk.to_dict(), "check_cpu_s": cpu() - c0}
             print(f"{k}pi tuned {[round(g, 5) for g in res.gains]}: Hill {res.spectral_radius:.6f}, magnus2 "
                   f"{chk.to_dict()['streamed_moduli']} ({res.evaluations} evaluations, {cpu_s:.1f} s CPU)", flush=True)
+            if args.direct_from:  # Nelder-Mead / DE measured by benchmarks/two_link_speed.py --compare
+                bench = {round(r["omega"] / math.pi): r for r in json.loads(Path(args.direct_from).read_text())}
+                if k in bench and bench[k].get("direct"):
+                    row["direct"] = bench[k]["direct"]
+                    row["direct_source"] = str(args.direct_from)
+                    row["benchmark"] = {key: bench[k][key] for key in ("tuning_cpu_s", "tuning_evaluations",
+                                                                       "analysis_cpu_s", "cpu_seconds")}
             if args.compare:
                 cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
                 obj = HillGainObjective(hill_plant(lin, o, cfg))
@@ -161,9 +171,10 @@ def main(argv=None) -> int:
             rcfg = RobustConfig(tuning=TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=10**6),
                                 noise=two_link_noise_factors(rs), sn=rs.sn, max_iterations=args.robust_iterations)
             c0, t0 = cpu(), time.perf_counter()
-            with make_executor("process", max_workers=args.workers) as ex:
+            # serial by default: every noise value's orbit is then computed once (a pool computes it per worker)
+            with make_executor("process", max_workers=args.robust_workers) as ex:
                 cmp = compare_nominal_robust(TwoLinkNoisePlant(k * math.pi), tcfg, rcfg, grid_points=args.grid,
-                                             executor=ex)
+                                             executor=ex if args.robust_workers > 1 else None)
             d = cmp.to_dict()
             d["cpu_s"], d["wall_s"] = cpu() - c0, time.perf_counter() - t0
             doc["robust"][f"{k}pi"] = d

@@ -49,7 +49,7 @@ import cmath
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -98,6 +98,10 @@ class HillResult:
         ``n`` (second-order coordinates).
     elapsed : float
         Seconds.
+    states : ndarray of complex, shape (m, 2 n)
+        The Floquet solution's state ``[y(0); y'(0)]`` per multiplier
+        (``y(0) = sum_k p_k``, ``y'(0) = sum_k (lambda + i k W) p_k``): the
+        monodromy's eigenvector, for mode labels.
     """
 
     multipliers: np.ndarray
@@ -110,6 +114,7 @@ class HillResult:
     period: float
     size: int
     elapsed: float = field(default=0.0, compare=False)
+    states: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
     def to_dict(self) -> dict:
         c = lambda z: [float(np.real(z)), float(np.imag(z))]  # noqa: E731
@@ -305,7 +310,7 @@ def hill_multipliers(
     H = int(harmonics)
     op = _HillOperator(Mc, Cc, Kc, float(period), H)
     coarse = _HillOperator(Mc, Cc, Kc, float(period), max(2, H // 2)) if error_estimate else None
-    mus, lams, est, tails, res = [], [], [], [], []
+    mus, lams, est, tails, res, states = [], [], [], [], [], []
     for target in tg:
         sigma = cmath.log(complex(target)) / period
         lam, p = _centred(op, sigma)
@@ -314,6 +319,9 @@ def hill_multipliers(
         outer = np.abs(np.arange(-H, H + 1)) > 0.75 * H
         tails.append(float(np.sum(e[outer]) / max(float(np.sum(e)), 1e-300)))
         res.append(op.residual(lam, p))
+        P = p.reshape(2 * H + 1, op.n)
+        s_k = lam + 1j * op.W * np.arange(-H, H + 1)
+        states.append(np.concatenate([P.sum(axis=0), (s_k[:, None] * P).sum(axis=0)]))
         if coarse is not None:
             lam_c, _ = _centred(coarse, lam)
             est.append(abs(cmath.exp(lam_c * period) - mu) / max(abs(mu), 1e-300))
@@ -324,5 +332,5 @@ def hill_multipliers(
     return HillResult(
         multipliers=np.array(mus), exponents=np.array(lams), targets=tg, harmonics=H,
         error_estimate=np.array(est), tail=np.array(tails), residual=np.array(res), period=float(period),
-        size=int(mats[0].shape[1]), elapsed=time.perf_counter() - t0,
+        size=int(mats[0].shape[1]), elapsed=time.perf_counter() - t0, states=np.array(states),
     )

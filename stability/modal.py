@@ -14,9 +14,10 @@ turn in the state space with the motion, in any coordinates built from the
 model (the hand-derived hub frame as much as the generic co-rotating null-space
 basis).  Every step boundary then moves the quasi-static equilibrium of the
 stiff modes abruptly; the frozen step excites them (a "kick" of phase
-``omega h``), and the dominant multiplier converges erratically (measured, 2
-elements, 8 pi: relative error 1.2e-4 at 256 steps, 3e-7 at 4096; 8 elements
-needs even more).
+``omega h``), and the multipliers converge erratically (measured, single link,
+2 elements, 8 pi: the largest damped multiplier 1.2e-4 off at 256 steps, 3e-7 at
+4096; the hub multiplier 1.1e-2 off at 512 steps with a step-doubling estimate
+of 4.5e-4; 8 elements need even more).
 
 In the frozen-modal coordinates ``x = V(t) y`` (``V(t)`` a smooth
 T-periodic real basis of the eigenvectors of ``P(t)``, complex pairs as their
@@ -27,8 +28,15 @@ real and imaginary parts),
 ``P_hat`` is nearly block diagonal with slowly varying 1x1 / 2x2 blocks (the
 frozen eigenvalues, whose blocks commute with each other at different times);
 only the small coupling ``-V^-1 V'`` (rate of turn of the mode shapes) varies
-within a step, and the exponential midpoint converges with a few dozen steps
-(measured on the single link, 2 elements, 2 pi .. 8 pi: 1e-7 at 32 steps).
+within a step.  Measured on the 8-element single link (Table 3 gains), relative
+error of the hub multiplier with 128 midpoint steps: 1.5e-9, 9e-7, 4.3e-5,
+1.7e-4 at 2, 4, 6, 8 pi (512 steps in the model's coordinates: 6.5e-5 at 4 pi,
+5.2e-3 at 8 pi), now converging cleanly at order 2 (ratio 3.9-4.0 per
+doubling), so that Richardson extrapolation (:func:`modal_floquet`,
+``extrapolate=True``) lifts it to order 4.  A second frame built the same way on
+``P_hat`` (:func:`modal_system`, a superadiabatic iteration) removes the
+first-order coupling between the modes; with both, 128 steps leave 9e-11 ..
+3.3e-7 (see :data:`MODAL_LEVELS`).
 
 Exactness
 ---------
@@ -36,14 +44,20 @@ For *any* smooth, T-periodic, invertible ``V(t)`` the multipliers of ``P_hat``
 equal those of ``P`` (``Phi(T) = V(0) Phi_hat(T) V(0)^-1``): ``V`` only has to
 be a good basis, not exact eigenvectors.  Here ``V`` is the trigonometric
 interpolant of eigenvector samples and ``V'`` its *exact* derivative, so the
-transformation is an exact similarity whatever the sample count.  The
-eigenvectors are continued from sample to sample by matching eigenvalues and
-scaling each new eigenvector to unit projection on the previous left
-eigenvector (a discrete parallel transport); the holonomy after one lap (a
-complex factor per mode) is removed with ``exp(-g t / T)`` as in
+transformation is an exact similarity whatever the sample count.  The frozen
+eigenvalues are grouped into clusters by modulus: a cut between two consecutive
+moduli (sorted) wherever they stay apart by :data:`CLUSTER_GAP` over the whole
+period, so that each cluster's invariant subspace is a smooth function of ``t``
+(a crossing, or the hub pair turning from complex to real and back at 6 pi,
+stays inside one cluster; conjugate pairs always do).  Each cluster's real basis
+(real eigenvectors, real and imaginary parts of the complex ones) is continued
+from sample to sample with unit projection on the previous left basis (a
+discrete parallel transport); the holonomy after one lap (a small real block per
+cluster) is removed with ``expm(-G t / T)``, ``G`` its real logarithm, as in
 :func:`linearize.constrained.null_space_basis`.  A continuation that does not
-close (modes exchanged over a lap, a complex pair turning real, a real mode
-that reverses) raises :class:`ModalBasisError`; :func:`modal_floquet` then
+close (a block without a real logarithm, a subspace turning by ~90 degrees
+between samples, a nearly singular basis) raises :class:`ModalBasisError`;
+:func:`modal_system` retries with more samples, and :func:`modal_floquet` then
 propagates ``P`` itself.
 
 References
@@ -57,24 +71,27 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import replace
+import warnings
+from dataclasses import dataclass, fields, replace
 from typing import Any, Optional
 
 import numpy as np
 import scipy.linalg
 
+from stability.floquet import FloquetResult
 from stability.periodic import PeriodicMatrixFunction
 
-__all__ = ["FrozenModalSystem", "ModalBasisError", "modal_floquet", "modal_system", "DEFAULT_MODAL_SAMPLES",
-           "MODAL_LEVELS"]
+__all__ = ["FrozenModalSystem", "ModalBasisError", "ModalFloquetResult", "modal_floquet", "modal_system",
+           "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS"]
 
 logger = logging.getLogger(__name__)
 
 #: Samples of the eigenvector basis per period (:func:`modal_system` doubles them, up to
 #: :data:`MAX_MODAL_SAMPLES`, when the continuation fails).  The basis only has to be smooth,
-#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link,
-#: 16 and 32 samples give the same multipliers to 1e-9, and 16 halve the eigenvalue solves.
-DEFAULT_MODAL_SAMPLES = 16
+#: not exact (the similarity is exact for any ``V``): measured on the 8-element single link
+#: 16 and 32 samples give the same multipliers to 1e-9, but on the two-link arm (4 pi, no gains)
+#: 16 samples leave 9e-4 at 128 steps where 32 leave 1.6e-5.
+DEFAULT_MODAL_SAMPLES = 32
 MAX_MODAL_SAMPLES = 64
 #: Largest condition number of a sampled basis ``V(t_k)`` (balanced) accepted; beyond it the
 #: eigenvectors are nearly dependent (a near-defective ``P``) and the similarity loses digits.
@@ -86,6 +103,50 @@ CLUSTER_GAP = 0.05
 
 class ModalBasisError(ArithmeticError):
     """No smooth periodic frozen-eigenvector basis could be continued along the period (says why)."""
+
+
+#: The one fallback policy of the package when no frozen-modal basis exists
+#: (:class:`ModalBasisError`, e.g. a mode whose damping crosses critical within the period):
+#: :func:`modal_floquet` warns (``RuntimeWarning``) and runs :func:`stability.floquet`'s
+#: *adaptive* engine (``n_steps=None``, the caller's ``rtol``) with this method in ``P``'s own
+#: coordinates, so that the result carries a checked Richardson estimate, never a fixed step count
+#: outside its asymptotic range.  For a stiff flexible model this can be slow or exceed the work
+#: limit (:class:`stability.FloquetError`): an error, not a silently inaccurate answer.
+FALLBACK_METHOD = "magnus6"
+
+
+@dataclass(frozen=True)
+class ModalFloquetResult(FloquetResult):
+    """:class:`~stability.FloquetResult` of :func:`modal_floquet`, with the frame it was propagated in.
+
+    Attributes
+    ----------
+    frame : {"modal", "model"}
+        ``"modal"``: frozen-modal coordinates (``modal_levels`` nested frames);
+        ``"model"``: the fallback (:data:`FALLBACK_METHOD`, adaptive) in ``P``'s own coordinates.
+    modal_levels : int
+        Nested frozen-modal frames used (0 for the fallback).
+    fallback_reason : str
+        Why no basis was built (the :class:`ModalBasisError` message), ``""`` otherwise.
+    """
+
+    frame: str = "modal"
+    modal_levels: int = 0
+    fallback_reason: str = ""
+
+
+def _with_frame(res: FloquetResult, frame: str, levels: int, reason: str = "") -> ModalFloquetResult:
+    """``res`` as a :class:`ModalFloquetResult` recording the frame."""
+    values = {f.name: getattr(res, f.name) for f in fields(FloquetResult) if f.init}
+    return ModalFloquetResult(**values, frame=frame, modal_levels=levels, fallback_reason=reason)
+
+
+def _levels(system: Any) -> int:
+    """Number of nested :class:`FrozenModalSystem` frames of ``system``."""
+    n = 0
+    while isinstance(system, FrozenModalSystem):
+        n, system = n + 1, system.original
+    return n
 
 
 def _trig_coefficients(samples: np.ndarray) -> np.ndarray:
@@ -293,6 +354,10 @@ class FrozenModalSystem:
 
 #: Step-count ratio between the solves of the extrapolation (``N / 4``, ``N / 2``, ``N``).
 EXTRAPOLATION_LEVELS = 3
+#: Range of ``d2 / d1`` (change of the extrapolated multiplier over two doublings / over the last
+#: one) in which the last change ``d1`` is trusted as the estimate (:func:`_extrapolated`):
+#: ``d2 = d1 + d0`` with ``d0 / d1`` = 4 (order 2) .. 32 (order 5).
+TRUSTED_RATIOS = (5.0, 33.0)
 
 
 def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
@@ -301,9 +366,21 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     Maths: the exponential midpoint rule is symmetric, so its monodromy matrix
     has an error expansion in even powers, ``Phi_N = Phi + C h^2 + O(h^4)``;
     ``R_N = (4 Phi_N - Phi_{N/2}) / 3`` is then 4th order.  The error estimate
-    of each multiplier of ``R_N`` is its change from ``R_{N/2}`` *undivided*
-    (the asymptotic ``/ 15`` is not claimed; valid whenever the extrapolated
-    values converge at least linearly), so it over-reads in the asymptotic range.
+    of each multiplier of ``R_N`` is its change ``d1`` from ``R_{N/2}`` *undivided*
+    (the asymptotic ``/ 15`` is not claimed), which bounds the error whenever the
+    extrapolated values converge at least linearly.  That premise is checked
+    (ratio 2, :data:`TRUSTED_RATIOS`): with ``d2`` the change of ``R_N`` from
+    ``R_{N/4}`` (one more solve, ``N/8``), ``d1`` is used only if ``d2 / d1`` lies
+    in ``[5, 33]`` (the previous change 4..32 times the last: order 2..5 seen over
+    two doublings); otherwise the estimate is ``max(d1, d2)``.  Measured on the
+    2-element single link (Table 3 gains, against the same linearisation at 2048
+    steps): one frame at 8 pi, 256 steps, ``d1 = 4.7e-8`` for a true error 1.3e-6
+    (``d2 / d1 = 142``: an accidental agreement of ``R_128`` and ``R_256``), and at
+    32 steps ``d1 = 1.4e-4`` for 6.3e-4; with the rule every case of 32..512 steps,
+    one and two frames, 2 pi and 8 pi, has estimate >= error.  With ``N`` not
+    divisible by 8 the estimate is ``max(d1, |R_N - Phi_N|)`` (the 2nd-order
+    change of the raw solve).  The ratio-3 path keeps ``d1`` (no third level from
+    the companions; measured there estimate / error >= 70 on the same cases).
     The frozen-modal frame is what makes the expansion hold at a few dozen
     steps: there the stiff blocks are nearly exact already and the error is the
     smooth ``h^2`` error of the slow modes (measured ratio 3.9-4.0 per doubling
@@ -326,10 +403,22 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
         extra_evaluations, extra_elapsed = half.n_evaluations + quarter.n_evaluations, half.elapsed + quarter.elapsed
     R1 = (r2 * fine.monodromy - mid) / (r2 - 1.0)
     R0 = (r2 * mid - coarse) / (r2 - 1.0)
+    check = None  # the matrix whose change from R1 is d2 (see the docstring)
+    if r2 == 4.0 and N % 8 == 0:
+        eighth = floquet(system, **dict(opts, n_steps=N // 8))
+        extra_evaluations, extra_elapsed = extra_evaluations + eighth.n_evaluations, extra_elapsed + eighth.elapsed
+        check = (r2 * coarse - eighth.monodromy) / (r2 - 1.0)
+    elif r2 == 4.0:
+        check = fine.monodromy
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         spec, prev = _spectrum(R1), _spectrum(R0)
         accuracy = options.get("accuracy", "moduli")
         changes = _select_changes(spec, prev, accuracy)
+        if check is not None:
+            d2 = _select_changes(spec, _spectrum(check), accuracy)
+            lo, hi = TRUSTED_RATIOS
+            trusted = (d2 >= lo * changes) & (d2 <= hi * changes) if N % 8 == 0 else np.zeros(len(changes), bool)
+            changes = np.where(trusted, changes, np.maximum(changes, d2))
         est = _estimate(changes, spec, 1.0)
         phase = _estimate(_phase_changes(spec, prev), spec, 1.0)
         rho = float(math.exp(spec.log_moduli[0]))
@@ -339,11 +428,12 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     reliable_all = bool((moduli > 100.0 * fine.noise_floor).all())
     mult_liouville = _liouville(float(spec.log_moduli.sum()), fine.trace_integral) if reliable_all else math.nan
     liouville = mult_liouville if fine.liouville_source == "multipliers" and reliable_all else fine.liouville_residual
-    # the verdict band: the largest estimated *absolute* error of a modulus (a strongly damped
-    # stiff multiplier of modulus 1e-5 may carry a large relative estimate, but cannot reach |rho| = 1)
+    # the verdict band: stable only if every modulus plus its estimated error stays below 1, i.e.
+    # tol = max_i |rho_i| (1 + e_i) - rho (a strongly damped stiff multiplier of modulus 1e-4 may carry
+    # a large relative estimate without coming near |rho| = 1)
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(1e-6)
-    abs_err = float(np.max(np.where(np.isfinite(changes[keep]), changes[keep] * moduli[keep], np.inf)))
-    tol = max(float(options.get("stability_tol", 1e-8)), abs_err)
+    upper = float(np.max(np.where(np.isfinite(changes[keep]), moduli[keep] * (1.0 + changes[keep]), np.inf)))
+    tol = max(float(options.get("stability_tol", 1e-8)), upper - rho)
     return replace(fine, multipliers=spec.values, log_moduli=spec.log_moduli, monodromy=R1, spectral_radius=rho,
                    verdict=_verdict(rho, tol), stability_tolerance=tol, liouville_residual=liouville,
                    multiplier_liouville_residual=mult_liouville, error_estimate=est, reliable_digits=digits,
@@ -356,10 +446,13 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
 #: between the modes (a superadiabatic iteration).  Measured on the 8-element single link at
 #: 6 pi / 8 pi (extrapolated, 128 steps): hub multiplier 2.1e-6 / ~2e-6 off with one frame
 #: (and no longer converging cleanly), 7e-8 / 3e-7 with two (4th order from 64 to 128 steps).
+#: Not always better: on the two-link arm with gains (4 pi) 5.7e-5 with two frames against 1.4e-7
+#: with one (see :func:`linearize.analysis.analyze`, which then tries one frame).
 MODAL_LEVELS = 2
 
 
-def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None) -> "FrozenModalSystem":
+def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = None,
+                 period: Optional[float] = None) -> "FrozenModalSystem":
     """``levels`` nested frozen-modal frames of ``P`` (fewer if a deeper one has no smooth basis).
 
     The first frame is retried with twice the samples (up to :data:`MAX_MODAL_SAMPLES`) when
@@ -368,7 +461,7 @@ def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = No
     K = int(samples if samples is not None else DEFAULT_MODAL_SAMPLES)
     while True:
         try:
-            system = FrozenModalSystem(P, K)
+            system = FrozenModalSystem(P, K, period)
             break
         except ModalBasisError:
             if 2 * K > MAX_MODAL_SAMPLES:
@@ -399,27 +492,31 @@ def _rebase(system: "FrozenModalSystem", P: Any) -> "FrozenModalSystem":
 
 
 def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[FrozenModalSystem] = None,
-                  extrapolate: bool = False, **options: Any):
+                  extrapolate: bool = False, levels: int = MODAL_LEVELS, **options: Any) -> ModalFloquetResult:
     """:func:`stability.floquet` of ``P`` propagated in frozen-modal coordinates.
 
-    Builds :class:`FrozenModalSystem` (falls back to ``P`` itself, logged, on
-    :class:`ModalBasisError`), runs :func:`stability.floquet` with ``options``
-    on it and returns its :class:`~stability.FloquetResult` with the monodromy
-    matrix mapped back to the coordinates of ``P``.  ``basis``: reuse the
-    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`).
+    Builds :class:`FrozenModalSystem`, runs :func:`stability.floquet` with ``options``
+    on it and returns its result (:class:`ModalFloquetResult`, ``frame="modal"``) with the
+    monodromy matrix mapped back to the coordinates of ``P``.  On :class:`ModalBasisError`
+    it warns (``RuntimeWarning``) and applies the fallback policy of :data:`FALLBACK_METHOD`
+    (adaptive, in ``P``'s coordinates, ``frame="model"``; ``n_steps``, ``method``,
+    ``error_estimate`` and ``extrapolate`` are then ignored).  ``basis``: reuse the
+    basis of another :class:`FrozenModalSystem` (:meth:`FrozenModalSystem.with_system`);
+    ``levels``: nested frames (:func:`modal_system`).
 
     ``extrapolate=True`` (a fixed ``n_steps`` divisible by 4, ``method="magnus2"``,
     no ``small_multipliers="qr"``): the multipliers are those of the
     Richardson-extrapolated monodromy ``(4 Phi_N - Phi_{N/2}) / 3`` (4th order),
     with the error estimate from its change against ``(4 Phi_{N/2} - Phi_{N/4}) / 3``
     (see :func:`_extrapolated`); ``monodromy`` is the extrapolated matrix, and the
-    verdict band is the largest estimated absolute error of a modulus.  With
+    verdict band is ``max_i |rho_i| (1 + e_i) - rho`` (stable only if every modulus plus
+    its estimated error is below 1).  With
     ``n_steps`` divisible by 9 on a system larger than ``stability.floquet.SMALL_N``
     the ratio is 3 instead, ``(9 Phi_N - Phi_{N/3}) / 8`` against
     ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
     ``N``-step factors (``FloquetResult.companion_monodromies``): ``N``
     exponentials in all instead of ``1.75 N``.
-    Without a modal basis (fallback to ``P``) no extrapolation is done: in the
+    Without a modal basis (the fallback) no extrapolation is done: in the
     model's coordinates the midpoint error is not in its asymptotic range.
     """
     from stability.floquet import floquet
@@ -428,10 +525,13 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         system = _rebase(basis, P)
     else:
         try:
-            system = modal_system(P, MODAL_LEVELS, samples)
+            system = modal_system(P, levels, samples, options.get("period"))
         except ModalBasisError as exc:
-            logger.info("frozen-modal basis not available (%s): propagating P itself", exc)
-            return floquet(P, **options)
+            warnings.warn(f"no frozen-modal basis ({exc}): Floquet falls back to adaptive {FALLBACK_METHOD} "
+                          f"(n_steps=None) in the model's own coordinates", RuntimeWarning, stacklevel=2)
+            fallback = {k: v for k, v in options.items() if k not in ("method", "n_steps", "error_estimate")}
+            res = floquet(P, method=FALLBACK_METHOD, n_steps=None, **fallback)
+            return _with_frame(res, "model", 0, str(exc))
     steps = options.get("n_steps")
     can_extrapolate = (extrapolate and steps is not None and int(steps) >= 8
                        and options.get("method", "magnus6") == "magnus2"
@@ -447,4 +547,4 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         res = fine
     else:
         res = floquet(system, **options)
-    return replace(res, monodromy=_to_base(system, res.monodromy))
+    return _with_frame(replace(res, monodromy=_to_base(system, res.monodromy)), "modal", _levels(system))

@@ -106,18 +106,26 @@ def test_broken_model_file_is_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "syntax.py" in err, err
 
 
-def test_orbit_continued_from_a_nearby_omega_is_the_same_orbit():
+def test_orbit_continued_from_a_nearby_omega_is_the_same_orbit(monkeypatch):
     """``find_orbit(guess=...)`` (the Omega chart's continuation) converges to the orbit found from
     scratch (both to the collocation tolerance, so within ~1e-10 of each other), without simulating
     a period for the guess; a guess of another size falls back to the usual guess."""
-    from linearize.periodic_orbit import find_orbit
+    import linearize.periodic_orbit as po
 
-    near = find_orbit(DOUBLE, 6.0, samples=32, verify=False)
-    cont = find_orbit(DOUBLE, 6.5, samples=32, verify=False, guess=near)
-    fresh = find_orbit(DOUBLE, 6.5, samples=32, verify=False)
+    near = po.find_orbit(DOUBLE, 6.0, samples=32, verify=False)
+    fresh = po.find_orbit(DOUBLE, 6.5, samples=32, verify=False)
+    simulated = []
+    usual = po._guess
+
+    def counting_guess(col, model):
+        simulated.append(col.K)
+        return usual(col, model)
+
+    monkeypatch.setattr(po, "_guess", counting_guess)
+    cont = po.find_orbit(DOUBLE, 6.5, samples=32, verify=False, guess=near)
+    assert simulated == []  # Newton started from the given orbit and converged from it
     scale = np.max(np.abs(fresh.q))
     assert np.max(np.abs(cont.q - fresh.q)) <= 1e-9 * scale
     assert np.max(np.abs(cont.torques - fresh.torques)) <= 1e-9 * np.max(np.abs(fresh.torques))
-    assert "guess" not in cont.timings and "guess" in fresh.timings
-    other = find_orbit(DOUBLE, 6.5, samples=16, verify=False, guess=near)  # 32 samples cannot seed 16
-    assert "guess" in other.timings and other.residual <= other.tolerance
+    other = po.find_orbit(DOUBLE, 6.5, samples=16, verify=False, guess=near)  # 32 samples cannot seed 16
+    assert simulated == [16] and other.residual <= other.tolerance

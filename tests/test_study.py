@@ -370,3 +370,30 @@ def test_interrupted_study_resumes_at_the_stage_it_stopped_in(tmp_path, monkeypa
                                                 progress=False, log=lines.append))
     assert res.stages["table2"]["status"] == "reused" and res.stages["table3"]["status"] == "computed"
     assert any("table2 reused" in s for s in lines) and any("table3 started" in s for s in lines)
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_exudyn_chains_run_in_processes_of_their_own(tmp_path, monkeypatch, jobs):
+    """jobs=2: the Exudyn chain (exudyn -> validation) in one process, the two-link section in another,
+    the other stages here; jobs=1: all here.  Stand-in stages record the process that ran them."""
+    import os
+
+    import flexstab.study as st
+
+    def stand_in(name):
+        def stage(cfg, opts):
+            (opts.out / f"{name}.json").write_text(json.dumps({"pid": os.getpid()}))
+            return {"json": f"{name}.json", "title": name, "blocks": []}
+        return stage
+
+    names = ("table2", "exudyn", "validation", "two_link")
+    for name in names:
+        monkeypatch.setitem(st.STAGES, name, stand_in(name))
+    run_study(StudyConfig(), StudyOptions(out=tmp_path, stages=names, progress=False, jobs=jobs))
+    pid = {n: json.loads((tmp_path / f"{n}.json").read_text())["pid"] for n in names}
+    assert pid["table2"] == os.getpid()
+    if jobs == 1:
+        assert set(pid.values()) == {os.getpid()}
+    else:
+        assert pid["exudyn"] == pid["validation"] != os.getpid()
+        assert pid["two_link"] not in (os.getpid(), pid["exudyn"])

@@ -135,7 +135,11 @@ DEFAULT_AMPLITUDE = 1e-3
 #: link (2 pi, Table 3 gains) the quadratic term left by the central difference is 7e-8 at 3e-2
 #: against 1e-2, i.e. ~8e-9 at 1e-2.
 MODEL_AMPLITUDE = 1e-2
-#: Coarsest step of the built-in link when ``config.step`` is None.
+#: Largest coarsest step of the built-in link when ``config.step`` is None (then
+#: ``min(LINK_STEP, suggested_step(...))``).  Why not 1e-3 at every Omega: at 6 pi (Table 3 gains,
+#: 4 elements) the levels at 1e-3, 5e-4, 2.5e-4 s are 0.2968458, 0.2968774, 0.2968790 (observed
+#: ratio 19: the coarse level outside the asymptotic range), 2.1e-6 below the prediction
+#: 0.2968817 with a GCI bar of 1.0e-6, and the second multiplier 0.0042 does not converge.
 LINK_STEP = 1e-3
 #: Multipliers below this modulus are not compared: one-period differences
 #: of amplitude ~1e-3 resolve ~1e-8 absolute, and a multiplier of 1e-6 has
@@ -905,7 +909,7 @@ PREDICTION_MAX_DOUBLINGS = 5
 
 def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[str], k: int,
                         allowed: Optional[Sequence[str]], frequencies: Optional[Sequence[float]] = None,
-                        h_min: float = 0.0) -> Prediction:
+                        h_min: float = 0.0, frame: str = "model", start_steps: Optional[int] = None) -> Prediction:
     """Prediction from the linearisation's monodromy with a converged propagator.
 
     The exponential-midpoint product of ``res`` (``N`` steps) is refined by step doubling
@@ -918,7 +922,10 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     single link (2 pi, 4 elements) the hub multiplier at 512 / 1024 / 2048 / 4096 steps is
     0.29981183 / 203 / 214 / 218 (ratio 1.8, 2.75): the plain last change (2.0e-7 at 1024)
     under-reads the error (the measurement, stable to 1e-8 from T/4096 to T/16384, gives
-    0.29981227).  Why refine at all:
+    0.29981227).  ``frame="modal"`` (model files): the products run in the frozen-modal frame
+    of :func:`stability.modal.modal_floquet` (same multipliers; there the midpoint product is
+    in its asymptotic range after a few dozen steps instead of thousands), starting from
+    ``start_steps``.  Why refine at all:
     measured at Omega = 8 pi, Table 3 gains, 2 elements, the dominant multiplier at
     512 / 1024 / 2048 / 4096 / 8192 steps is 0.3947036 / 0.3946826 / 0.3946488 / 0.3946468 /
     0.3946463: the default 512 steps are 5.7e-5 off, more than the nonlinear measurement's
@@ -941,15 +948,27 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             out.append(lab)
         return out
 
-    previous = np.asarray(res.monodromy)
-    n = int(res.n_steps)
+    if frame == "modal":
+        from stability.modal import modal_floquet
+
+        def propagate(steps: int) -> Any:
+            return modal_floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    else:
+        def propagate(steps: int) -> Any:
+            return floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    if start_steps is not None:
+        n = int(start_steps)
+        previous = np.asarray(propagate(n).monodromy)
+    else:
+        previous = np.asarray(res.monodromy)
+        n = int(res.n_steps)
     pred = None
     last = None  # (multipliers, differences) of the previous doubling
     errors = None
     for _ in range(PREDICTION_MAX_DOUBLINGS):
         n *= 2
         try:
-            fine = floquet(lin, method="magnus2", n_steps=n, error_estimate=False, accuracy="moduli")
+            fine = propagate(n)
         except (ArithmeticError, MemoryError, ValueError, RuntimeError) as exc:  # e.g. the engine's work-array limit
             if pred is None:
                 raise
@@ -980,9 +999,15 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
 
 
 def _link_prediction(ex: Any, name: str, k: int, allowed: Optional[Sequence[str]], h_min: float = 0.0) -> Prediction:
-    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`)."""
+    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`).
+
+    In the frozen-modal frame: measured at 6 pi (Table 3 gains, 4 elements) the hub-frame
+    product stopped at 2048 steps with 0.29688166 +- 1.7e-7 (GCI), the modal one at 1024 steps
+    with 0.29688106 +- 1.9e-7; the nonlinear measurement at the suggested step gives 0.29688087.
+    """
     return _refined_prediction(name, ex.floquet, ex.linearization, [m["mode"] for m in ex.modes], k, allowed,
-                               [m["frequency_hz"] for m in ex.modes], h_min)
+                               [m["frequency_hz"] for m in ex.modes], h_min, frame="modal",
+                               start_steps=MODAL_START_STEPS)
 
 
 def validate_link_multipliers(
@@ -1046,9 +1071,8 @@ def validate_link_multipliers(
         if not (math.isfinite(float(v)) and float(v) >= 0):
             raise ValueError(f"{nm} must be finite and >= 0, got {v!r}")
     T = 2 * math.pi / omega
-    config = replace(config, step=LINK_STEP if config.step is None else config.step,
-                     amplitude=DEFAULT_AMPLITUDE if config.amplitude is None else config.amplitude)
-    if config.step >= T:
+    config = replace(config, amplitude=DEFAULT_AMPLITUDE if config.amplitude is None else config.amplitude)
+    if config.step is not None and config.step >= T:
         raise ValueError(f"step must be smaller than the period T = {T:.6g} s, got {config.step!r}")
     bad = [a for a in alternatives if a not in ("reduced", "rigid", "periodic")]
     if bad:
@@ -1070,6 +1094,9 @@ def validate_link_multipliers(
         tested_name = f"exudyn linearisation about the {'periodic orbit' if predict_reference == 'periodic' else 'rigid reference'}"
         if (pkp, pkd) != (kp, kd):
             tested_name += f" with kp = {pkp:g}, kd = {pkd:g}"
+        if config.step is None:
+            # the same rule as for model files (spurious multipliers of strongly damped modes)
+            config = replace(config, step=min(LINK_STEP, suggested_step(ex.linearization, T, config.spectral_radius)))
         h_min = config.steps[-1]
         prediction = _link_prediction(tested, tested_name, config.compare, LINK_COMPARED_MODES, h_min)
         k_eff = prediction.multipliers.size
@@ -1144,6 +1171,15 @@ def validate_link_multipliers(
 
 
 # --------------------------------------------------------------------------- model files (generic path)
+#: Orbit samples of the model-file path.  Why 32 and not 16: the nonlinear runs take their
+#: feed-forward torque by trigonometric interpolation of the orbit samples; with 16 the closed
+#: loop runs about a slightly different orbit.  Measured on the 4-element single link at 6 pi
+#: (Table 3 gains): the hub multiplier converged under step refinement to 0.2968932 with 16
+#: samples, 0.2968809 with 32, against the prediction 0.2968808 (the same for 16 and 32: the
+#: linearisation is converged in the samples, the interpolated torque is not).
+MODEL_SAMPLES = 32
+#: First propagator level of the model-file prediction (frozen-modal frame, doubled from here).
+MODAL_START_STEPS = 64
 #: Newton tolerance of the model-file runs, on the Newton *increment* (Exudyn's
 #: ``residualMode = 1``, relative and absolute tolerance equal, as Exudyn asks).  Why not the
 #: residual (Exudyn's default): its round-off floor grows as the step shrinks (index-3
@@ -1319,7 +1355,7 @@ def validate_model_multipliers(
     kp: "float | Sequence[float]" = 0.0,
     kd: "float | Sequence[float]" = 0.0,
     *,
-    samples: int = 16,
+    samples: int = MODEL_SAMPLES,
     config: MultiplierCheckConfig = MultiplierCheckConfig(step=None, amplitude=None),
     predicted_gains: Optional[tuple] = None,
     quiet: bool = True,
@@ -1345,7 +1381,8 @@ def validate_model_multipliers(
     kp, kd : float or sequence
         PD gains per drive (or one for all).
     samples : int
-        Orbit / linearisation samples.
+        Orbit / linearisation samples (default :data:`MODEL_SAMPLES`; the nonlinear runs
+        get their feed-forward torque by trigonometric interpolation of these samples).
     config : MultiplierCheckConfig
     predicted_gains : (kp, kd), optional
         Gains of the prediction under test (default: the simulated ones).
@@ -1397,7 +1434,7 @@ def validate_model_multipliers(
         prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
                                          config.compare, None,
                                          [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
-                                         config.steps[-1])
+                                         config.steps[-1], frame="modal", start_steps=MODAL_START_STEPS)
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)

@@ -223,10 +223,14 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     task = dataclasses.replace(task, drive=idx, fixed_kp=fkp, fixed_kd=fkd)  # same plants (cache shared)
     charted = ("all drives" if idx is None else drives[idx]) if nd else None
 
+    from flexstab.study import _code_hash
+
     source = definition.source
     code = hashlib.sha1(Path(source).read_bytes()).hexdigest()[:8] if source else definition.name
+    # the resumable stores are keyed by everything that changes the numbers: the model file, its
+    # options, the discretisation and the package's own source (a changed engine starts a new store)
     fingerprint = hashlib.sha1(json.dumps(
-        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps]
+        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps, _code_hash()]
     ).encode()).hexdigest()[:8]
     tag = f"{definition.name}_w{omega:.6g}_{fingerprint}"
     label = f"model {definition.name} (dominant labelled multiplier, {steps} magnus2 steps)"
