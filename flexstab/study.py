@@ -666,6 +666,8 @@ def _prepare_out(out: Path) -> None:
 EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+FULL_ONLY = ("two_link",)
 
 
 def _cpu_now() -> float:
@@ -723,7 +725,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     c0 = _cpu_now()
     if isinstance(opts.jobs, bool) or not isinstance(opts.jobs, int) or opts.jobs < 1:
         raise ValueError(f"jobs must be a positive integer, got {opts.jobs!r}")
-    stages = opts.stages or tuple(STAGES)
+    stages = opts.stages or tuple(s for s in STAGES if not (opts.quick and s in FULL_ONLY))
     unknown = [s for s in stages if s not in STAGES]
     if unknown:
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")

@@ -126,6 +126,9 @@ class HillMeasure:
     hill_error_estimate : float
         Hill's relative H vs H/2 change of the dominant (NaN when not computed).
     label_steps : int
+    confirmed : bool
+        False when Hill's labels and the magnus2 estimates did not agree at any step
+        count tried (the value is then the best candidate, see :meth:`HillModelPlant.measure`).
     """
 
     dominant: complex
@@ -134,6 +137,7 @@ class HillMeasure:
     refined: list = field(default_factory=list)
     hill_error_estimate: float = math.nan
     label_steps: int = LABEL_STEPS
+    confirmed: bool = True
 
 
 class HillModelPlant:
@@ -268,11 +272,25 @@ class HillModelPlant:
                         len(ok), float(np.max(mismatch)) if mismatch.size else math.nan, 2 * steps)
             steps *= 2
         else:
-            raise ArithmeticError(f"no main-mode multiplier confirmed by Hill's method (labelling pass up to "
-                                  f"{steps // 2} steps)")
+            # not confirmed at any step count: the largest Hill-labelled main mode (mismatch ignored), else the
+            # largest refined magnus2 main-mode candidate, else the largest refined one -- flagged, logged
+            steps //= 2
+            main_est = [j for j, p in enumerate(picks) if p[0] in main]
+            pool = ok or main_est or list(range(len(picks)))
+            logger.warning("Hill's method did not confirm the magnus2 labels at gains kp=%s kd=%s (up to %d steps); "
+                           "using the %s", kp, kd, steps, "Hill-labelled main mode" if ok else "best candidate")
+            j = max(pool, key=lambda i: abs(h.multipliers[i]))
+            return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
+                               refined=[(labels[i], complex(h.multipliers[i])) for i in pool],
+                               hill_error_estimate=float(h.error_estimate[j]), label_steps=steps, confirmed=False)
         j = max(ok, key=lambda i: abs(h.multipliers[i]))
+        distinct: list = []  # two candidates refined onto the same exponent are listed once
+        for i in ok:
+            z = complex(h.multipliers[i])
+            if all(abs(z - w) > 1e-9 * max(abs(z), 1e-300) for _, w in distinct):
+                distinct.append((labels[i], z))
         return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
-                           refined=[(labels[i], complex(h.multipliers[i])) for i in ok],
+                           refined=distinct,
                            hill_error_estimate=float(h.error_estimate[j]), label_steps=steps)
 
     def spectral_measure(self, kp, kd) -> float:

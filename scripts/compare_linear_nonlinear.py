@@ -100,7 +100,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="results", help="output folder (default results/)")
     ap.add_argument("--elements", type=int, default=4, help="ANCF elements (default 4)")
     ap.add_argument("--refinements", type=int, default=2, help="step halvings (default 2: h, h/2, h/4)")
-    ap.add_argument("--step", type=float, default=1e-3, help="coarsest step (default 1e-3 s)")
+    ap.add_argument("--step", type=float, default=None,
+                    help="coarsest step (default: validation.multipliers.suggested_step, at most 1e-3 s)")
     ap.add_argument("--quick", action="store_true", help="2 elements, h and h/2, the 8pi cases only")
     ap.add_argument("--transients", action="store_true", help="also the time-series comparison (slow)")
     ap.add_argument("--model-files", action="store_true",

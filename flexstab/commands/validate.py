@@ -58,9 +58,9 @@ def register(sub) -> None:
                    help="orbit / linearisation samples per period (default 16 for the built-in link, 32 for model "
                         "files: their feed-forward is interpolated from the samples)")
     p.add_argument("--step", default=None,
-                   help="coarsest generalised-alpha step in s (default 1e-3 for the single link; for model files "
-                        "T/n chosen so that strongly damped modes get no spurious multiplier, see "
-                        "validation.multipliers.suggested_step)")
+                   help="coarsest generalised-alpha step in s (default: T/n chosen so that strongly damped modes "
+                        "get no spurious multiplier, see validation.multipliers.suggested_step; at most 1e-3 for the "
+                        "built-in link)")
     p.add_argument("--spectral-radius", default="1",
                    help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
     p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4)")
@@ -152,7 +152,7 @@ def validation_report(args: argparse.Namespace):
     samples = _number("samples", args.samples if args.samples is not None else "16", minimum=4, integer=True)
     if samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
-    step = _number("step", args.step if args.step is not None else "1e-3", minimum=0.0, strict=True)
+    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
     refinements = _number("refinements", args.refinements, minimum=0, integer=True)
     if refinements > 4:
         raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
@@ -160,7 +160,7 @@ def validation_report(args: argparse.Namespace):
                         strict=True)
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
-    if step >= 2 * math.pi / omega:
+    if step is not None and step >= 2 * math.pi / omega:
         raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
     if args.out is not None:
         out = Path(args.out)
