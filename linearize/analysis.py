@@ -31,12 +31,14 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
-#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps).
-#: In the model's own coordinates 512 steps left the single link's dominant multiplier 6.5e-5
-#: (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the step-doubling estimate under-read that by
-#: up to 25x).  Here, measured at 8 elements against the generic path converged: 1.5e-9, 9e-11,
-#: 7.3e-8, 3.3e-7 at 2, 4, 6, 8 pi, ~0.7 s CPU for the Floquet stage (96 steps: 1.5e-9, 8e-9,
-#: 2.3e-7, 1.0e-6 for ~0.6 s; ``benchmarks/model_file_speed.py``).
+#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps, a
+#: 16-step solve checking the estimate's premise).  In the model's own coordinates 512 steps left
+#: the single link's dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the
+#: step-doubling estimate under-read that by up to 25x).  Here, measured at 8 elements in one run of
+#: ``benchmarks/model_file_speed.py``: against the hand route converged 8.7e-10, 3.2e-9, 7.9e-8,
+#: 3.3e-7 at 2, 4, 6, 8 pi; against the same linearisation converged (the propagator error)
+#: 5.9e-13, 3.2e-9, 7.4e-8, 3.3e-7, estimates 1.8e-9, 4.6e-8, 1.3e-6, 4.9e-6; 0.8-0.9 s CPU
+#: for the Floquet stage.
 DEFAULT_PROPAGATOR_STEPS = 128
 #: :func:`analyze` retries the frozen-modal propagation with one frame instead of two when the
 #: dominant multiplier's estimate exceeds this (two frames win on the single link, one on the
@@ -459,7 +461,8 @@ def _multiplier_estimate(res: Any, mu: complex) -> float:
 
 
 #: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame built at each
-#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16; see :class:`ModelPlant`).
+#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16, premise check at 8; see
+#: :class:`ModelPlant`).
 #: A basis built once at gains 0 and reused is not good enough: 6.6e-4 off on the double pendulum
 #: test model (1e-7 with its own basis).  Measured on the 8-element single link at the Table 3
 #: gains: 1e-8 .. 4e-5 (2-8 pi), ~0.4 s CPU per evaluation (the former 256 plain steps: up to ~1e-2
