@@ -346,7 +346,9 @@ def analyze(
         converges with a few dozen steps, at order 2, and with ``magnus2`` and a fixed
         ``n_steps`` the multipliers are Richardson-extrapolated from ``n_steps``,
         ``n_steps/2`` and ``n_steps/4``: 4th order, see :func:`stability.modal.modal_floquet`;
-        falls back to ``"model"`` when no smooth basis exists); ``"model"`` the
+        when no smooth basis exists it warns and falls back to the adaptive engine in the model's
+        coordinates, :data:`stability.modal.FALLBACK_METHOD`; ``ModelFloquetResult.frame`` says which
+        frame was used); ``"model"`` the
         linearisation's own coordinates (needs thousands of steps for stiff flexible models).
     orbit : PeriodicOrbit, optional
         Reuse an orbit (must be for ``omega``).
@@ -416,20 +418,16 @@ def analyze(
         alt_dom = _dominant(alt, alt_modes, orbit.drive_names)
         alt_est = _multiplier_estimate(alt, alt_dom)
         logger.info("one frozen-modal frame: dominant estimate %.1e (two frames: %.1e)", alt_est, dom_est)
-        gap = abs(alt_dom - dom) / abs(dom) if abs(dom) > 0 else math.inf
-        larger = max(alt_est, dom_est) if math.isfinite(alt_est) else math.inf
         two_frames = (dom, dom_est)
-        if gap <= larger:
-            if alt_est < dom_est:
-                res, modes, dom, dom_est = alt, alt_modes, alt_dom, alt_est
-        else:
-            if alt_est > dom_est or not math.isfinite(alt_est):
-                res, modes, dom, dom_est = alt, alt_modes, alt_dom, alt_est
+        take_alt, dom_est_new, gap, agree = _pick_frame(dom, dom_est, alt_dom, alt_est)
+        if take_alt:
+            res, modes, dom = alt, alt_modes, alt_dom
+        if not agree:
             warnings.warn(f"one and two frozen-modal frames disagree on the dominant multiplier by {gap:.1e} "
                           f"(relative), more than their estimates ({alt_est:.1e}, {two_frames[1]:.1e}): one frame "
                           f"{alt_dom:.8g}, two frames {two_frames[0]:.8g}; keeping the larger-estimate result with "
                           f"the estimate raised to the disagreement", RuntimeWarning, stacklevel=2)
-            dom_est = max(dom_est, gap) if math.isfinite(dom_est) else dom_est
+        dom_est = dom_est_new
         frame_check = (alt_dom, alt_est) if res is not alt else two_frames
         timings["floquet"] = time.perf_counter() - tic + timings["floquet"]
         cpu_timings["floquet"] = time.process_time() - ctic + cpu_timings["floquet"]
@@ -449,6 +447,21 @@ def analyze(
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
                               kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
                               cpu_timings=cpu_timings, dominant_error_estimate=dom_est, frame_check=frame_check)
+
+
+def _pick_frame(dom: complex, est: float, alt_dom: complex, alt_est: float) -> tuple:
+    """The rule of :data:`ONE_FRAME_RETRY`: ``(take_alt, estimate, gap, agree)`` for two results (dominant
+    multiplier and its relative estimate each).  ``gap`` = their relative distance; ``agree``: ``gap`` within
+    the larger estimate (a non-finite estimate counts as infinite).  Agreeing: the smaller-estimate result,
+    its own estimate.  Otherwise: the larger-estimate result, its estimate raised to ``gap``."""
+    gap = abs(alt_dom - dom) / abs(dom) if abs(dom) > 0 else math.inf
+    a = alt_est if math.isfinite(alt_est) else math.inf
+    b = est if math.isfinite(est) else math.inf
+    if gap <= max(a, b):
+        return (True, alt_est, gap, True) if a < b else (False, est, gap, True)
+    if a > b:
+        return True, max(alt_est, gap), gap, False
+    return False, max(est, gap), gap, False
 
 
 def _multiplier_estimate(res: Any, mu: complex) -> float:
