@@ -135,6 +135,7 @@ class ModelFloquetResult:
             "propagator_steps": int(self.floquet.n_steps),
             "error_estimate": float(self.floquet.error_estimate),
             "dominant_error_estimate": float(self.dominant_error_estimate),
+            "frame": self.frame,
         }
 
 
