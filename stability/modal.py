@@ -135,6 +135,11 @@ class ModalFloquetResult(FloquetResult):
     modal_levels: int = 0
     fallback_reason: str = ""
 
+    def to_dict(self) -> dict:
+        """:meth:`FloquetResult.to_dict` with ``frame``, ``modal_levels`` and ``fallback_reason``."""
+        return dict(super().to_dict(), frame=self.frame, modal_levels=self.modal_levels,
+                    fallback_reason=self.fallback_reason)
+
 
 def _with_frame(res: FloquetResult, frame: str, levels: int, reason: str = "") -> ModalFloquetResult:
     """``res`` as a :class:`ModalFloquetResult` recording the frame."""

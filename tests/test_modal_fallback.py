@@ -66,6 +66,7 @@ def test_fallback_warns_records_the_frame_and_meets_the_oracle(exact, levels):
         res = modal_floquet(_P, period=1.0, method="magnus2", n_steps=128, accuracy="moduli", extrapolate=True,
                             levels=levels)
     assert res.frame == "model" and res.modal_levels == 0 and "90 degrees" in res.fallback_reason
+    assert res.to_dict()["frame"] == "model"
     assert res.n_steps != 128 and res.method == "magnus6"
     assert _error(res.multipliers, exact) <= 1e-8
     old = floquet(_P, period=1.0, method="magnus2", n_steps=128)
