@@ -31,12 +31,14 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
-#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps).
-#: In the model's own coordinates 512 steps left the single link's dominant multiplier 6.5e-5
-#: (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the step-doubling estimate under-read that by
-#: up to 25x).  Here, measured at 8 elements against the generic path converged: 1.5e-9, 9e-11,
-#: 7.3e-8, 3.3e-7 at 2, 4, 6, 8 pi, ~0.7 s CPU for the Floquet stage (96 steps: 1.5e-9, 8e-9,
-#: 2.3e-7, 1.0e-6 for ~0.6 s; ``benchmarks/model_file_speed.py``).
+#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps, a
+#: 16-step solve checking the estimate's premise).  In the model's own coordinates 512 steps left
+#: the single link's dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the
+#: step-doubling estimate under-read that by up to 25x).  Here, measured at 8 elements in one run of
+#: ``benchmarks/model_file_speed.py``: against the hand route converged 8.7e-10, 3.2e-9, 7.9e-8,
+#: 3.3e-7 at 2, 4, 6, 8 pi; against the same linearisation converged (the propagator error)
+#: 5.9e-13, 3.2e-9, 7.4e-8, 3.3e-7, estimates 1.8e-9, 4.6e-8, 1.3e-6, 4.9e-6; 0.8-0.9 s CPU
+#: for the Floquet stage.
 DEFAULT_PROPAGATOR_STEPS = 128
 #: :func:`analyze` retries the frozen-modal propagation with one frame instead of two when the
 #: dominant multiplier's estimate exceeds this (two frames win on the single link, one on the
@@ -133,6 +135,7 @@ class ModelFloquetResult:
             "propagator_steps": int(self.floquet.n_steps),
             "error_estimate": float(self.floquet.error_estimate),
             "dominant_error_estimate": float(self.dominant_error_estimate),
+            "frame": self.frame,
         }
 
 
@@ -344,7 +347,9 @@ def analyze(
         converges with a few dozen steps, at order 2, and with ``magnus2`` and a fixed
         ``n_steps`` the multipliers are Richardson-extrapolated from ``n_steps``,
         ``n_steps/2`` and ``n_steps/4``: 4th order, see :func:`stability.modal.modal_floquet`;
-        falls back to ``"model"`` when no smooth basis exists); ``"model"`` the
+        when no smooth basis exists it warns and falls back to the adaptive engine in the model's
+        coordinates, :data:`stability.modal.FALLBACK_METHOD`; ``ModelFloquetResult.frame`` says which
+        frame was used); ``"model"`` the
         linearisation's own coordinates (needs thousands of steps for stiff flexible models).
     orbit : PeriodicOrbit, optional
         Reuse an orbit (must be for ``omega``).
@@ -414,20 +419,16 @@ def analyze(
         alt_dom = _dominant(alt, alt_modes, orbit.drive_names)
         alt_est = _multiplier_estimate(alt, alt_dom)
         logger.info("one frozen-modal frame: dominant estimate %.1e (two frames: %.1e)", alt_est, dom_est)
-        gap = abs(alt_dom - dom) / abs(dom) if abs(dom) > 0 else math.inf
-        larger = max(alt_est, dom_est) if math.isfinite(alt_est) else math.inf
         two_frames = (dom, dom_est)
-        if gap <= larger:
-            if alt_est < dom_est:
-                res, modes, dom, dom_est = alt, alt_modes, alt_dom, alt_est
-        else:
-            if alt_est > dom_est or not math.isfinite(alt_est):
-                res, modes, dom, dom_est = alt, alt_modes, alt_dom, alt_est
+        take_alt, dom_est_new, gap, agree = _pick_frame(dom, dom_est, alt_dom, alt_est)
+        if take_alt:
+            res, modes, dom = alt, alt_modes, alt_dom
+        if not agree:
             warnings.warn(f"one and two frozen-modal frames disagree on the dominant multiplier by {gap:.1e} "
                           f"(relative), more than their estimates ({alt_est:.1e}, {two_frames[1]:.1e}): one frame "
                           f"{alt_dom:.8g}, two frames {two_frames[0]:.8g}; keeping the larger-estimate result with "
                           f"the estimate raised to the disagreement", RuntimeWarning, stacklevel=2)
-            dom_est = max(dom_est, gap) if math.isfinite(dom_est) else dom_est
+        dom_est = dom_est_new
         frame_check = (alt_dom, alt_est) if res is not alt else two_frames
         timings["floquet"] = time.perf_counter() - tic + timings["floquet"]
         cpu_timings["floquet"] = time.process_time() - ctic + cpu_timings["floquet"]
@@ -449,6 +450,21 @@ def analyze(
                               cpu_timings=cpu_timings, dominant_error_estimate=dom_est, frame_check=frame_check)
 
 
+def _pick_frame(dom: complex, est: float, alt_dom: complex, alt_est: float) -> tuple:
+    """The rule of :data:`ONE_FRAME_RETRY`: ``(take_alt, estimate, gap, agree)`` for two results (dominant
+    multiplier and its relative estimate each).  ``gap`` = their relative distance; ``agree``: ``gap`` within
+    the larger estimate (a non-finite estimate counts as infinite).  Agreeing: the smaller-estimate result,
+    its own estimate.  Otherwise: the larger-estimate result, its estimate raised to ``gap``."""
+    gap = abs(alt_dom - dom) / abs(dom) if abs(dom) > 0 else math.inf
+    a = alt_est if math.isfinite(alt_est) else math.inf
+    b = est if math.isfinite(est) else math.inf
+    if gap <= max(a, b):
+        return (True, alt_est, gap, True) if a < b else (False, est, gap, True)
+    if a > b:
+        return True, max(alt_est, gap), gap, False
+    return False, max(est, gap), gap, False
+
+
 def _multiplier_estimate(res: Any, mu: complex) -> float:
     """Step-doubling estimate of one multiplier's relative error (from ``reliable_digits``;
     NaN when the result has none)."""
@@ -459,7 +475,8 @@ def _multiplier_estimate(res: Any, mu: complex) -> float:
 
 
 #: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame built at each
-#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16; see :class:`ModelPlant`).
+#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16, premise check at 8; see
+#: :class:`ModelPlant`).
 #: A basis built once at gains 0 and reused is not good enough: 6.6e-4 off on the double pendulum
 #: test model (1e-7 with its own basis).  Measured on the 8-element single link at the Table 3
 #: gains: 1e-8 .. 4e-5 (2-8 pi), ~0.4 s CPU per evaluation (the former 256 plain steps: up to ~1e-2

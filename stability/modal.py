@@ -35,8 +35,9 @@ error of the hub multiplier with 128 midpoint steps: 1.5e-9, 9e-7, 4.3e-5,
 doubling), so that Richardson extrapolation (:func:`modal_floquet`,
 ``extrapolate=True``) lifts it to order 4.  A second frame built the same way on
 ``P_hat`` (:func:`modal_system`, a superadiabatic iteration) removes the
-first-order coupling between the modes; with both, 128 steps leave 9e-11 ..
-3.3e-7 (see :data:`MODAL_LEVELS`).
+first-order coupling between the modes; with both, 128 steps extrapolated leave
+5.9e-13, 3.2e-9, 7.4e-8, 3.3e-7 against the same linearisation converged (see
+:data:`MODAL_LEVELS` and :data:`linearize.analysis.DEFAULT_PROPAGATOR_STEPS`).
 
 Exactness
 ---------
@@ -133,6 +134,11 @@ class ModalFloquetResult(FloquetResult):
     frame: str = "modal"
     modal_levels: int = 0
     fallback_reason: str = ""
+
+    def to_dict(self) -> dict:
+        """:meth:`FloquetResult.to_dict` with ``frame``, ``modal_levels`` and ``fallback_reason``."""
+        return dict(super().to_dict(), frame=self.frame, modal_levels=self.modal_levels,
+                    fallback_reason=self.fallback_reason)
 
 
 def _with_frame(res: FloquetResult, frame: str, levels: int, reason: str = "") -> ModalFloquetResult:

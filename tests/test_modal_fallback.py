@@ -66,6 +66,7 @@ def test_fallback_warns_records_the_frame_and_meets_the_oracle(exact, levels):
         res = modal_floquet(_P, period=1.0, method="magnus2", n_steps=128, accuracy="moduli", extrapolate=True,
                             levels=levels)
     assert res.frame == "model" and res.modal_levels == 0 and "90 degrees" in res.fallback_reason
+    assert res.to_dict()["frame"] == "model"
     assert res.n_steps != 128 and res.method == "magnus6"
     assert _error(res.multipliers, exact) <= 1e-8
     old = floquet(_P, period=1.0, method="magnus2", n_steps=128)
@@ -81,3 +82,19 @@ def test_modal_frame_is_recorded():
         warnings.simplefilter("error", RuntimeWarning)
         res = modal_floquet(lambda t: P, period=1.0, method="magnus2", n_steps=8)
     assert res.frame == "modal" and res.modal_levels >= 1 and res.fallback_reason == ""
+
+
+def test_one_frame_retry_keeps_the_smaller_estimate_only_when_both_agree():
+    """``analyze``'s choice between one and two frozen-modal frames (review S6.6).  Picking the smaller
+    estimate unconditionally would keep 0.5 +- 1e-9 below although the other frame reads 0.5 + 1e-6:
+    rejected; the larger-estimate result is kept with its estimate raised to the 2e-6 disagreement."""
+    from linearize.analysis import _pick_frame
+
+    # agree within the larger estimate (1e-5): the smaller estimate (one frame) is kept
+    assert _pick_frame(0.5, 1e-5, 0.5 + 1e-7, 1e-8) == (True, 1e-8, pytest.approx(2e-7), True)
+    assert _pick_frame(0.5, 1e-8, 0.5 + 1e-7, 1e-5)[:2] == (False, 1e-8)
+    # disagree: never the smaller estimate
+    take_alt, est, gap, agree = _pick_frame(0.5 + 1e-6, 1e-7, 0.5, 1e-9)
+    assert (take_alt, agree) == (False, False) and est == pytest.approx(2e-6, rel=1e-5)
+    take_alt, est, _, agree = _pick_frame(0.5, 1e-9, 0.5 + 1e-6, 1e-7)
+    assert (take_alt, agree) == (True, False) and est == pytest.approx(2e-6, rel=1e-5)
