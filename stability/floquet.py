@@ -846,6 +846,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
 def _first_resolved(solve, N: int, max_steps: int, scheme: MagnusScheme) -> _Solve:
     """The first solve at ``N, 2N, 4N, ...`` whose sub-intervals resolve ``P``."""
     last: Optional[_Unresolved] = None
+    reason = f"{N} steps exceed the limit of {max_steps} (max_steps)"
     while N <= max_steps:
         try:
             return solve(N)

@@ -222,3 +222,16 @@ def test_chart_grid_guard(capsys):
     assert cli_main(["chart", "--grid", "100000"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "grid points" in err
+
+
+def test_first_resolved_beyond_the_step_limit_is_one_clear_error():
+    """Entered with more steps than allowed (the adaptive engine's doubling can ask for that), the
+    step search raises a FloquetError naming the limit, never an UnboundLocalError."""
+    from stability.floquet import FloquetError, _first_resolved
+    from stability.magnus import MAGNUS6
+
+    def never(N):  # pragma: no cover - must not be called
+        raise AssertionError("no solve above the limit")
+
+    with pytest.raises(FloquetError, match="exceed the limit"):
+        _first_resolved(never, 64, 32, MAGNUS6)
