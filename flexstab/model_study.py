@@ -19,7 +19,11 @@ beside the report:
 
 A model without drives has no gains: stages 2 and the gain chart are skipped
 and the validation runs uncontrolled.  A failed stage is reported (its error
-in the report, exit code 1) and the study goes on.  Every stage is recomputed
+in the report, exit code 1) and the study goes on; so is a stage that computed but
+whose check failed (status ``"check failed"``, exit code 1): a tuning that did not
+converge, a separate evaluation at the tuned gains further than the tolerance plus
+its own estimate from ``rho_d``, a validation whose measured multipliers do not
+confirm the prediction.  Every stage is recomputed
 on each run (no resuming, unlike the built-in study).
 
 ``quick``: coarser charts (5 x 5 gains, 3 Omegas), one step refinement in the
@@ -43,9 +47,13 @@ from typing import Any, Callable, Optional
 from flexstab.report import figure, table, text, to_html, to_markdown
 from flexstab.study import StudyResult
 
-__all__ = ["ModelStudyOptions", "run_model_study"]
+__all__ = ["ModelStudyOptions", "run_model_study", "tuning_check_failures", "STATUS_CHECK_FAILED"]
 
 logger = logging.getLogger(__name__)
+
+#: Status of a stage that computed but whose check failed (tuning not converged, the separate evaluation
+#: outside rho_d +- (tolerance + estimate), validation not confirming the prediction): exit code 1.
+STATUS_CHECK_FAILED = "check failed"
 
 
 @dataclass(frozen=True)
@@ -67,7 +75,9 @@ class ModelStudyOptions:
     quick : bool
         Coarser charts and validation (see the module docstring).
     log : callable, optional
-        Called with one line when a stage starts or ends.
+        Called with one line when a stage starts or ends (the CLI: on a non-terminal stderr).
+    progress : bool
+        Progress bars of the tuning and the charts (the CLI: on a terminal stderr).
     """
 
     out: Path = Path("results")
@@ -78,6 +88,7 @@ class ModelStudyOptions:
     samples: int = 32
     quick: bool = False
     log: Optional[Callable[[str], None]] = None
+    progress: bool = False
 
 
 def _cpu() -> float:
@@ -135,8 +146,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     import argparse
 
     from flexstab.commands.chart import model_charts
-    from flexstab.commands.tune import MAX_TUNING_STEPS, _pairs, factor_ranges, propagator_steps, tune_model_plant
-    from flexstab.options import resolve_model_definition
+    from flexstab.commands.tune import MAX_TUNING_STEPS, factor_ranges, propagator_steps, tune_model_plant
+    from flexstab.options import ensure_out_dir, gain_pairs, resolve_model_definition
     from flexstab.study import validation_blocks
     from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, ModelPlant, analyze
     from mbs_models.model_file import ModelFileError
@@ -144,11 +155,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
 
     t0, c0 = time.perf_counter(), _cpu()
     definition, options = resolve_model_definition(model, cfg, None)
-    out = Path(opts.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    out = ensure_out_dir(opts.out)
     for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
         (out / f).unlink(missing_ok=True)
     TuningConfig(target=opts.target, kp_range=opts.kp_range, kd_range=opts.kd_range)  # checks before the orbit
@@ -158,15 +165,22 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     sections: list = []
     state: dict = {}
 
+    checks: list = []  # the running stage's failed checks (one line each)
+
     def run(name: str, title: str, fn: Callable[[], list]) -> None:
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
+        checks.clear()
         try:
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
                 blocks = fn()
-            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report
+            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report;
+            # any other category (deprecations of a library, ...) is passed on to the caller's filters
             notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
+            for w in caught:
+                if not issubclass(w.category, RuntimeWarning):
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
             blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
             for n in notes:
                 say(f"study: {name}: warning: {n}")
@@ -182,9 +196,14 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
             say(f"study: {name} failed after {el:.1f} s: {err}")
             return
         el, cpu = time.perf_counter() - ts, _cpu() - cs
-        stages[name] = {"status": "computed", "json": f"{name}.json", "elapsed": el, "cpu": cpu}
-        sections.append((title, [text(f"Data: `{name}.json`; {el:.1f} s (CPU {cpu:.1f} s)")] + blocks))
-        say(f"study: {name} finished in {el:.1f} s")
+        stages[name] = {"status": STATUS_CHECK_FAILED if checks else "computed", "json": f"{name}.json",
+                        "elapsed": el, "cpu": cpu}
+        head = [text(f"Data: `{name}.json`; {el:.1f} s (CPU {cpu:.1f} s)")]
+        if checks:
+            stages[name]["error"] = "; ".join(checks)
+            head.append(text(f"**Check failed:** {'; '.join(checks)}"))
+        sections.append((title, head + blocks))
+        say(f"study: {name} finished in {el:.1f} s" + (f"; check failed: {'; '.join(checks)}" if checks else ""))
 
     def floquet_stage() -> list:
         res = analyze(definition, omega, samples=opts.samples, **options)
@@ -210,8 +229,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
                             max_evaluations=300 if opts.quick else 600)
         plant = propagator_steps(ModelPlant(base.linearization, base.orbit), tcfg)
-        res, plant, passes = tune_model_plant(plant, tcfg)
-        kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in _pairs(res.gains, nd))
+        res, plant, passes = tune_model_plant(plant, tcfg, progress=opts.progress)
+        kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in gain_pairs(res.gains, nd))
         state["gains"] = (kp, kd)
         # beside the loop's evaluations: twice its propagator steps (at least analyze's default, at most the
         # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
@@ -224,6 +243,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
                          "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
                          "modes": check.modes}}
+        checks.extend(tuning_check_failures(res.status, res.message, abs(check.dominant_multiplier),
+                                            _absolute_estimate(check), opts.target, tcfg.effective_tolerance))
+        doc["check"]["failures"] = list(checks)
         (out / "tuning.json").write_text(json.dumps(_ready(doc), indent=2))
         last = passes[-1]
         return [
@@ -250,7 +272,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
             target=opts.target, no_taguchi=True, out=str(out), scheduler=None, workers=None, omega=omega,
             config=None, constants="auto",
         )
-        s = model_charts(args, cfg, progress=False)
+        s = model_charts(args, cfg, progress=opts.progress)
         (out / "charts.json").write_text(json.dumps(_ready(s), indent=2))
         figs = [Path(f).name for f in s["figures"]]
         o = s["omega_chart"]
@@ -281,6 +303,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         check = MultiplierCheckConfig(step=None, amplitude=None, refinements=2)
         v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
         d = v.to_dict()
+        if not d.get("agrees"):
+            checks.append("validation: the multipliers measured from the nonlinear runs do not confirm the "
+                          "predicted ones (agrees = false)")
         (out / "validation.json").write_text(json.dumps(_ready(d), indent=2, default=float))
         fig = "validation_multipliers.png"
         plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],
@@ -310,6 +335,40 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     (out / "study.json").write_text(json.dumps({"model": model, "omega": omega, "quick": opts.quick,
                                                 "elapsed": elapsed, "cpu": cpu, "stages": stages}, indent=2))
     return StudyResult(out, md, html_path, stages, elapsed)
+
+
+def _absolute_estimate(res) -> float:
+    """Absolute error estimate of ``|dominant multiplier|`` of a ModelFloquetResult (its relative
+    estimate times the modulus); 0 when no finite estimate exists (the check is then the strictest)."""
+    dom = abs(res.dominant_multiplier)
+    for est in (res.dominant_error_estimate, res.floquet.error_estimate):
+        if est is not None and math.isfinite(float(est)):
+            return float(est) * dom
+    return 0.0
+
+
+def tuning_check_failures(status: str, message: str, checked: float, estimate: float, target: float,
+                          tolerance: float) -> list:
+    """The failed checks of a tuning stage, one line each (empty: every check passed).
+
+    Parameters
+    ----------
+    status, message : str
+        The tuning's status (``"converged"`` passes) and its message.
+    checked, estimate : float
+        ``|rho|`` of the separate evaluation at the tuned gains and its absolute error estimate.
+    target, tolerance : float
+        ``rho_d`` and the tuning tolerance: the check passes iff ``|checked - rho_d| <= tolerance + estimate``
+        (the tuned response is within ``tolerance`` of ``rho_d``; the separate evaluation is within
+        ``estimate`` of the exact value).
+    """
+    out = []
+    if status != "converged":
+        out.append(f"tuning not converged ({status}: {' '.join(str(message).split())})")
+    if not (abs(checked - target) <= tolerance + estimate):
+        out.append(f"the separate evaluation at the tuned gains gives |ρ| = {checked:.6g}, |ρ - ρ_d| = "
+                   f"{abs(checked - target):.2e} > tolerance {tolerance:.1e} + estimate {estimate:.1e}")
+    return out
 
 
 def _ready(obj):

@@ -4,9 +4,10 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from pathlib import Path
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
-           "positive_float", "gain_list", "is_model_file", "resolve_model_definition"]
+           "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs"]
 
 _PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -144,3 +145,25 @@ def dump_json(obj, fp) -> None:
 
     fp.write(json.dumps(json_ready(obj), allow_nan=False, default=str))
     fp.write("\n")
+
+
+def ensure_out_dir(path) -> Path:
+    """Create the output folder ``path`` (and its parents) if missing; return it as a Path.
+
+    Raises
+    ------
+    ValueError
+        The folder cannot be created (one line naming it and the reason).
+    """
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror or exc}") from None
+    return out
+
+
+def gain_pairs(gains, n_drives: int):
+    """``(kp, kd)`` of interleaved gains ``(kp1, kd1, kp2, kd2, ...)``: scalars for one drive, lists otherwise."""
+    g = [float(v) for v in gains]
+    return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])

@@ -49,7 +49,7 @@ import numpy as np
 from taguchi.analysis import TaguchiAnalysis, analyze
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_ratio
-from taguchi.tuning import TuningConfig, _recentre
+from taguchi.tuning import TuningConfig, recentre
 
 __all__ = [
     "NoiseFactor",
@@ -372,7 +372,7 @@ def robust_tune(
             incumbent_gains=best_gains, incumbent_sn=best_sn,
         ))
         logger.debug("robust iteration %d: best %s S/N %.3f dB", len(history), best_gains, best_sn)
-        rngs = tuple(_recentre(c, (r[1] - r[0]) * tcfg.shrink, b) for c, r, b in zip(best_gains, rngs, bounds))
+        rngs = tuple(recentre(c, (r[1] - r[0]) * tcfg.shrink, b) for c, r, b in zip(best_gains, rngs, bounds))
         if all((r[1] - r[0]) <= config.xtol * (b[1] - b[0]) for r, b in zip(rngs, bounds)):
             status = "converged"
             message = f"ranges below {config.xtol:g} of their initial widths after {evaluations} evaluations"

@@ -71,6 +71,7 @@ __all__ = [
     "TuningConfig",
     "check_gain_range",
     "default_factor_names",
+    "recentre",
     "taguchi_tune",
     "STATUS_CONVERGED",
     "STATUS_BUDGET",
@@ -466,14 +467,30 @@ def _levels(rng: tuple[float, float], n: int) -> np.ndarray:
     return np.linspace(rng[0], rng[1], n)
 
 
-def _recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[float, float]:
-    """A window of ``width`` centred on ``centre``, shifted (not cut) to stay inside ``bounds``."""
+def recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[float, float]:
+    """A window of ``width`` centred on ``centre``, shifted (not cut) to stay inside ``bounds``.
+
+    Parameters
+    ----------
+    centre, width : float
+        Centre and width of the wanted window.
+    bounds : (float, float)
+        The window is moved (keeping its width where ``bounds`` allow) to lie inside these.
+
+    Returns
+    -------
+    (float, float)
+        ``(lo, hi)`` of the window.
+    """
     lo = max(bounds[0], centre - width / 2)
     hi = lo + width
     if hi > bounds[1]:
         hi = bounds[1]
         lo = max(bounds[0], hi - width)
     return (lo, hi)
+
+
+_recentre = recentre  # former private name, kept for callers on other branches
 
 
 def _evaluate(fn: Callable, points: list, executor: Optional[cf.Executor]) -> list[float]:
@@ -575,7 +592,7 @@ def taguchi_tune(
             if abs(best_y - target) <= tol:
                 break
             rngs = tuple(
-                _recentre(c, (r[1] - r[0]) * config.shrink, b) for c, r, b in zip(best_gains, rngs, bounds)
+                recentre(c, (r[1] - r[0]) * config.shrink, b) for c, r, b in zip(best_gains, rngs, bounds)
             )
     finally:
         if bar is not None:

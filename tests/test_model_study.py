@@ -107,3 +107,39 @@ def test_inverted_gain_range_in_the_config_is_one_line(tmp_path, capsys):
     assert cli_main(["study", "--model", DOUBLE, "--config", str(cfg), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "kp_range" in err, err
+
+
+def test_tuning_whose_check_fails_is_check_failed_exit_1(tmp_path, monkeypatch, capsys):
+    """Gain ranges [0, 1e-3] cannot move the rigid pendulum's multipliers (|rho| ~ 1) to rho_d = 0.3: the
+    tuning stage computes, but its check fails (not converged; the separate evaluation ~0.7 from rho_d).
+    Rejects a study that reports such a stage as "computed" and exits 0. The charts and the nonlinear
+    validation are stubbed out (they raise: stage "failed") to keep the test cheap; the tuning stage's own
+    status must be "check failed"."""
+    import flexstab.commands.chart as chart
+    import validation.multipliers as vm
+
+    def stub(*a, **k):
+        raise RuntimeError("stubbed out in this test")
+
+    monkeypatch.setattr(chart, "model_charts", stub)
+    monkeypatch.setattr(vm, "validate_model_multipliers", stub)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[study]\nkp_range = [0.0, 0.001]\nkd_range = [0.0, 0.001]\n")
+    out = tmp_path / "o"
+    assert cli_main(["study", "--model", DOUBLE, "--quick", "--config", str(cfg), "--out", str(out)]) == 1
+    stages = json.loads((out / "study.json").read_text())["stages"]
+    assert stages["floquet"]["status"] == "computed"
+    assert stages["tuning"]["status"] == "check failed", stages["tuning"]
+    assert "tuning not converged" in stages["tuning"]["error"] and "separate evaluation" in stages["tuning"]["error"]
+    assert "**Check failed:** tuning not converged" in (out / "report.md").read_text()
+    assert any(line.startswith("stage tuning check failed: ") for line in capsys.readouterr().err.splitlines())
+
+
+def test_tuning_check_failures_rule():
+    """|check - rho_d| <= tolerance + estimate passes; beyond it, or not converged, fails (one line each)."""
+    from flexstab.model_study import tuning_check_failures
+
+    assert tuning_check_failures("converged", "", 0.3004, 2e-4, 0.3, 3e-4) == []
+    assert len(tuning_check_failures("converged", "", 0.3006, 2e-4, 0.3, 3e-4)) == 1
+    assert len(tuning_check_failures("budget exhausted", "x", 0.3, 0.0, 0.3, 3e-4)) == 1
+    assert len(tuning_check_failures("converged", "", math.nan, 0.0, 0.3, 3e-4)) == 1  # NaN never passes

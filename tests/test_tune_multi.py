@@ -234,3 +234,36 @@ def test_warm_restart_falls_back_to_the_initial_ranges_when_its_window_misses(mo
     assert steps[:3] == [(256, True), (512, False), (512, True)], steps  # the missed window, then full ranges
     exact = 0.6 * math.exp(-0.1 * (sum(d["kp"]) + sum(d["kd"]) - 15.0))
     assert abs(exact - 0.3) <= d["tolerance"] + 30.0 / d["propagator_steps"] ** 2
+
+
+def test_recheck_outside_the_tolerance_exits_1_with_one_line(monkeypatch, capsys):
+    """The tuning converges on its own plant, but the independent re-check (the unprepared plant with
+    twice the steps, here biased by 0.05 >> tol 3e-4) misses rho_d +- tol: exit 1 with one line naming
+    the re-check (a warning and exit 0 would accept gains that failed their check)."""
+    from dataclasses import dataclass
+    from typing import Optional
+
+    import flexstab.commands.tune as tune
+
+    @dataclass(frozen=True)
+    class Fake:
+        n_steps: int = 256
+        drives: tuple = ("a", "b")
+        bias: float = 0.0
+        plant: Optional["Fake"] = None
+
+        def spectral_measure(self, kp, kd):
+            return 0.6 * math.exp(-0.1 * (sum(kp) + sum(kd))) + self.bias
+
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake(plant=Fake(bias=0.05)))
+    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)
+    argv = ["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10"]
+    assert cli_main(argv + ["--json"]) == 1
+    cap = capsys.readouterr()
+    d = json.loads(cap.out)
+    assert d["converged"] and abs(d["verified_spectral_radius"] - 0.35) <= 2 * d["tolerance"]
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and "check failed" in err[0] and "twice the propagator steps (512)" in err[0], err
+    # the same plant without the biased independent path passes: exit 0, nothing on stderr
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake(plant=Fake()))
+    assert cli_main(argv) == 0 and capsys.readouterr().err == ""

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
-from flexstab.options import (add_model_options, dump_json, gain_list, omega_type, positive_float,
+from flexstab.options import (add_model_options, dump_json, ensure_out_dir, gain_list, omega_type, positive_float,
                               resolve_omega)
 
 __all__ = ["register", "run", "make_charts"]
@@ -92,11 +92,7 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     w_lo, w_hi = args.omega_range if args.omega_range else ((math.pi, 8 * math.pi) if exudyn else (math.pi, 10 * math.pi))
     omegas = check_grid(w_lo, w_hi, n_omega, "omega")
     target = args.target if args.target is not None else cfg.target
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    out = ensure_out_dir(args.out)
     # the resumable stores are keyed by everything that changes the numbers
     import hashlib
 
@@ -204,11 +200,7 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
         raise ValueError(f"--steps must be >= 1, got {steps}")
     target = args.target if args.target is not None else cfg.target
     definition, options = resolve_model_definition(args.model, cfg, args.elements)
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ValueError(f"cannot create output folder {str(out)!r}: {exc.strerror}") from None
+    out = ensure_out_dir(args.out)
 
     task = ModelRadius(definition, options, samples=samples, n_steps=steps)
     drives = task.plant(omega).drives  # the orbit at the chart's Omega: the drives, and the first check

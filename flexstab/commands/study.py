@@ -54,14 +54,26 @@ def run_model(args: argparse.Namespace, cfg) -> int:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
     opts = ModelStudyOptions(out=Path(args.out), omega=resolve_omega(args, cfg), target=cfg.target,
                              kp_range=tuple(cfg.kp_range), kd_range=tuple(cfg.kd_range), samples=samples,
-                             quick=args.quick, log=None if sys.stderr.isatty() else
-                             (lambda line: print(line, file=sys.stderr, flush=True)))
-    res = run_model_study(args.model, cfg, opts)
-    failed = [k for k, v in res.stages.items() if v.get("status") == "failed"]
+                             quick=args.quick, progress=sys.stderr.isatty(), log=_progress_log())
+    return _report_exit_code(run_model_study(args.model, cfg, opts))
+
+
+def _progress_log():
+    """The project's progress rule: tqdm bars on a terminal stderr (``progress=isatty()``), else one line
+    per stage event (this function, ``None`` on a terminal)."""
+    if sys.stderr.isatty():
+        return None
+    return lambda line: print(line, file=sys.stderr, flush=True)
+
+
+def _report_exit_code(res) -> int:
+    """Print where the report is and one line per stage that failed or whose check failed; the exit code
+    (1 if any, else 0)."""
+    bad = [k for k, v in res.stages.items() if v.get("status") in ("failed", "check failed")]
     print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
-    for k in failed:
-        print(f"stage {k} failed: {res.stages[k]['error']}", file=sys.stderr)
-    return 1 if failed else 0
+    for k in bad:
+        print(f"stage {k} {res.stages[k]['status']}: {res.stages[k].get('error', '')}", file=sys.stderr)
+    return 1 if bad else 0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -82,16 +94,7 @@ def run(args: argparse.Namespace) -> int:
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
     if args.jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
-    tty = sys.stderr.isatty()
-
-    def log_line(line: str) -> None:  # one line per stage event when stderr is a file or a pipe
-        print(line, file=sys.stderr, flush=True)
-
-    res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages, progress=tty,
-                                      scheduler=args.scheduler, log=None if tty else log_line,
+    res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
+                                      progress=sys.stderr.isatty(), scheduler=args.scheduler, log=_progress_log(),
                                       resume=not args.no_resume, jobs=args.jobs))
-    failed = [k for k, v in res.stages.items() if v.get("status") == "failed"]
-    print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
-    for k in failed:
-        print(f"stage {k} failed: {res.stages[k]['error']}", file=sys.stderr)
-    return 1 if failed else 0
+    return _report_exit_code(res)

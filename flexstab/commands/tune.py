@@ -7,12 +7,12 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, positive_float, resolve_omega
+from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant"]
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant", "check_failure"]
 
 
 def register(sub) -> None:
@@ -225,10 +225,7 @@ def propagator_steps(plant, tcfg):
     return dataclasses.replace(plant, n_steps=n)
 
 
-def _pairs(gains, n_drives: int):
-    """``(kp, kd)`` of the tuned gains: scalars for one drive, one value per drive otherwise."""
-    g = [float(v) for v in gains]
-    return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])
+_pairs = gain_pairs  # former private name
 
 
 def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
@@ -248,14 +245,14 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
     """
     import dataclasses
 
-    from taguchi.tuning import _recentre, taguchi_tune
+    from taguchi.tuning import recentre, taguchi_tune
 
     n_drives = len(plant.drives)
     passes: list = []
     full_cfg = tcfg
     while True:
         res = taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress)
-        kp, kd = _pairs(res.gains, n_drives)
+        kp, kd = gain_pairs(res.gains, n_drives)
         finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
         r2 = finer.spectral_measure(kp, kd)
         passes.append({"propagator_steps": plant.n_steps, "evaluations": res.evaluations,
@@ -275,7 +272,7 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
         # warm restart: the finer propagator moves the answer by about the step-doubling difference, so the
         # next pass starts from the tuned gains with ranges narrowed to RESTART_WIDTH of each initial width
         # (shifted to stay inside it) instead of from scratch
-        narrowed = tuple(_recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi))
+        narrowed = tuple(recentre(g, RESTART_WIDTH * (hi - lo), (lo, hi))
                          for g, (lo, hi) in zip(res.gains, full_cfg.factor_ranges))
         tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
@@ -342,7 +339,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     if passes:  # every pass's Floquet evaluations, and the step-doubling history
         out["evaluations"] = sum(p["evaluations"] for p in passes)
         out["propagator_passes"] = passes
-    kp, kd = _pairs(res.gains, n_drives)
+    kp, kd = gain_pairs(res.gains, n_drives)
     out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
     if hill:
         # independent check: the streamed exponential-midpoint product at many steps (no Hill code)
@@ -367,6 +364,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         finer = dataclasses.replace(getattr(plant, "plant", plant), n_steps=2 * plant.n_steps)
         out["verified_spectral_radius"] = finer.spectral_measure(kp, kd)
         out["verified_error_estimate"] = None
+        out["verified_method"] = f"twice the propagator steps ({finer.n_steps})"
         out["propagator_steps"] = plant.n_steps
         if args.model in ("exudyn", "single-link"):
             out["elements"] = args.elements or cfg.elements
@@ -378,6 +376,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         check = floquet(plant.with_gains(kp, kd))
         out["verified_spectral_radius"] = check.spectral_radius
         out["verified_error_estimate"] = check.error_estimate
+        out["verified_method"] = f"floquet, {check.method}, {check.n_steps} steps"
     if args.compare:
         out["direct"] = [direct_tune(objective, tcfg, m).to_dict() for m in ("nelder-mead", "differential-evolution")]
     return out
@@ -392,14 +391,13 @@ def run(args: argparse.Namespace) -> int:
             _print_robust(d)
         return 0 if d["converged"] else 1
     d = tune_report(args)
-    if not d["converged"]:
-        print(f"flexstab tune: not converged: {d['message']}", file=sys.stderr)
-    elif abs(d["verified_spectral_radius"] - d["target"]) > d["tolerance"]:
-        print(f"flexstab tune: warning: the re-check with twice the propagator steps gives max|rho| = "
-              f"{d['verified_spectral_radius']:.6g}, outside rho_d +- {d['tolerance']:.3g}", file=sys.stderr)
+    failure = check_failure(d)
+    if failure:
+        print(f"flexstab tune: {failure}", file=sys.stderr)
+    rc = 1 if failure else 0
     if args.json:
         dump_json(d, sys.stdout)
-        return 0 if d["converged"] else 1
+        return rc
     print(f"Omega = {d['omega']:.6g} rad/s, target rho_d = {d['target']:g}, array {d['array']}")
     print(f"status: {d['status']} -- {d['message']}")
     names = d["names"]
@@ -446,4 +444,22 @@ def run(args: argparse.Namespace) -> int:
     for dr in d.get("direct", []):
         gains = ", ".join(f"{s} = {g:.6g}" for s, g in zip(dr["names"], dr["gains"]))
         print(f"direct {dr['method']}: {dr['status']}, {dr['evaluations']} evaluations, {dr['elapsed']:.2f} s, {gains}")
-    return 0 if d["converged"] else 1
+    return rc
+
+
+def check_failure(d: dict):
+    """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
+
+    Not accepted: the tuning did not converge, or the independent re-check at the tuned gains
+    (``verified_spectral_radius``, by ``verified_method``) lies outside ``rho_d +- tolerance``.
+    """
+    if not d["converged"]:
+        return f"not converged: {d['message']}"
+    v = d.get("verified_spectral_radius")
+    how = d.get("verified_method", "the re-check")
+    if v is None or not math.isfinite(v):
+        return f"check failed: the independent re-check at the tuned gains ({how}) gave no value"
+    if not abs(v - d["target"]) <= d["tolerance"]:
+        return (f"check failed: the independent re-check at the tuned gains ({how}) gives {v:.6g}, outside "
+                f"rho_d +- tolerance = {d['target']:g} +- {d['tolerance']:.3g}")
+    return None

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Optional
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, parse_omega
+from flexstab.options import dump_json, ensure_out_dir, parse_omega
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -163,11 +163,7 @@ def validation_report(args: argparse.Namespace):
     if step is not None and step >= 2 * math.pi / omega:
         raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
     if args.out is not None:
-        out = Path(args.out)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ValueError(f"cannot create output folder {out}: {exc.strerror or exc}") from None
+        out = ensure_out_dir(args.out)
     kp, kd, source = resolve_gains(omega, kp, kd, cfg)
     if growth is None:
         growth = 3 if (kp == 0.0 and kd == 0.0) else 0
@@ -222,10 +218,7 @@ def _model_file_report(args: argparse.Namespace):
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
     if args.out is not None:
-        try:
-            Path(args.out).mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ValueError(f"cannot create output folder {args.out}: {exc.strerror or exc}") from None
+        ensure_out_dir(args.out)
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
                                    growth_periods=growth, spectral_radius=_spectral_radius(args))
     res = validate_model_multipliers(definition, omega, kp=kps if kps else 0.0, kd=kds if kds else 0.0,
