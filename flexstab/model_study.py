@@ -26,9 +26,9 @@ its own estimate from ``rho_d``, a validation whose measured multipliers do not
 confirm the prediction.  Every stage is recomputed
 on each run (no resuming, unlike the built-in study).
 
-``quick``: coarser charts (5 x 5 gains, 3 Omegas), one step refinement in the
-validation, 300 Floquet evaluations per tuning pass (else 600); the orbit,
-linearisation, tuning tolerance and Floquet checks are the same.
+``quick``: coarser charts (5 x 5 gains, 3 Omegas), 300 Floquet evaluations per
+tuning pass (else 600); the orbit, linearisation, tuning tolerance, Floquet checks
+and the validation's three step levels are the same.
 """
 from __future__ import annotations
 
