@@ -2,9 +2,11 @@
 
 Oracle: the rigid double pendulum's linearisation derived by hand and integrated by scipy
 (DOP853, rtol 1e-12; tests/test_constrained_linearisation.py), independent of the package.
-Tolerances: the study's Floquet evaluations are second-order ``magnus2`` products, whose error is
-~ 4/3 |r_n - r_2n| (the step-doubling numbers the study records); twice that plus 1e-8 (orbit
-tolerance 1e-10, oracle ~1e-10) bounds the difference from the oracle.
+Tolerances: the tuning loop's Floquet evaluations are Richardson-extrapolated ``magnus2`` products
+(4th order, :meth:`linearize.analysis.ModelPlant.floquet`), whose error is ~ 16/15 |r_n - r_2n|
+asymptotically; 4/3 |r_n - r_2n| (the step-doubling numbers the study records) bounds it for any
+observed order >= 2 (2^p / (2^p - 1) falls with p); twice that plus 1e-8 (orbit tolerance 1e-10,
+oracle ~1e-10) bounds the difference from the oracle.
 """
 from __future__ import annotations
 

@@ -207,9 +207,13 @@ def propagator_steps(plant, tcfg):
     """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
 
     The response is evaluated at the centre of the initial ranges with ``n`` and
-    ``2n`` exponential-midpoint steps (second order: the error of ``n`` steps is
-    ``~4/3 |r_n - r_2n|``); ``n`` is doubled from ``plant.n_steps`` until that
-    estimate is below a quarter of the tolerance, or ``MAX_TUNING_STEPS``.
+    ``2n`` propagator steps.  For a :class:`~linearize.analysis.ModelPlant` the value is the
+    Richardson-extrapolated exponential midpoint (4th order: the error of ``n`` steps is
+    ``~ 16/15 |r_n - r_2n|`` asymptotically); the estimate used is ``4/3 |r_n - r_2n|``, which
+    bounds the error for any observed order ``p >= 2`` (the factor ``2^p / (2^p - 1)`` falls
+    with ``p``), i.e. also before the extrapolated value reaches its 4th order.  ``n`` is
+    doubled from ``plant.n_steps`` until that estimate is below a quarter of the tolerance,
+    or ``MAX_TUNING_STEPS``.
     """
     import dataclasses
 
@@ -233,7 +237,8 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
 
     ``plant`` (a :class:`~linearize.analysis.ModelPlant`, e.g. from :func:`propagator_steps`) is tuned
     with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
-    compared (second order: the error of ``n`` steps is ``~ 4/3 |r_n - r_2n|``); above a quarter of
+    compared (error estimate ``4/3 |r_n - r_2n|``: the Richardson-extrapolated 4th-order value has
+    ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`propagator_steps`); above a quarter of
     the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
     budget is per pass), up to :data:`MAX_TUNING_STEPS`.
 
