@@ -11,7 +11,7 @@ Tolerance: each chart value is the Richardson-extrapolated ``magnus2`` product i
 frame (:meth:`linearize.analysis.ModelPlant.floquet`), 4th order, so the error of ``N`` steps is
 ``~ 16/15 |r_N - r_2N|`` asymptotically; ``4/3 |r_N - r_2N|`` bounds it for any observed order
 ``p >= 2`` (``2^p / (2^p - 1)`` falls with ``p``).  The test runs the chart at ``N`` and ``2N`` and allows
-twice that (the chart's N is small: the ratio of successive changes is not checked here) plus 1e-8 for
+twice that (pre-asymptotic margin, not derived) plus 1e-8 for
 the orbit / linearisation (tolerance 1e-10) and the oracle's DOP853 (~1e-10).
 """
 from __future__ import annotations
