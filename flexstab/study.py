@@ -450,7 +450,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     kp, kd, source = _validation_gains(cfg, opts)
     elements = 2 if opts.quick else min(cfg.elements, 4)
-    check = MultiplierCheckConfig(refinements=1 if opts.quick else 2)
+    check = MultiplierCheckConfig(refinements=2)  # three step levels also in quick mode: two give no verdict
     v = validate_link_multipliers(cfg.manipulator, cfg.omega, kp, kd, elements=elements, config=check)
     d = v.to_dict()
     d.update({"omega_over_pi": cfg.omega / math.pi, "gains_source": source})

@@ -124,7 +124,7 @@ def test_analytic_amplitude_check_sees_nonlinearity_beyond_linear_range():
         Phi_h = scipy.linalg.expm(A * (1.0 + 0.5 * h**2) * T_ANALYTIC)
         return lambda x, hh: Phi_h @ x + 50.0 * x[0] ** 3 * np.ones_like(x)
 
-    cfg = dict(step=0.02, refinements=1)
+    cfg = dict(step=0.02, refinements=2)  # three levels: two give no verdict
     small = measure_multipliers(factory, x0, pred, norm, MultiplierCheckConfig(amplitude=1e-4, **cfg))
     large = measure_multipliers(factory, x0, pred, norm, MultiplierCheckConfig(amplitude=0.3, **cfg))
     assert small.amplitude_check["passed"] and small.agrees
@@ -181,7 +181,15 @@ def orbit8():
                                samples=SAMPLES)
 
 
+#: Two step levels (h, h/2) keep the Exudyn tests fast; two levels show no convergence order, so these
+#: measurements give no verdict (``agrees`` is False): the tests compare the measured multipliers with
+#: the prediction within the two-level bar (the last change) directly, see :func:`within_bar`.
 CFG = MultiplierCheckConfig(refinements=1)
+
+
+def within_bar(r) -> bool:
+    """Every compared measured multiplier within its error bar of the prediction (no convergence verdict)."""
+    return bool(r.measured.size and np.all(np.abs(r.measured - r.prediction.multipliers) <= r.errors))
 
 
 @pytest.mark.slow
@@ -189,7 +197,7 @@ def test_complex_pair_agrees_in_modulus_and_phase():
     # issue 10: Omega = 2 pi, kp = 10, kd = 2: predicted -0.0453 +- 0.0292i
     r = validate_link_multipliers(omega=2 * math.pi, kp=10.0, kd=2.0, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                   alternatives=("rigid",))
-    assert not r.diverged and r.agrees
+    assert not r.diverged and within_bar(r) and not r.agrees  # two levels: no verdict
     p = r.prediction.multipliers
     assert p.size == 2 and abs(p[0] - (-0.0453 + 0.0292j)) < 2e-4 and p[1] == pytest.approx(np.conj(p[0]))
     for row in r.per_multiplier():
@@ -200,7 +208,7 @@ def test_complex_pair_agrees_in_modulus_and_phase():
     assert r.amplitude_check["passed"]
     # the alternatives differ by ~4e-4 and are excluded by the measurement
     assert all(not a.consistent and a.distance > 10 * max(r.errors) for a in r.alternatives)
-    assert r.confirms == ["exudyn linearisation about the periodic orbit"]
+    assert r.confirms == []  # neither the prediction (no verdict from two levels) nor an alternative
 
 
 @pytest.mark.slow
@@ -209,19 +217,19 @@ def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gain
 
     ok = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                    orbit=orbit8)
-    assert ok.agrees and not ok.diverged
+    assert within_bar(ok) and not ok.diverged and not ok.agrees  # two levels: no verdict
     dom = ok.measured[0]
     assert abs(dom / ok.prediction.multipliers[0] - 1) < 1e-3
     rigid = next(a for a in ok.alternatives if "rigid" in a.name)
     # the true-orbit and rigid-reference predictions differ by ~5.4e-3: the bar must resolve half of that
     half_gap = 0.5 * abs(rigid.multipliers[0] - ok.prediction.multipliers[0])
     assert ok.errors[0] < half_gap and not rigid.consistent
-    assert "rigid" not in " ".join(ok.confirms) and "periodic orbit" in ok.confirms[0]
+    assert "rigid" not in " ".join(ok.confirms)
     # the rigid reference as the prediction under test: the check itself fails it
     bad_ref = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES,
                                         config=replace(CFG, amplitude_check=False), orbit=orbit8,
                                         predict_reference="rigid", alternatives=())
-    assert not bad_ref.agrees and abs(bad_ref.measured[0] - dom) <= ok.errors[0] + bad_ref.errors[0]
+    assert not within_bar(bad_ref) and abs(bad_ref.measured[0] - dom) <= ok.errors[0] + bad_ref.errors[0]
     # the linearisation with the gains 5 % off (same orbit): excluded by the measurement's bar
     wrong = exudyn_floquet(omega=EIGHT_PI, kp=1.05 * KP8, kd=1.05 * KD8, elements=ELEMENTS, samples=SAMPLES,
                            orbit=orbit8, n_steps=4096).dominant_multiplier
@@ -337,7 +345,7 @@ def test_model_file_two_drives_per_drive_gains_against_hand_linearisation():
     assert [dr["name"] for dr in r.to_dict()["drives"]] == ["shoulder", "elbow"]
     assert r.to_dict()["kp"] == list(kp)
     ref = o.double_pendulum_multipliers(omega, kp, kd)
-    assert not r.diverged and r.agrees
+    assert not r.diverged and not r.agrees  # two levels (kept cheap): no verdict; the bar against the oracle:
     for m, e in zip(r.measured, r.errors):
         assert np.min(np.abs(ref - m)) <= e
     # the hand linearisation with the shoulder gain 5 % off is rejected by the measurement
@@ -489,3 +497,46 @@ def test_unresolved_small_multiplier_is_listed_not_judged():
     bad_small = prediction_from_monodromy("bad small", monodromy(0.3, 0.0045), k=2)
     rs = measure_multipliers(factory_ok, np.zeros(4), bad_small, norm, cfg)
     assert all(rs.resolved) and not rs.agrees and rs.agrees_dominant
+
+
+def test_step_error_bar_is_never_zero_when_the_finest_change_vanishes():
+    """Synthetic levels.  Second order (changes 4e-4, 1e-4): the GCI bar 1.25 * 1e-4 / 3 and the
+    extrapolated value (exact for this sequence).  A vanished finest change (1.0 + 1e-3, 1.0, 1.0:
+    q = inf) used to give a bar of exactly 0; it must be 10 x the last non-zero change.  Three equal
+    levels get the runs' resolution ``floor``, not 0.  Rejects a bar of 0 for two equal values."""
+    from validation.multipliers import _step_error
+
+    exact = 0.3
+    L = np.array([[exact + 4e-4 * 4 / 3], [exact + 1e-4 * 4 / 3], [exact + 0.25e-4 * 4 / 3]], dtype=complex)
+    err, q, ok, value = _step_error(L)
+    assert q[0] == pytest.approx(4.0) and ok[0]
+    assert err[0] == pytest.approx(1.25 * 1e-4 / 3) and abs(value[0] - exact) <= 1e-15
+    err, q, ok, value = _step_error(np.array([[1.001], [1.0], [1.0]], dtype=complex))
+    assert math.isinf(q[0]) and err[0] == pytest.approx(1e-2) and value[0] == 1.0
+    err, _, _, _ = _step_error(np.array([[0.5], [0.5], [0.5]], dtype=complex), floor=5e-7)
+    assert err[0] == 5e-7
+    err, _, _, _ = _step_error(np.array([[0.5], [0.5], [0.5]], dtype=complex))
+    assert err[0] > 0
+
+
+def test_prediction_refinement_bar_is_never_zero():
+    """The prediction's refinement bar (same rule, ``_gci_bar``): d1 = 0 after d0 = 2e-7 gives 2e-6, not 0;
+    d0 = d1 = 0 gives the round-off resolution of the value (> 0)."""
+    from validation.multipliers import _gci_bar
+
+    assert _gci_bar(2e-7, 0.0, 0.3)[0] == pytest.approx(2e-6)
+    assert 0 < _gci_bar(0.0, 0.0, 0.3)[0] <= 1e-14
+    assert _gci_bar(4e-6, 1e-6, 0.3)[0] == pytest.approx(1.25e-6 / 3)  # the GCI itself unchanged
+
+
+def test_two_step_levels_give_no_verdict():
+    """h, h/2 show no convergence order: the change is reported as the bar, but nothing is converged,
+    so a measurement with two levels cannot agree (it used to agree on the bare last change); with a
+    third level in the second-order regime the same data converge."""
+    from validation.multipliers import _step_error
+
+    two = np.array([[0.3 + 4e-4], [0.3 + 1e-4]], dtype=complex)
+    err, _, ok, _ = _step_error(two)
+    assert err[0] == pytest.approx(3e-4) and not ok[0]
+    three = np.vstack([two, [[0.3 + 0.25e-4]]])
+    assert _step_error(three)[2][0]

@@ -48,11 +48,14 @@ Method
    ``1.25 |mu_h/2 - mu_h/4| / (q - 1)``
    (the error of the finest value for a method converging as ``q^-j``, with
    the safety factor 1.25 of Roache's grid convergence index); with
-   two levels (no observed order) ``|mu_h - mu_h/2|`` itself (a bound for any
-   order >= 1).  A ratio ``q < 1.1`` (no convergence seen) is flagged and
-   the bar set to ``max(d1, d2) * 10`` -- unless both changes are below
-   :data:`STEP_FLOOR` of the compared modulus (the levels agree to the runs'
-   resolution: converged, same bar).
+   two levels (no observed order) ``|mu_h - mu_h/2|`` itself is reported, but
+   the measurement counts as not converged (no verdict: two levels cannot show
+   that the method is in its asymptotic range).  A ratio ``q < 1.1`` (no
+   convergence seen) is flagged and the bar set to ``max(d1, d2) * 10`` --
+   unless both changes are below :data:`STEP_FLOOR` of the compared modulus
+   (the levels agree to the runs' resolution: converged, same bar).  A finest
+   change of exactly 0 (``q = inf``) gets the same ``10 max(d1, d2)`` bar,
+   never 0.
 5. **Linear range by evidence.**  The finest level is repeated with the
    amplitude halved; ``amplitude_check`` reports the change.  With central
    differences the amplitude error is ``c a^2``, so the error of the reported
@@ -168,7 +171,8 @@ class MultiplierCheckConfig:
         Coarsest generalised-alpha step (s).  ``None``: chosen by the path --
         1e-3 s for the built-in link, :func:`suggested_step` for model files.
     refinements : int
-        Step halvings (0: ``h`` only, no error bar; 1: ``h, h/2``; 2: ``h, h/2, h/4``).
+        Step halvings (0: ``h`` only, no error bar; 1: ``h, h/2``, a bar but no verdict: two levels
+        show no convergence order; 2: ``h, h/2, h/4``, the least for a verdict).
     amplitude : float or None
         Perturbation energy as a hub-velocity kick (rad/s), > 0.  ``None``:
         :data:`DEFAULT_AMPLITUDE` for the built-in link, :data:`MODEL_AMPLITUDE`
@@ -660,6 +664,27 @@ STEP_FLOOR = 1e-6
 FORMAL_RATIO = 4.0
 
 
+def _gci_bar(d0: float, d1: float, scale: float, floor: float = 0.0) -> tuple[float, float, Optional[float]]:
+    """Error bar of the finest of three levels from its last two changes ``d0`` (coarser) and ``d1`` (finer).
+
+    ``q = d0 / d1``.  With ``q >= 1.1``: Roache's GCI, ``GCI_SAFETY d1 / (min(q, FORMAL_RATIO) - 1)``, and the
+    capped ratio is returned for the extrapolation.  Otherwise no ratio is used (``None``) and the bar is
+    ``10 max(d0, d1)``: no convergence seen (``q < 1.1``), or the finest change vanished (``d1 == 0``,
+    ``q = inf``: two equal values show no order, and the GCI would claim an error of exactly 0).  That
+    bar is never below ``floor`` nor below ``10 eps scale`` (the resolution of values of size
+    ``scale``): an error bar is never 0.
+
+    Returns
+    -------
+    (bar, q, capped ratio or None)
+    """
+    q = d0 / d1 if d1 > 0 else math.inf
+    if d1 > 0 and q >= 1.1:
+        qe = min(q, FORMAL_RATIO)
+        return GCI_SAFETY * d1 / (qe - 1.0), q, qe
+    return max(10.0 * max(d0, d1), floor, 10.0 * np.finfo(float).eps * abs(scale)), q, None
+
+
 def _step_error(levels: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Step error bar, observed ratio, per-multiplier convergence and the reported value.
 
@@ -676,25 +701,24 @@ def _step_error(levels: np.ndarray, floor: float = 0.0) -> tuple[np.ndarray, np.
         return np.full(k, math.nan), ratio, np.zeros(k, dtype=bool), levels[-1].copy()
     d1 = np.abs(levels[-2] - levels[-1])
     if m == 2:
-        return d1, ratio, np.ones(k, dtype=bool), levels[-1].copy()
+        # two levels show no convergence order: the change is reported as the bar, but nothing counts as
+        # converged (no verdict; three levels, refinements >= 2, are needed for one)
+        return d1, ratio, np.zeros(k, dtype=bool), levels[-1].copy()
     d0 = np.abs(levels[-3] - levels[-2])
     err = np.empty(k)
     ok = np.ones(k, dtype=bool)
     value = levels[-1].copy()
     for i in range(k):
-        q = d0[i] / d1[i] if d1[i] > 0 else math.inf
-        ratio[i] = q
-        if q >= 1.1:
-            # Roache's grid convergence index: safety factor 1.25 on the observed-order estimate,
-            # the order capped at the integrator's formal one (a ratio above 4 -- e.g. a coarse
-            # level still outside the asymptotic range, or two fine levels agreeing by chance --
-            # would make the bar optimistic; measured on the model-file single link: 28)
-            qe = min(q, FORMAL_RATIO)
-            err[i] = GCI_SAFETY * d1[i] / (qe - 1.0)
+        # Roache's grid convergence index: safety factor 1.25 on the observed-order estimate,
+        # the order capped at the integrator's formal one (a ratio above 4 -- e.g. a coarse
+        # level still outside the asymptotic range, or two fine levels agreeing by chance --
+        # would make the bar optimistic; measured on the model-file single link: 28)
+        err[i], ratio[i], qe = _gci_bar(d0[i], d1[i], abs(levels[-1, i]), floor)
+        if qe is not None:
             value[i] = levels[-1, i] + (levels[-1, i] - levels[-2, i]) / (qe - 1.0)
-        else:
-            err[i] = 10.0 * max(d0[i], d1[i])
+        elif d1[i] > 0:  # q < 1.1: no convergence seen, unless both changes are at the runs' resolution
             ok[i] = bool(max(d0[i], d1[i]) <= floor)
+        # d1 == 0: the two finest levels agree (converged, as before), but with the bar 10 d0, never 0
     return err, ratio, ok, value
 
 
@@ -984,11 +1008,10 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             d0 = np.array([last[1][int(np.argmin(np.abs(last[0] - z)))] for z in pred.multipliers])
             errors = np.empty_like(d1)
             for i in range(d1.size):
-                q = d0[i] / d1[i] if d1[i] > 0 else math.inf
                 # GCI of the finer level with the observed ratio capped at 4 (exponential midpoint:
-                # second order); a ratio below 1.1 is no convergence: ten times the change
-                errors[i] = (0.0 if not math.isfinite(q) else GCI_SAFETY * d1[i] / (min(q, FORMAL_RATIO) - 1.0)
-                             if q >= 1.1 else 10.0 * max(d0[i], d1[i]))
+                # second order); a ratio below 1.1 is no convergence, and a vanished finest change shows
+                # no order: ten times the change (never an error of exactly 0)
+                errors[i] = _gci_bar(d0[i], d1[i], abs(pred.multipliers[i]))[0]
         pred = replace(pred, errors=errors)
         if last is not None and float(np.max(errors)) <= PREDICTION_TOLERANCE * float(np.max(np.abs(pred.multipliers))):
             break
