@@ -63,7 +63,8 @@ def register(sub) -> None:
                         "built-in link)")
     p.add_argument("--spectral-radius", default="1",
                    help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
-    p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4)")
+    p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4; 1 gives a bar but no verdict, "
+                        "two levels show no convergence order)")
     p.add_argument("--amplitude", default=None,
                    help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3; 1e-2 for model files)")
     p.add_argument("--compare", default="2", help="number of multipliers compared (default 2; pairs kept whole)")
