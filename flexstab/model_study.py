@@ -171,16 +171,20 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
         checks.clear()
+        caught: list = []
         try:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                blocks = fn()
-            # warnings of the computation (e.g. a Floquet step-doubling estimate above 1e-4) go into the report;
-            # any other category (deprecations of a library, ...) is passed on to the caller's filters
+            try:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    blocks = fn()
+            finally:
+                # warnings of the computation (RuntimeWarning, e.g. a Floquet step-doubling estimate above 1e-4)
+                # go into the report; any other category (a library's deprecation, a UserWarning, ...) is
+                # passed on to the caller's filters, also when the stage fails
+                for w in caught:
+                    if not issubclass(w.category, RuntimeWarning):
+                        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
             notes = sorted({" ".join(str(w.message).split()) for w in caught if issubclass(w.category, RuntimeWarning)})
-            for w in caught:
-                if not issubclass(w.category, RuntimeWarning):
-                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
             blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
             for n in notes:
                 say(f"study: {name}: warning: {n}")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -145,3 +146,19 @@ def test_tuning_check_failures_rule():
     assert len(tuning_check_failures("converged", "", 0.3006, 2e-4, 0.3, 3e-4)) == 1
     assert len(tuning_check_failures("budget exhausted", "x", 0.3, 0.0, 0.3, 3e-4)) == 1
     assert len(tuning_check_failures("converged", "", math.nan, 0.0, 0.3, 3e-4)) == 1  # NaN never passes
+
+
+def test_other_warning_categories_reach_the_caller(tmp_path, monkeypatch):
+    """A stage's warnings are recorded with simplefilter("always"); RuntimeWarnings go into the report,
+    every other category must be passed on (they used to be dropped).  A stand-in ``analyze`` warns
+    and fails (cheap: no orbit)."""
+    import linearize.analysis as la
+
+    def fake_analyze(*a, **k):
+        warnings.warn("a user-visible note from the model", UserWarning)
+        raise RuntimeError("stand-in stops here")
+
+    monkeypatch.setattr(la, "analyze", fake_analyze)
+    with pytest.warns(UserWarning, match="a user-visible note from the model"):
+        assert cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(tmp_path)]) == 1
+    assert json.loads((tmp_path / "study.json").read_text())["stages"]["floquet"]["status"] == "failed"
