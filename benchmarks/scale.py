@@ -16,7 +16,8 @@ Richardson-extrapolated, from ``N, N/2, N/4`` steps, or with ``N`` divisible by 
 sub-interval propagators in chunks (memory O(n^2) in the step count).  Stage limits
 (``--floquet-limit``) are CPU seconds.  Per stage: wall and CPU
 seconds (CPU is the honest figure on a shared machine) and the peak of numpy /
-Python allocations (``tracemalloc``); per mesh the peak resident set size of the
+Python allocations (``tracemalloc``, with ``--trace-memory`` only: it triples the CPU time
+of the allocation-heavy orbit stage); per mesh the peak resident set size of the
 process (``ru_maxrss``, Exudyn's C++ memory included).  The growth exponent of
 each stage is the least-squares slope of log(CPU seconds) against log(elements).
 
@@ -68,7 +69,8 @@ class _Stage:
             # machine the wall clock runs 3-7x the CPU time
             signal.signal(signal.SIGPROF, _alarm)
             signal.setitimer(signal.ITIMER_PROF, self.limit)
-        tracemalloc.reset_peak()
+        if tracemalloc.is_tracing():
+            tracemalloc.reset_peak()
         self.w, self.c = time.perf_counter(), time.process_time()
         return self
 
@@ -77,7 +79,7 @@ class _Stage:
         self.out[self.name] = {
             "wall_s": time.perf_counter() - self.w,
             "cpu_s": time.process_time() - self.c,
-            "python_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20,
+            "python_peak_mb": tracemalloc.get_traced_memory()[1] / 2**20 if tracemalloc.is_tracing() else None,
             "ok": exc[0] is None,
         }
         if exc[0] is StageTimeout:
@@ -95,7 +97,7 @@ def _cplx(z) -> list:
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
            floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
-           implicit_limit: float | None = None) -> dict:
+           implicit_limit: float | None = None, trace_memory: bool = False) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -104,7 +106,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     from linearize.periodic_orbit import find_orbit
     from stability import floquet, implicit_floquet
 
-    tracemalloc.start()
+    if trace_memory:
+        tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)
     rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
                  "extrapolate": bool(extrapolate and frame == "modal"), "stages": {}}
     st = rec["stages"]
@@ -251,6 +254,8 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds per mesh")
     ap.add_argument("--floquet-limit", type=float, default=300.0,
                     help="CPU seconds per Floquet stage before it is recorded as not finished")
+    ap.add_argument("--trace-memory", action="store_true",
+                    help="per-stage peak of Python allocations (tracemalloc: inflates the CPU times)")
     ap.add_argument("--implicit-limit", type=float, default=None,
                     help="CPU seconds for the implicit stage (default: --floquet-limit)")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
@@ -259,7 +264,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
-                     args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit)
+                     args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit,
+                     args.trace_memory)
         print(json.dumps(rec))
         return 0
     records = []
@@ -272,6 +278,8 @@ def main(argv=None) -> int:
             cmd.append("--no-extrapolate")
         if args.implicit_limit is not None:
             cmd += ["--implicit-limit", str(args.implicit_limit)]
+        if args.trace_memory:
+            cmd.append("--trace-memory")
         if args.no_implicit:
             cmd.append("--no-implicit")
         try:

@@ -31,16 +31,21 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Sub-intervals of the exponential-midpoint (``magnus2``) product in the frozen-modal frame
-#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps).
-#: In the model's own coordinates 512 steps left the single link's dominant multiplier 6.5e-5
-#: (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the step-doubling estimate under-read that by
-#: up to 25x).  Here, measured at 8 elements against the generic path converged: 1.5e-9, 9e-11,
-#: 7.3e-8, 3.3e-7 at 2, 4, 6, 8 pi, ~0.7 s CPU for the Floquet stage (96 steps: 1.5e-9, 8e-9,
-#: 2.3e-7, 1.0e-6 for ~0.6 s; ``benchmarks/model_file_speed.py``).
+#: (:mod:`stability.modal`, two nested frames, Richardson-extrapolated from 128, 64, 32 steps, a
+#: 16-step solve checking the estimate's premise).  In the model's own coordinates 512 steps left
+#: the single link's dominant multiplier 6.5e-5 (4 pi) .. 5.2e-3 (8 pi) off at 8 elements (and the
+#: step-doubling estimate under-read that by up to 25x).  Here, measured at 8 elements in one run of
+#: ``benchmarks/model_file_speed.py``: against the hand route converged 8.7e-10, 3.2e-9, 7.9e-8,
+#: 3.3e-7 at 2, 4, 6, 8 pi; against the same linearisation converged (the propagator error)
+#: 5.9e-13, 3.2e-9, 7.4e-8, 3.3e-7, estimates 1.8e-9, 4.6e-8, 1.3e-6, 4.9e-6; 0.8-0.9 s CPU
+#: for the Floquet stage.
 DEFAULT_PROPAGATOR_STEPS = 128
 #: :func:`analyze` retries the frozen-modal propagation with one frame instead of two when the
 #: dominant multiplier's estimate exceeds this (two frames win on the single link, one on the
-#: two-link arm with gains; the smaller certified estimate is kept).
+#: two-link arm with gains).  The result with the smaller estimate is kept only if the two
+#: dominant multipliers agree within the larger estimate (then both estimates are consistent
+#: with the difference); otherwise the larger-estimate result is kept, its estimate raised to the
+#: disagreement, and a ``RuntimeWarning`` names both values.
 ONE_FRAME_RETRY = 1e-5
 #: Propagation frames of :func:`analyze`: ``"modal"`` (frozen-eigenvector basis, default) or
 #: ``"model"`` (the linearisation's own independent coordinates).
@@ -80,7 +85,11 @@ class ModelFloquetResult:
     dominant_error_estimate : float
         Step-doubling (Richardson) estimate of the relative error of the dominant
         multiplier's modulus (``floquet.error_estimate`` is the largest over all moduli
-        above ``1e-6`` of the spectral radius).
+        above ``1e-6`` of the spectral radius); raised to the disagreement between one and
+        two frozen-modal frames when :func:`analyze` ran both and they disagree.
+    frame_check : tuple
+        ``(dominant multiplier, its estimate)`` of the other frozen-modal frame count when
+        :func:`analyze` ran both (:data:`ONE_FRAME_RETRY`), ``()`` otherwise.
     """
 
     floquet: Any
@@ -93,10 +102,17 @@ class ModelFloquetResult:
     timings: dict = field(default_factory=dict)
     cpu_timings: dict = field(default_factory=dict)
     dominant_error_estimate: float = math.nan
+    frame_check: tuple = ()
 
     @property
     def drives(self) -> tuple:
         return self.orbit.drive_names
+
+    @property
+    def frame(self) -> str:
+        """Propagation frame actually used: ``"modal"`` or ``"model"`` (asked for, or the fallback of
+        :func:`stability.modal.modal_floquet`)."""
+        return str(getattr(self.floquet, "frame", "model"))
 
     @property
     def orbit_residual(self) -> float:
@@ -119,6 +135,7 @@ class ModelFloquetResult:
             "propagator_steps": int(self.floquet.n_steps),
             "error_estimate": float(self.floquet.error_estimate),
             "dominant_error_estimate": float(self.dominant_error_estimate),
+            "frame": self.frame,
         }
 
 
@@ -330,7 +347,9 @@ def analyze(
         converges with a few dozen steps, at order 2, and with ``magnus2`` and a fixed
         ``n_steps`` the multipliers are Richardson-extrapolated from ``n_steps``,
         ``n_steps/2`` and ``n_steps/4``: 4th order, see :func:`stability.modal.modal_floquet`;
-        falls back to ``"model"`` when no smooth basis exists); ``"model"`` the
+        when no smooth basis exists it warns and falls back to the adaptive engine in the model's
+        coordinates, :data:`stability.modal.FALLBACK_METHOD`; ``ModelFloquetResult.frame`` says which
+        frame was used); ``"model"`` the
         linearisation's own coordinates (needs thousands of steps for stiff flexible models).
     orbit : PeriodicOrbit, optional
         Reuse an orbit (must be for ``omega``).
@@ -389,9 +408,10 @@ def analyze(
     cpu_timings["labels"] = time.process_time() - ctic
     dom = _dominant(res, modes, orbit.drive_names)
     dom_est = _multiplier_estimate(res, dom)
-    if frame == "modal" and method == "magnus2" and n_steps is not None and dom_est > ONE_FRAME_RETRY:
+    if (frame == "modal" and method == "magnus2" and n_steps is not None and dom_est > ONE_FRAME_RETRY
+            and getattr(res, "frame", "model") == "modal"):
         # two nested frozen-modal frames are not always the better basis (measured: the two-link arm
-        # at 4 pi with gains); one frame costs the same again: keep the smaller certified estimate
+        # at 4 pi with gains); one frame costs the same again (rule: ONE_FRAME_RETRY)
         tic, ctic = time.perf_counter(), time.process_time()
         alt = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm,
                             extrapolate=True, levels=1)
@@ -399,10 +419,21 @@ def analyze(
         alt_dom = _dominant(alt, alt_modes, orbit.drive_names)
         alt_est = _multiplier_estimate(alt, alt_dom)
         logger.info("one frozen-modal frame: dominant estimate %.1e (two frames: %.1e)", alt_est, dom_est)
-        if alt_est < dom_est:
-            res, modes, dom, dom_est = alt, alt_modes, alt_dom, alt_est
+        two_frames = (dom, dom_est)
+        take_alt, dom_est_new, gap, agree = _pick_frame(dom, dom_est, alt_dom, alt_est)
+        if take_alt:
+            res, modes, dom = alt, alt_modes, alt_dom
+        if not agree:
+            warnings.warn(f"one and two frozen-modal frames disagree on the dominant multiplier by {gap:.1e} "
+                          f"(relative), more than their estimates ({alt_est:.1e}, {two_frames[1]:.1e}): one frame "
+                          f"{alt_dom:.8g}, two frames {two_frames[0]:.8g}; keeping the larger-estimate result with "
+                          f"the estimate raised to the disagreement", RuntimeWarning, stacklevel=2)
+        dom_est = dom_est_new
+        frame_check = (alt_dom, alt_est) if res is not alt else two_frames
         timings["floquet"] = time.perf_counter() - tic + timings["floquet"]
         cpu_timings["floquet"] = time.process_time() - ctic + cpu_timings["floquet"]
+    else:
+        frame_check = ()
     worst = max(_multiplier_estimate(res, res.multipliers[0]), dom_est)
     if math.isfinite(worst) and worst > PROPAGATOR_WARNING:
         msg = (f"Floquet step-doubling estimate {worst:.1e} (relative, spectral radius / dominant multiplier) "
@@ -416,7 +447,22 @@ def analyze(
                 res.spectral_radius, abs(dom))
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
                               kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
-                              cpu_timings=cpu_timings, dominant_error_estimate=dom_est)
+                              cpu_timings=cpu_timings, dominant_error_estimate=dom_est, frame_check=frame_check)
+
+
+def _pick_frame(dom: complex, est: float, alt_dom: complex, alt_est: float) -> tuple:
+    """The rule of :data:`ONE_FRAME_RETRY`: ``(take_alt, estimate, gap, agree)`` for two results (dominant
+    multiplier and its relative estimate each).  ``gap`` = their relative distance; ``agree``: ``gap`` within
+    the larger estimate (a non-finite estimate counts as infinite).  Agreeing: the smaller-estimate result,
+    its own estimate.  Otherwise: the larger-estimate result, its estimate raised to ``gap``."""
+    gap = abs(alt_dom - dom) / abs(dom) if abs(dom) > 0 else math.inf
+    a = alt_est if math.isfinite(alt_est) else math.inf
+    b = est if math.isfinite(est) else math.inf
+    if gap <= max(a, b):
+        return (True, alt_est, gap, True) if a < b else (False, est, gap, True)
+    if a > b:
+        return True, max(alt_est, gap), gap, False
+    return False, max(est, gap), gap, False
 
 
 def _multiplier_estimate(res: Any, mu: complex) -> float:
@@ -429,7 +475,8 @@ def _multiplier_estimate(res: Any, mu: complex) -> float:
 
 
 #: Sub-intervals of the Floquet evaluations inside a tuning loop (frozen-modal frame built at each
-#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16; see :class:`ModelPlant`).
+#: evaluation's gains, one frame, Richardson-extrapolated with 32 and 16, premise check at 8; see
+#: :class:`ModelPlant`).
 #: A basis built once at gains 0 and reused is not good enough: 6.6e-4 off on the double pendulum
 #: test model (1e-7 with its own basis).  Measured on the 8-element single link at the Table 3
 #: gains: 1e-8 .. 4e-5 (2-8 pi), ~0.4 s CPU per evaluation (the former 256 plain steps: up to ~1e-2
@@ -463,18 +510,12 @@ class ModelPlant:
     def floquet(self, kp, kd, n_steps: Optional[int] = None):
         """Floquet multipliers at ``(kp, kd)``: exponential midpoint in the frozen-modal frame of the
         system *at these gains* (one frame, Richardson-extrapolated; see :data:`TUNING_PROPAGATOR_STEPS`)."""
-        from stability import floquet
-        from stability.modal import ModalBasisError, modal_floquet, modal_system
+        from stability.modal import modal_floquet
 
         lin = self.with_gains(kp, kd)
         steps = n_steps or self.n_steps
-        try:
-            system = modal_system(lin, levels=1)
-        except ModalBasisError as exc:
-            logger.info("no frozen-modal basis at kp=%s, kd=%s (%s): model coordinates", kp, kd, exc)
-            return floquet(lin, method="magnus2", n_steps=max(steps, DEFAULT_PROPAGATOR_STEPS * 8),
-                           error_estimate=False, accuracy="moduli")
-        return modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, error_estimate=False,
+        # without a frozen-modal basis: modal_floquet's one fallback policy (warns, adaptive engine)
+        return modal_floquet(lin, levels=1, method="magnus2", n_steps=steps, error_estimate=False,
                              accuracy="moduli", extrapolate=True)
 
     def spectral_measure(self, kp, kd) -> float:

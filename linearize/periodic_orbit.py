@@ -634,20 +634,32 @@ def _polish(col: _Collocation, X: np.ndarray, solve, res: float, qscale: float, 
     return X
 
 
+def _iteration_head(col: _Collocation, X: np.ndarray, qscale: float, tol: float, history: list, solve, tb,
+                    label: str, it: int):
+    """The start of every Newton iteration (full-step and damped): residual of ``X`` appended to
+    ``history`` and logged, and the two exits.  Returns ``(out, done)``: ``out`` the residual array,
+    ``done`` the final ``(X, history, ok, tangent)`` when the residual is not finite (failed) or
+    ``<= tol`` (converged, polished), else ``None``."""
+    out, fscale = col.residual(X)
+    res = col.relative(out, fscale, qscale)
+    history.append(res)
+    logger.debug("%s %d: relative residual %.3e", label, it, res)
+    if not math.isfinite(res):
+        return out, (X, history, False, tb)
+    if res <= tol:
+        return out, (_polish(col, X, solve, res, qscale, history), history, True, tb)
+    return out, None
+
+
 def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int):
     """Undamped Newton (see :data:`FULL_STEP_ITERATIONS`); returns ``(X, history, ok, tangent)``."""
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = tb = None
     for it in range(1, max_iterations + 1):
-        out, fscale = col.residual(X)
-        res = col.relative(out, fscale, qscale)
-        history.append(res)
-        logger.debug("orbit full-step Newton %d: relative residual %.3e", it, res)
-        if not math.isfinite(res):
-            return X, history, False, tb
-        if res <= tol:
-            return _polish(col, X, solve, res, qscale, history), history, True, tb
+        out, done = _iteration_head(col, X, qscale, tol, history, solve, tb, "orbit full-step Newton", it)
+        if done is not None:
+            return done
         if it > FULL_STEP_CHECK and min(history) > FULL_STEP_PROGRESS * history[0]:
             break
         if it > FULL_STEP_ITERATIONS and (it == 1 or not history[-1] <= FULL_STEP_CONTRACTION * history[-2]):
@@ -691,14 +703,10 @@ def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations:
     solve = None
     tb = None
     for it in range(1, max_iterations + 1):
-        out, fscale = col.residual(X)
-        res = col.relative(out, fscale, qscale)
-        history.append(res)
-        logger.debug("orbit Newton %d: relative residual %.3e", it, res)
-        if not math.isfinite(res):
-            return X, history, False, tb
-        if res <= tol:
-            return _polish(col, X, solve, res, qscale, history), history, True, tb
+        out, done = _iteration_head(col, X, qscale, tol, history, solve, tb, "orbit Newton", it)
+        if done is not None:
+            return done
+        res = history[-1]
         if it > STAGNATION_ITERATIONS and res > history[0]:
             return X, history, False, tb
         if early_give_up and it > EARLY_GIVE_UP_ITERATIONS and res > EARLY_GIVE_UP_FACTOR * history[0]:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, replace
 from typing import Optional, Sequence
 
@@ -12,9 +13,14 @@ from stability.periodic import first_order_matrix
 
 __all__ = ["LinearizedPeriodicSystem"]
 
-#: Points of the periodic trapezoidal rule for :meth:`LinearizedPeriodicSystem.trace_integral`
-#: (as ``stability.floquet.TRACE_POINTS``).
-TRACE_POINTS = 512
+#: Nested periodic trapezoidal rule of :meth:`LinearizedPeriodicSystem.trace_integral`: it starts
+#: with ``TRACE_MIN_POINTS // 2`` points and doubles (reusing every value) until two successive sums
+#: agree to ``stability.floquet.TRACE_RTOL`` relative to ``int |tr P|`` (the rule of
+#: ``stability.floquet._trace_integral``: the trapezoidal error of a smooth periodic integrand
+#: falls exponentially, so the change from ``K`` to ``2 K`` points bounds the error of the ``K``
+#: sum), at most :data:`TRACE_POINTS` points; unconverged there it warns (``RuntimeWarning``).
+TRACE_POINTS = 4096
+TRACE_MIN_POINTS = 64
 
 
 @dataclass(frozen=True)
@@ -160,13 +166,36 @@ class LinearizedPeriodicSystem:
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
 
-    def trace_integral(self, points: int = TRACE_POINTS) -> float:
-        """``int_0^T tr P dt = -int_0^T tr(M^-1 C) dt`` (periodic trapezoidal rule on ``points``
-        points, spectrally accurate; only ``M`` and ``C`` are interpolated, no ``P`` is built)."""
-        t = np.arange(points) * (self.period / points)
+    def _trace(self, t: np.ndarray) -> np.ndarray:
+        """``tr P(t) = -tr(M^-1 C)(t)`` (only ``M`` and ``C`` interpolated, no ``P`` built)."""
         M = trig_interpolate(self.M, self.period, t)
         C = trig_interpolate(self.C, self.period, t)
-        return float(-np.trace(np.linalg.solve(M, C), axis1=1, axis2=2).sum() * self.period / points)
+        return -np.trace(np.linalg.solve(M, C), axis1=1, axis2=2)
+
+    def trace_integral(self, points: int = TRACE_POINTS) -> float:
+        """``int_0^T tr P dt = -int_0^T tr(M^-1 C) dt`` by the nested periodic trapezoidal rule
+        (see :data:`TRACE_POINTS`; ``points``: the most points used).  Warns (``RuntimeWarning``)
+        with the last change when two successive sums never agreed."""
+        from stability.floquet import TRACE_RTOL
+
+        T = self.period
+        K = TRACE_MIN_POINTS // 2
+        tr = self._trace(np.arange(K) * (T / K))
+        total, abs_total = float(np.sum(tr)), float(np.sum(np.abs(tr)))
+        integral, change = total * T / K, math.inf
+        while 2 * K <= int(points):
+            new = self._trace((np.arange(K) + 0.5) * (T / K))
+            total += float(np.sum(new))
+            abs_total += float(np.sum(np.abs(new)))
+            K *= 2
+            previous, integral = integral, total * T / K
+            change = abs(integral - previous)
+            if change <= TRACE_RTOL * abs_total * T / K:
+                return float(integral)
+        warnings.warn(f"int tr P: the periodic trapezoidal rule did not converge in {K} points (last change "
+                      f"{change:.1e}, relative {change / max(abs_total * T / K, 1e-300):.1e} > {TRACE_RTOL:.0e})",
+                      RuntimeWarning, stacklevel=2)
+        return float(integral)
 
     def with_gains(self, kp, kd) -> "LinearizedPeriodicSystem":
         """The same system with the PD gains replaced.

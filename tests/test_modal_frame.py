@@ -42,16 +42,23 @@ def _nearest(multipliers, mu):
 
 
 def test_default_analyze_dominant_equals_hand_route(case):
-    """Default settings (frozen-modal frame, 128 midpoint steps): hub multiplier = hand route to 1e-6 (issue 9),
-    and the step-doubling estimate bounds the true error (Richardson for a 2nd-order scheme estimates the
-    error of the finer solve; factor 2 for the pre-asymptotic range)."""
+    """Default settings (frozen-modal frame, 128 midpoint steps, Richardson-extrapolated): hub multiplier =
+    hand route to 1e-6 (issue 9).  The estimate claims to bound the *propagator* error, so it is checked
+    against the same linearisation propagated to convergence (2048 steps extrapolated: 4th order, its own
+    error ~(128/2048)^4 = 1.5e-5 of the 128-step one), not against the hand route, whose distance also
+    holds the two linearisations' disagreement (measured 6e-9 here; propagator error 3e-9, estimate 4.5e-8)."""
+    from stability.modal import modal_floquet
+
     res, _, ref = case
     dom = res.dominant_multiplier
     assert [m["mode"] for mu, m in zip(res.floquet.multipliers, res.modes) if mu == dom] == ["hub"]
+    assert res.frame == "modal"
     true = _nearest(ref.multipliers, dom)
     err = abs(dom - true) / abs(true)
     assert err < 1e-6, err
-    assert err <= 2.0 * res.dominant_error_estimate
+    conv = modal_floquet(res.linearization, method="magnus2", n_steps=2048, accuracy="moduli", extrapolate=True)
+    same = _nearest(conv.multipliers, dom)
+    assert abs(abs(dom) - abs(same)) / abs(same) <= res.dominant_error_estimate
 
 
 def test_model_frame_old_default_misses_and_underestimates(case):
@@ -88,7 +95,9 @@ def test_similarity_needs_the_exact_basis_derivative(case):
 
 def test_modal_convergence_is_second_order(case):
     """Exponential midpoint in the frozen-modal frame: the hub multiplier's error falls ~4x per step doubling
-    (order 2) between 64, 128 and 256 steps (ratio within [2.5, 6.5] of 4)."""
+    (order 2) between 64, 128 and 256 steps (ratio within [2.5, 6.5] of 4).  Floor of the reference: the two
+    linearisations agree to 6e-9 (relative); the errors measured here (5.3e-6, 1.3e-6, 3.2e-7) are >= 50x above
+    it, so it moves each ratio by < 4 %."""
     from stability.modal import modal_floquet
 
     res, _, ref = case
@@ -104,8 +113,10 @@ def test_modal_convergence_is_second_order(case):
 def test_richardson_extrapolation_is_fourth_order(case):
     """``modal_floquet(..., extrapolate=True)`` (the default of ``analyze``): the hub multiplier's error
     against the hand route falls >= 8x per step doubling from 16 to 32 to 64 steps (order 4 gives 16,
-    order 2 would give 4; measured 26x and 11x, at 128 steps the errors reach the ~1e-8 agreement of the
-    two linearisations), and its estimate (the undivided change of the extrapolated values) bounds it."""
+    order 2 would give 4; measured 2.7e-5, 6.0e-7, 5.4e-8: 45x and 11x).  Floor of the reference: the two
+    linearisations agree to 6e-9, 1/9 of the smallest error, so the last ratio is 11 +- 1.3 whatever the
+    floor's sign (still >= 8); at 128 steps the errors would reach the floor.  The estimate (the undivided
+    change of the extrapolated values) bounds the error."""
     from stability.modal import modal_floquet
 
     res, _, ref = case
@@ -122,9 +133,12 @@ def test_richardson_extrapolation_is_fourth_order(case):
 
 def test_constant_coefficients_are_exact_in_the_modal_frame():
     """Constant ``P = S A S^-1``: ``V`` is constant, ``P_hat`` block diagonal and every midpoint step exact, so
-    the multipliers equal ``exp(T eig(A))`` (``A`` block structured, its eigenvalues well conditioned) to
-    rounding already at 8 steps, extrapolated or not (2e-9: ``T |lambda|_max = 80`` times ``eps cond(V)``
-    with ``cond(V)`` ~ 1e3, times 10), with Liouville's identity on the multipliers."""
+    the multipliers equal ``exp(T eig(A))`` to rounding already at 8 steps, extrapolated or not, with
+    Liouville's identity on the multipliers.  Rounding bound (first order, Bauer-Fike): a backward error
+    ``eps ||P||`` in ``P`` moves each eigenvalue by at most ``cond(X) eps ||P||`` (``X`` the eigenvectors of
+    ``P``), each multiplier ``mu = exp(T lambda)`` by ``|mu| T`` times that (``|mu| <= 1``): ``tol`` below
+    (~5e-10 here; measured 6e-13).  Liouville (``|prod mu / exp(int tr P) - 1|``): the sum of the relative
+    multiplier errors, ``<= n tol / min |mu|``."""
     from stability.modal import modal_floquet
 
     A = np.zeros((6, 6))
@@ -135,9 +149,10 @@ def test_constant_coefficients_are_exact_in_the_modal_frame():
     S = np.eye(6) + 0.2 * rng.standard_normal((6, 6))  # a non-modal constant coordinate change
     P = S @ A @ np.linalg.inv(S)
     exact = np.exp(0.8 * np.linalg.eigvals(A))
+    tol = 0.8 * np.linalg.cond(np.linalg.eig(P)[1]) * np.finfo(float).eps * np.linalg.norm(P, 2)
     for extrapolate in (False, True):
         res = modal_floquet(lambda t: P, period=0.8, method="magnus2", n_steps=8, accuracy="moduli",
                             extrapolate=extrapolate)
         for mu in exact:
-            assert np.min(np.abs(res.multipliers - mu)) <= 2e-9, (extrapolate, res.multipliers, exact)
-        assert res.liouville_residual < 1e-10
+            assert np.min(np.abs(res.multipliers - mu)) <= tol, (extrapolate, res.multipliers, exact)
+        assert res.liouville_residual <= 6 * tol / np.min(np.abs(exact))

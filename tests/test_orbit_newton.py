@@ -97,7 +97,9 @@ def test_quasi_static_guess_is_in_equilibrium_on_the_drive():
     for k, t in enumerate(col.times):
         f = col.system.rhs(Q[k], zero, float(t))
         r = -f + col.system.constraint_jacobian(Q[k], float(t)).T @ L[k] - col.B @ U[k]
-        assert np.max(np.abs(r)) <= 10 * po.QUASI_STATIC_TOLERANCE * np.max(np.abs(f))
+        # factor 1: _static_solve returns a sample only after this residual (same formula, same point,
+        # relative to max |f|) passed QUASI_STATIC_TOLERANCE (measured: 0.1 of the bound)
+        assert np.max(np.abs(r)) <= po.QUASI_STATIC_TOLERANCE * np.max(np.abs(f))
         assert np.max(np.abs(col.system.constraints(Q[k], float(t)))) <= 1e-9
         assert abs(float(col.B[:, 0] @ Q[k]) - col.R[k, 0]) <= 1e-9
     # the hub torque holds the link against gravity: tau = -m g x_c cos(angle) summed over the link
@@ -107,8 +109,13 @@ def test_quasi_static_guess_is_in_equilibrium_on_the_drive():
     p = ManipulatorParameters()
     angle = col.R[:, 0]
     moment = p.gravity * (p.mass_per_length * p.length ** 2 / 2 + p.tip_mass * p.length) * np.cos(angle)
-    # the static deflection shortens the lever arm by O(deflection / length) ~ 1e-3
-    np.testing.assert_allclose(U[:, 0], moment, rtol=0, atol=5e-3 * float(np.max(np.abs(moment))))
+    # the static deflection moves each mass element by at most the Euler-Bernoulli cantilever tip
+    # deflection w = q L^4 / (8 EI) + P L^3 / (3 EI) (q, P: gravity load per length and at the tip), so the
+    # gravity moment changes by at most g (m_link + m_tip) w: relative bound 2.4e-3 here (measured 4.3e-4)
+    EI, m_link = p.youngs_modulus * p.second_moment, p.mass_per_length * p.length
+    w = (p.mass_per_length * p.gravity * p.length ** 4 / (8 * EI)
+         + p.tip_mass * p.gravity * p.length ** 3 / (3 * EI))
+    np.testing.assert_allclose(U[:, 0], moment, rtol=0, atol=p.gravity * (m_link + p.tip_mass) * w)
 
 
 def _two_link_state():

@@ -268,7 +268,7 @@ def multiplier_study(
     from mbs_models.paper_data import TABLE3_GAINS
     from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
 
-    config = config or MultiplierCheckConfig()
+    config = config or MultiplierCheckConfig(step=None)  # min(1e-3 s, suggested_step) per case
     orbits: dict = {}
     rows = []
     for name, k, gains, factor, ref in cases:
