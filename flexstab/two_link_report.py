@@ -138,7 +138,7 @@ def _cached_blocks(c: dict) -> list:
                          t["evaluations"], f"{t['cpu_s']:.1f}"])
         blocks += [
             text("Four-gain Taguchi (L9, iterated) to ρ_d, response = dominant multiplier by Hill's method; checked "
-                 "by an independent method: the streamed exponential-midpoint product (`stability.streamed`) at "
+                 "by an independent method: the streamed exponential-midpoint product (`stability.floquet` with a fixed step count, streamed in chunks) at "
                  "32768 steps (no Hill code; its own 16384 → 32768 change is in the cached JSON)."),
             table(["Ω", "tuned gains", "|ρ| Hill (loop)", "|ρ| magnus2 32768 steps", "|Hill − magnus2|",
                    "|ρ − ρ_d| / ρ_d", "evaluations", "CPU s"], rows),
