@@ -283,3 +283,17 @@ def test_recheck_outside_the_tolerance_exits_1_with_one_line(monkeypatch, capsys
     # the same plant without the biased independent path passes: exit 0, nothing on stderr
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake(plant=Fake()))
     assert cli_main(argv) == 0 and capsys.readouterr().err == ""
+
+
+def test_check_failure_names_the_recheck_method():
+    """The one-line reason names how the re-check was made (Hill path: the streamed product, not "twice
+    the propagator steps"); a re-check within rho_d +- tol and a converged tuning give None."""
+    from flexstab.commands.tune import check_failure
+
+    d = {"converged": True, "message": "", "target": 0.3, "tolerance": 3e-4,
+         "verified_spectral_radius": 0.3010, "verified_method": "magnus2, 32768 steps (streamed)"}
+    msg = check_failure(d)
+    assert "magnus2, 32768 steps (streamed)" in msg and "twice" not in msg and "0.301" in msg
+    assert check_failure(dict(d, verified_spectral_radius=0.3002)) is None
+    assert "not converged" in check_failure(dict(d, converged=False, message="budget"))
+    assert "gave no value" in check_failure(dict(d, verified_spectral_radius=float("nan")))
