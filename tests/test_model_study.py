@@ -115,17 +115,26 @@ def test_inverted_gain_range_in_the_config_is_one_line(tmp_path, capsys):
 def test_tuning_whose_check_fails_is_check_failed_exit_1(tmp_path, monkeypatch, capsys):
     """Gain ranges [0, 1e-3] cannot move the rigid pendulum's multipliers (|rho| ~ 1) to rho_d = 0.3: the
     tuning stage computes, but its check fails (not converged; the separate evaluation ~0.7 from rho_d).
-    Rejects a study that reports such a stage as "computed" and exits 0. The charts and the nonlinear
-    validation are stubbed out (they raise: stage "failed") to keep the test cheap; the tuning stage's own
-    status must be "check failed"."""
+    Rejects a study that reports such a stage as "computed" and exits 0. To keep the test cheap the charts
+    are stubbed out (they raise: stage "failed") and the nonlinear validation is a stand-in whose
+    measurement does not confirm the prediction (``agrees`` false): that stage computes, so it must be
+    "check failed" as well."""
     import flexstab.commands.chart as chart
+    import flexstab.study as fs
     import validation.multipliers as vm
+    import validation.plots as vp
 
     def stub(*a, **k):
         raise RuntimeError("stubbed out in this test")
 
+    class NotConfirmed:
+        def to_dict(self):
+            return {"agrees": False}
+
     monkeypatch.setattr(chart, "model_charts", stub)
-    monkeypatch.setattr(vm, "validate_model_multipliers", stub)
+    monkeypatch.setattr(vm, "validate_model_multipliers", lambda *a, **k: NotConfirmed())
+    monkeypatch.setattr(vp, "plot_multiplier_plane", lambda *a, **k: None)
+    monkeypatch.setattr(fs, "validation_blocks", lambda *a, **k: [])
     cfg = tmp_path / "c.toml"
     cfg.write_text("[study]\nkp_range = [0.0, 0.001]\nkd_range = [0.0, 0.001]\n")
     out = tmp_path / "o"
@@ -134,8 +143,12 @@ def test_tuning_whose_check_fails_is_check_failed_exit_1(tmp_path, monkeypatch, 
     assert stages["floquet"]["status"] == "computed"
     assert stages["tuning"]["status"] == "check failed", stages["tuning"]
     assert "tuning not converged" in stages["tuning"]["error"] and "separate evaluation" in stages["tuning"]["error"]
+    assert stages["charts"]["status"] == "failed"
+    assert stages["validation"]["status"] == "check failed" and "agrees = false" in stages["validation"]["error"]
     assert "**Check failed:** tuning not converged" in (out / "report.md").read_text()
-    assert any(line.startswith("stage tuning check failed: ") for line in capsys.readouterr().err.splitlines())
+    err = capsys.readouterr().err.splitlines()
+    assert any(line.startswith("stage tuning check failed: ") for line in err)
+    assert any(line.startswith("stage validation check failed: ") for line in err)
 
 
 def test_tuning_check_failures_rule():
