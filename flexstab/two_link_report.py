@@ -98,7 +98,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
             figs.append(str(plot_poses(unc.orbit, out / f"two_link_poses_{k}pi.png").name))
         res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
                                     linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
-                                    dominant_multiplier=ctl.measure.estimate)
+                                    dominant_multiplier=ctl.measure.dominant)
         figs.append(str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png").name))
     doc["figures"] = figs
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
