@@ -189,6 +189,24 @@ class GainSlices:
                 "shoulder": self.shoulder.tolist(), "elbow": self.elbow.tolist(), "fixed": list(self.fixed)}
 
 
+def _slices(obj: Any, fixed: Sequence[float], ranges: Sequence, points: int, executor: Any) -> GainSlices:
+    """The two (kp, kd) slices of a four-gain response ``obj`` (one drive's pair varied, the other at ``fixed``)."""
+    grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
+    grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
+    out = []
+    for drive in (0, 1):
+        pts = []
+        for kd in grids_d[drive]:
+            for kp in grids_p[drive]:
+                g = list(fixed)
+                g[2 * drive], g[2 * drive + 1] = float(kp), float(kd)
+                pts.append(tuple(g))
+        vals = list(executor.map(obj, pts)) if executor is not None else [obj(p) for p in pts]
+        out.append(np.array(vals).reshape(points, points))
+    return GainSlices(kp_grid=tuple(tuple(g) for g in grids_p), kd_grid=tuple(tuple(g) for g in grids_d),
+                      shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
+
+
 def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: Sequence = TUNING_RANGES,
                 points: int = 9, executor: Any = None, floquet_options: Optional[dict] = None) -> GainSlices:
     """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1).
@@ -197,40 +215,14 @@ def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: 
     """
     obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
            else tuning_objective(lin, floquet_options))
-    grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
-    grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
-    out = []
-    for drive in (0, 1):
-        pts = []
-        for kd in grids_d[drive]:
-            for kp in grids_p[drive]:
-                g = list(fixed)
-                g[2 * drive], g[2 * drive + 1] = float(kp), float(kd)
-                pts.append(tuple(g))
-        vals = list(executor.map(obj, pts)) if executor is not None else [obj(p) for p in pts]
-        out.append(np.array(vals).reshape(points, points))
-    return GainSlices(kp_grid=tuple(tuple(g) for g in grids_p), kd_grid=tuple(tuple(g) for g in grids_d),
-                      shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
+    return _slices(obj, fixed, ranges, points, executor)
 
 
 def gain_slices_hill(lin: Any, orbit: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES,
                      points: int = 9, executor: Any = None, harmonics: int = 12) -> GainSlices:
     """:func:`gain_slices` with the tuning response (Hill's method, :class:`HillModelPlant`)."""
     obj = HillGainObjective(HillModelPlant(lin, orbit, harmonics=harmonics))
-    grids_p = [np.linspace(*ranges[0], points), np.linspace(*ranges[2], points)]
-    grids_d = [np.linspace(*ranges[1], points), np.linspace(*ranges[3], points)]
-    out = []
-    for drive in (0, 1):
-        pts = []
-        for kd in grids_d[drive]:
-            for kp in grids_p[drive]:
-                g = list(fixed)
-                g[2 * drive], g[2 * drive + 1] = float(kp), float(kd)
-                pts.append(tuple(g))
-        vals = list(executor.map(obj, pts)) if executor is not None else [obj(p) for p in pts]
-        out.append(np.array(vals).reshape(points, points))
-    return GainSlices(kp_grid=tuple(tuple(g) for g in grids_p), kd_grid=tuple(tuple(g) for g in grids_d),
-                      shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
+    return _slices(obj, fixed, ranges, points, executor)
 
 
 def plot_gain_slices(sl: GainSlices, path, *, target: float = 0.3, title: str = "") -> None:
