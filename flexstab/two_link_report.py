@@ -31,11 +31,12 @@ CACHE_NAME = "two_link.json"
 
 
 def find_cache(out: Path) -> Optional[Path]:
-    """The script's results: ``<out>/two_link/two_link.json`` or ``results/two_link/two_link.json``."""
-    for p in (Path(out) / "two_link" / CACHE_NAME, Path("results") / "two_link" / CACHE_NAME):
-        if p.exists():
-            return p
-    return None
+    """The script's results in the study's own output folder, ``<out>/two_link/two_link.json``
+    (``python3 scripts/two_link_study.py --out <out>/two_link``; its default is ``results/two_link``,
+    the default study folder's).  Never a file relative to the working directory: a study must not
+    report another run's numbers because of where it was started."""
+    p = Path(out) / "two_link" / CACHE_NAME
+    return p if p.exists() else None
 
 
 def _z(z: complex) -> str:
@@ -120,8 +121,9 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     if cache is not None:
         blocks += _cached_blocks(cache)
     else:
-        blocks.append(text("No cached results of `scripts/two_link_study.py` found: the tuning, method comparison, "
-                           "independent check, mesh study and robust design are not in this report."))
+        blocks.append(text("No results of `scripts/two_link_study.py` in this study's folder (`two_link/`): the tuning, "
+                           "method comparison, independent check, mesh study and robust design are not in this "
+                           "report (run `python3 scripts/two_link_study.py --out <study out>/two_link` first)."))
     for f in figs:
         k = f.split("_")[-1].replace(".png", "").replace("pi", "π")
         cap = (f"The arm over one period on its periodic orbit, Ω = {k}" if "poses" in f else
