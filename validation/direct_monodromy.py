@@ -31,6 +31,8 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from mbs_models.model_file import Drive
+
 __all__ = ["DirectMonodromy", "direct_monodromy", "DIRECT_EPSILON", "DIRECT_STEP"]
 
 logger = logging.getLogger(__name__)
@@ -97,6 +99,33 @@ def _settings(T: float, step: float, spectral_radius: float):
     return s
 
 
+def _constraint_null_space(mbs: Any, q0: np.ndarray, settings: Any) -> np.ndarray:
+    """Orthonormal basis of ``null C_q(q0, 0)`` of the assembled ``mbs`` (identity without constraints).
+
+    ``C_q`` is Exudyn's own algebraic-equation Jacobian, evaluated by a solver initialised
+    with ``settings`` at the state ``(q0, 0)``, ``t = 0``; rank by :data:`NULL_SPACE_RTOL`.
+    """
+    import exudyn as exu
+
+    n = mbs.systemData.ODE2Size()
+    solver = exu.MainSolverImplicitSecondOrder()
+    solver.InitializeSolver(mbs, settings)
+    sd = mbs.systemData
+    cur = exu.ConfigurationType.Current
+    sd.SetODE2Coordinates(q0, configuration=cur)
+    sd.SetODE2Coordinates_t(np.zeros(n), configuration=cur)
+    sd.SetTime(0.0, cur)
+    solver.ComputeJacobianODE2RHS(mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=0.0)
+    solver.ComputeJacobianAE(mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=1.0,
+                             velocityLevel=False)
+    Cq = np.array(solver.GetSystemJacobian(), dtype=float)[n:, :n]
+    if not Cq.size:
+        return np.eye(n)
+    _, s, Vt = np.linalg.svd(Cq)
+    rank = int(np.sum(s > NULL_SPACE_RTOL * s[0])) if s.size else 0
+    return Vt[rank:].T
+
+
 def _gain_list(value: Any, d: int, name: str) -> list[float]:
     vals = [float(value)] * d if np.isscalar(value) else [float(v) for v in value]
     if len(vals) != d:
@@ -151,8 +180,8 @@ def direct_monodromy(
     d = len(drives)
     kps, kds = _gain_list(kp, d, "kp"), _gain_list(kd, d, "kd")
     for i, dr in enumerate(drives):
-        markers = dr["markers"] if isinstance(dr, dict) else dr.markers
-        motion = dr["motion"] if isinstance(dr, dict) else dr.motion
+        drive = Drive.coerce(dr)
+        markers, motion = drive.markers, drive.motion
 
         def force(mbs_, t, item, u, v, k, c, offset, _i=i, _motion=motion):  # noqa: ARG001
             qr, qr_t, _ = _motion(t)
@@ -167,23 +196,8 @@ def direct_monodromy(
     if q0.shape != (n,) or v0.shape != (n,):
         raise ValueError(f"orbit state must have {n} coordinates, got {q0.shape}, {v0.shape}")
 
-    solver = exu.MainSolverImplicitSecondOrder()
-    solver.InitializeSolver(mbs, _settings(1.0, step, spectral_radius))
     sd = mbs.systemData
-    cur = exu.ConfigurationType.Current
-    sd.SetODE2Coordinates(q0, configuration=cur)
-    sd.SetODE2Coordinates_t(np.zeros(n), configuration=cur)
-    sd.SetTime(0.0, cur)
-    solver.ComputeJacobianODE2RHS(mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=0.0)
-    solver.ComputeJacobianAE(mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=1.0,
-                             velocityLevel=False)
-    Cq = np.array(solver.GetSystemJacobian(), dtype=float)[n:, :n]
-    if Cq.size:
-        _, s, Vt = np.linalg.svd(Cq)
-        rank = int(np.sum(s > NULL_SPACE_RTOL * s[0])) if s.size else 0
-        N = Vt[rank:].T
-    else:
-        N = np.eye(n)
+    N = _constraint_null_space(mbs, q0, _settings(1.0, step, spectral_radius))
     r = N.shape[1]
     T = 2 * math.pi / float(omega)
     settings = _settings(T, step, spectral_radius)

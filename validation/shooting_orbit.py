@@ -23,7 +23,9 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from validation.direct_monodromy import DIRECT_EPSILON, DIRECT_SPECTRAL_RADIUS, DIRECT_STEP, NULL_SPACE_RTOL, _settings
+from mbs_models.model_file import Drive
+from validation.direct_monodromy import (DIRECT_EPSILON, DIRECT_SPECTRAL_RADIUS, DIRECT_STEP,
+                                         _constraint_null_space, _settings)
 
 __all__ = ["ShootingOrbit", "shooting_orbit", "SHOOTING_TOLERANCE"]
 
@@ -100,8 +102,8 @@ def shooting_orbit(
     drives = list(build(mbs, float(omega), **options))
     drive_objects = []
     for dr in drives:
-        markers = dr["markers"] if isinstance(dr, dict) else dr.markers
-        motion = dr["motion"] if isinstance(dr, dict) else dr.motion
+        drive = Drive.coerce(dr)
+        markers, motion = drive.markers, drive.motion
         drive_objects.append(mbs.AddObject(CoordinateConstraint(
             markerNumbers=list(markers),
             offsetUserFunction=lambda m, t, i, v, _mo=motion: float(_mo(t)[0]),
@@ -113,22 +115,10 @@ def shooting_orbit(
     ini = exu.ConfigurationType.Initial
     q0 = np.array(sd.GetODE2Coordinates(configuration=ini))
     v0 = np.array(sd.GetODE2Coordinates_t(configuration=ini))
-    solver = exu.MainSolverImplicitSecondOrder()
     T = 2 * math.pi / float(omega)
-    solver.InitializeSolver(mbs, _settings(T, step, spectral_radius))
-    cur = exu.ConfigurationType.Current
-    sd.SetODE2Coordinates(q0, configuration=cur)
-    sd.SetODE2Coordinates_t(np.zeros(n), configuration=cur)
-    sd.SetTime(0.0, cur)
-    solver.ComputeJacobianODE2RHS(mbs, scalarFactor_ODE2=0.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=0.0)
-    solver.ComputeJacobianAE(mbs, scalarFactor_ODE2=1.0, scalarFactor_ODE2_t=0.0, scalarFactor_ODE1=1.0,
-                             velocityLevel=False)
-    Cq = np.array(solver.GetSystemJacobian(), dtype=float)[n:, :n]
-    _, s, Vt = np.linalg.svd(Cq)
-    rank = int(np.sum(s > NULL_SPACE_RTOL * s[0]))
-    N = Vt[rank:].T
-    r = N.shape[1]
     settings = _settings(T, step, spectral_radius)
+    N = _constraint_null_space(mbs, q0, settings)
+    r = N.shape[1]
     record: dict = {"on": False, "t": [], "q": [], "tau": []}
 
     def post(mbs_, t):
