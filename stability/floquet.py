@@ -571,22 +571,33 @@ def _magnus_solve(
         if strict and scheme.order > 2:
             _commutator_limit(scheme, Om, Pg, h, N)
         E = expm_stack(Om)
-        if not np.isfinite(E).all():
-            raise _Unresolved(
-                f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
-                f"(h*||P|| up to {float(np.abs(Om).sum(axis=1).max()):.3g})",
-                genuine_overflow=True,
-            )
+        _check_factors(E, scheme, N, lambda: float(np.abs(Om).sum(axis=1).max()))
         Phi = ordered_product(E)
-        if not np.isfinite(Phi).all():
-            raise _Unresolved(
-                f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
-                f"within one period)",
-                genuine_overflow=True,
-            )
+        _check_monodromy(Phi, scheme)
     log_det = float(np.sum(np.trace(Om, axis1=1, axis2=2)))
     companion = _chain(N, _companions(E, Om, third)) if third else None
     return _Solve(N, Phi, _spectrum(Phi), log_det, E if keep_factors else None, companion)
+
+
+def _check_factors(E: np.ndarray, scheme: MagnusScheme, N: int, h_norm: Callable[[], float]) -> None:
+    """Raise :class:`_Unresolved` (a genuine overflow) if a sub-interval propagator is not finite;
+    ``h_norm()`` gives the largest ``h ||P||`` for the message (evaluated only then)."""
+    if not np.isfinite(E).all():
+        raise _Unresolved(
+            f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
+            f"(h*||P|| up to {h_norm():.3g})",
+            genuine_overflow=True,
+        )
+
+
+def _check_monodromy(Phi: np.ndarray, scheme: MagnusScheme) -> None:
+    """Raise :class:`_Unresolved` (a genuine overflow) if the (partial) monodromy is not finite."""
+    if not np.isfinite(Phi).all():
+        raise _Unresolved(
+            f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
+            f"within one period)",
+            genuine_overflow=True,
+        )
 
 
 def _magnus_solve_streamed(
@@ -632,20 +643,10 @@ def _magnus_solve_streamed(
                 rung[0] = product @ rung[0]
                 rung[1] += traces
             del Om
-            if not np.isfinite(E).all():
-                raise _Unresolved(
-                    f"{scheme.name}: a sub-interval propagator overflowed with {N} sub-intervals "
-                    f"(h*||P|| up to {om_max:.3g})",
-                    genuine_overflow=True,
-                )
+            _check_factors(E, scheme, N, lambda: om_max)
             Phi = ordered_product(E) @ Phi
             del E
-            if not np.isfinite(Phi).all():
-                raise _Unresolved(
-                    f"{scheme.name}: the monodromy matrix overflowed (solutions grow beyond 1e308 "
-                    f"within one period)",
-                    genuine_overflow=True,
-                )
+            _check_monodromy(Phi, scheme)
     logger.debug("%s: %d sub-intervals of %dx%d streamed in chunks of %d", scheme.name, N, n, n, chunk)
     companion = _chain(N, [(p, t) for p, t in ladder]) if third else None
     return _Solve(N, Phi, _spectrum(Phi), log_det, None, companion)
