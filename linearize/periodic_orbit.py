@@ -909,6 +909,22 @@ def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.
 
 
 # --------------------------------------------------------------------------- driver
+class StageClock:
+    """Wall and CPU seconds per named stage: :meth:`lap` adds the time since the previous lap
+    (or since construction) to ``stage`` in :attr:`timings` / :attr:`cpu_timings`."""
+
+    def __init__(self) -> None:
+        self.timings: dict = {}
+        self.cpu_timings: dict = {}
+        self._last = (time.perf_counter(), time.process_time())
+
+    def lap(self, stage: str) -> None:
+        w, c = time.perf_counter(), time.process_time()
+        self.timings[stage] = self.timings.get(stage, 0.0) + w - self._last[0]
+        self.cpu_timings[stage] = self.cpu_timings.get(stage, 0.0) + c - self._last[1]
+        self._last = (w, c)
+
+
 def find_orbit(
     model: Any,
     omega: float,
@@ -966,15 +982,8 @@ def find_orbit(
         On a bad model.
     """
     tic = time.perf_counter()
-    timings: dict = {}
-    cpu_timings: dict = {}
-    clock = [time.perf_counter(), time.process_time()]
-
-    def lap(stage: str) -> None:
-        w, c = time.perf_counter(), time.process_time()
-        timings[stage] = timings.get(stage, 0.0) + w - clock[0]
-        cpu_timings[stage] = cpu_timings.get(stage, 0.0) + c - clock[1]
-        clock[:] = [w, c]
+    clock = StageClock()
+    timings, cpu_timings, lap = clock.timings, clock.cpu_timings, clock.lap
 
     if not (isinstance(tol, float) or isinstance(tol, int)) or not (math.isfinite(tol) and tol > 0):
         raise ValueError(f"tol must be finite and > 0, got {tol!r}")
