@@ -35,10 +35,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from flexstab.executor import make_executor
-    from flexstab.two_link import TUNING_RANGES, check_multiplier, hill_plant, tune_four_gains, two_link_floquet
-    from linearize.hill_plant import HillGainObjective
-    from taguchi.direct import direct_tune
-    from taguchi.tuning import TuningConfig
+    from flexstab.two_link import check_multiplier, compare_direct_methods, tune_four_gains, two_link_floquet
 
     rows = []
     for k in (2, 4):
@@ -61,14 +58,7 @@ def main(argv=None) -> int:
             row["check"] = chk.to_dict()
             row["check_cpu_s"] = cpu() - c0
         if args.compare:
-            cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
-            obj = HillGainObjective(hill_plant(fl.linearization, fl.orbit, cfg))
-            row["direct"] = []
-            for m in ("nelder-mead", "differential-evolution"):
-                c0 = cpu()
-                d = direct_tune(obj, cfg, m).to_dict()
-                d["cpu_s"] = cpu() - c0
-                row["direct"].append(d)
+            row["direct"] = compare_direct_methods(fl.linearization, fl.orbit, args.target)
         rows.append(row)
         print(f"Omega = {k}pi: orbit+lin+Floquet {analysis_cpu:.2f} s CPU "
               f"({', '.join(f'{a} {b:.2f}' for a, b in fl.cpu_seconds.items())}); uncontrolled {abs(fl.measure.dominant):.6f} "

@@ -17,7 +17,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -35,6 +35,7 @@ __all__ = [
     "tuning_objective",
     "tune_four_gains",
     "hill_plant",
+    "compare_direct_methods",
     "TunedCheck",
     "TwoLinkFloquet",
     "TwoLinkNoisePlant",
@@ -172,6 +173,31 @@ def hill_plant(lin: Any, orbit: Any, cfg: TuningConfig, *, harmonics: Optional[i
         return plant.replace(harmonics=harmonics)
     centre = [0.5 * (lo + hi) for lo, hi in cfg.factor_ranges]
     return choose_harmonics(plant, centre[0::2], centre[1::2], cfg.effective_tolerance)
+
+
+def compare_direct_methods(lin: Any, orbit: Any, target: float, *,
+                           methods: Sequence[str] = ("nelder-mead", "differential-evolution"),
+                           max_evaluations: int = 3000,
+                           report: Optional[Callable[[str, dict], None]] = None) -> list:
+    """The direct optimisers on the four-gain tuning problem, for comparison with Taguchi.
+
+    Same objective (the Hill response of :func:`hill_plant`), same ranges (:data:`TUNING_RANGES`) and
+    target; one :meth:`DirectResult.to_dict` per method with its CPU seconds (``cpu_s``, this
+    process: the optimisers run serially).  ``report(method, row)`` is called after each method.
+    """
+    from taguchi.direct import direct_tune
+
+    cfg = TuningConfig(target=target, ranges=TUNING_RANGES, max_evaluations=max_evaluations)
+    obj = HillGainObjective(hill_plant(lin, orbit, cfg))
+    rows = []
+    for m in methods:
+        c0 = time.process_time()
+        d = direct_tune(obj, cfg, m).to_dict()
+        d["cpu_s"] = time.process_time() - c0
+        rows.append(d)
+        if report is not None:
+            report(m, d)
+    return rows
 
 
 @dataclass(frozen=True)

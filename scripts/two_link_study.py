@@ -69,10 +69,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
 
     from flexstab.executor import make_executor
-    from flexstab.two_link import (TUNED_GAINS, TUNING_RANGES, check_multiplier, hill_plant, tune_four_gains,
-                                   two_link_floquet, two_link_orbit)
+    from flexstab.two_link import (TUNED_GAINS, TUNING_RANGES, check_multiplier, compare_direct_methods,
+                                   tune_four_gains, two_link_floquet, two_link_orbit)
     from linearize.constrained import linearize_orbit
-    from linearize.hill_plant import HillGainObjective
     from taguchi.tuning import TuningConfig
 
     arms: dict = {}
@@ -92,8 +91,6 @@ def main(argv=None) -> int:
         return list(TUNED_GAINS[k])
 
     if "tune" in stages:
-        from taguchi.direct import direct_tune
-
         doc = {"target": args.target, "tune": {}}
         p = out / "two_link_tune.json"
         if p.exists():
@@ -121,15 +118,10 @@ def main(argv=None) -> int:
                     row["benchmark"] = {key: bench[k][key] for key in ("tuning_cpu_s", "tuning_evaluations",
                                                                        "analysis_cpu_s", "cpu_seconds")}
             if args.compare:
-                cfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=3000)
-                obj = HillGainObjective(hill_plant(lin, o, cfg))
-                row["direct"] = []
-                for m in ("nelder-mead", "differential-evolution"):
-                    c0 = cpu()
-                    d = direct_tune(obj, cfg, m).to_dict()
-                    d["cpu_s"] = cpu() - c0
-                    row["direct"].append(d)
-                    print(f"   {m}: {d['evaluations']} evaluations, {d['cpu_s']:.1f} s CPU, {d['status']}", flush=True)
+                row["direct"] = compare_direct_methods(
+                    lin, o, args.target,
+                    report=lambda m, d: print(f"   {m}: {d['evaluations']} evaluations, {d['cpu_s']:.1f} s CPU, "
+                                              f"{d['status']}", flush=True))
             doc["tune"][f"{k}pi"] = row
             p.write_text(json.dumps(doc, indent=2, default=str))
         merge(out)
