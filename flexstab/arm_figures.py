@@ -98,6 +98,18 @@ def _built(orbit: Any):
     return build_model(orbit.model, orbit.omega)
 
 
+def _save(fig: Any, path: "str | Path", *, dpi: int) -> Path:
+    """Lay out, write (creating the folder) and close ``fig``; the path written."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
 def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Optional[str] = None) -> Path:
     """The arm at ``snapshots`` instants of one period on ``orbit`` (a :class:`~linearize.periodic_orbit.PeriodicOrbit`)."""
     import matplotlib.pyplot as plt
@@ -128,12 +140,7 @@ def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Op
     ax.grid(alpha=0.3)
     ax.set_title(title or f"{orbit.model.name}: poses over one period, Omega = {orbit.omega:.4g} rad/s")
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=130)
-    plt.close(fig)
-    return out
+    return _save(fig, path, dpi=130)
 
 
 def floquet_mode_shapes(result: Any, index: int = 0, *, substeps: int = 16) -> tuple[np.ndarray, np.ndarray, complex]:
@@ -215,9 +222,4 @@ def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] =
         ax.axis("off")
     fig.suptitle(title or f"{orbit.model.name}, Omega = {orbit.omega:.4g}: Floquet mode of |rho| = {abs(rho):.4f} "
                  f"({label}); grey: orbit pose, red: pose + mode", fontsize=9)
-    fig.tight_layout()
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return _save(fig, path, dpi=120)
