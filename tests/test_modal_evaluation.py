@@ -183,3 +183,32 @@ def test_first_order_matrix_lu_path_rejects_singular_mass(kind):
     ok = np.repeat((rng.standard_normal((f, f)) + 2 * np.sqrt(f) * np.eye(f))[None], 3, axis=0)
     ok[:, 0] *= 1e-6
     first_order_matrix(ok, C, K)
+
+
+def test_linearized_system_matrices_equal_trig_interpolate():
+    """``LinearizedPeriodicSystem.matrices`` (one cached real table for M, C, K) against
+    ``trig_interpolate`` of each (complex phases, FFT per call): the same sums of ``N/2 + 1`` terms,
+    <= 4 (N/2 + 1) eps sum|c_k| apart; the samples are reproduced at the sample times; a system
+    with other gains (``with_gains``) does not reuse the old table."""
+    from linearize.fourier import trig_interpolate
+    from linearize.system import LinearizedPeriodicSystem
+
+    rng = np.random.default_rng(3)
+    N, n, T = 16, 4, 0.7
+    M = rng.standard_normal((N, n, n)) + 4 * np.eye(n)
+    C, K = rng.standard_normal((2, N, n, n))
+    lin = LinearizedPeriodicSystem(T, np.arange(N) * T / N, M, C, K)
+    t = rng.uniform(0, 2 * T, 5)
+    got = lin.matrices(t)
+    for X, Y in zip(got, (M, C, K)):
+        bound = 4 * (N // 2 + 1) * EPS * np.abs(np.fft.rfft(Y, axis=0) / N * 2).sum(axis=0)
+        assert np.all(np.abs(X - trig_interpolate(Y, T, t)) <= bound)
+    for X, Y in zip(lin.matrices(np.arange(N) * T / N), (M, C, K)):
+        assert np.allclose(X, Y, rtol=0, atol=64 * EPS * np.abs(Y).max())
+    other = lin.with_gains(5.0, 2.0)
+    # kd = 2 adds 2 to C[0, 0] at every sample, hence to its interpolant (up to the rounding bound)
+    assert np.allclose(other.matrices(t)[1][:, 0, 0], got[1][:, 0, 0] + 2.0, rtol=0, atol=1e-13)
+    Kg = other.matrices(t)[2]
+    assert np.all(np.abs(Kg - trig_interpolate(other.K, T, t)) <= 4 * (N // 2 + 1) * EPS
+                  * np.abs(np.fft.rfft(other.K, axis=0) / N * 2).sum(axis=0))
+    assert not np.allclose(Kg, got[2])
