@@ -436,6 +436,20 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     divisible by 8 the estimate is ``max(d1, |R_N - Phi_N|)`` (the 2nd-order
     change of the raw solve).  The ratio-3 path keeps ``d1`` (no third level from
     the companions; measured there estimate / error >= 70 on the same cases).
+
+    Limitation (measured, ``benchmarks/modal_estimate_check.py``): on the 8-element
+    single link (2 pi, Table 3 gains, against the same frames at 2592 steps, whose
+    difference from 1296 steps is 1.8e-9) the estimate does *not* bound the error of
+    one pair of moduli (0.999875) at several step counts: 144 steps estimate 2.0e-7,
+    error 1.6e-6; also 72, 135, 153, 360 (ratio 3) and 160, 256 (ratio 2).  The raw
+    midpoint error of that pair is erratic in ``N`` (about 1.6e-6 at 72, 144 and 288
+    steps, 5e-9 at 576, 6e-10 at 864), the same on grids shifted by ``h`` and ``2 h``
+    (the ``N / 3`` rules from every third factor at the three offsets agree to 1e-11),
+    i.e. not an ``h^2`` expansion: consistent with a step-size resonance of the stiff
+    frozen frequencies (``Delta omega h`` near a multiple of ``2 pi``), which every
+    nested coarser level (``N / 2``, ``N / 3``, ``N / 9``) shares, so no estimate from
+    nested solves can see it.  At 16 elements the estimates bound the errors at 72-648
+    steps (against 1296 steps, whose own estimate is 4e-7).
     The frozen-modal frame is what makes the expansion hold at a few dozen
     steps: there the stiff blocks are nearly exact already and the error is the
     smooth ``h^2`` error of the slow modes (measured ratio 3.9-4.0 per doubling
