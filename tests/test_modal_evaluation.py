@@ -87,21 +87,16 @@ def test_real_table_equals_the_complex_sum_and_reproduces_samples():
     assert not np.all(np.abs(wrong - _complex_sum(coef, 1.5, t, True)) <= bound)
 
 
-def test_basis_pair_is_basis_and_its_derivative(nested):
+def test_basis_derivative_is_exact(nested):
+    """``basis(t, derivative=True)`` is the time derivative of ``basis(t)``: central difference with
+    h = 1e-4 (error h^2/6 max|d^3V/dt^3|; measured 3e-7 relative, 1e-5 allowed)."""
     t = np.array([0.013, 0.31, 0.77])
-    V, Vt = nested.basis_pair(t)
-    # the same sums of 2K terms in another blocking of the product: <= 2 (2K) eps sum|terms|
-    table = np.abs(nested._table()).reshape(2, -1, nested.n, nested.n)
-    K = table.shape[1]
-    w = 2 * np.pi / nested.period * np.arange(K)
-    bound = 4 * K * EPS * table.sum(axis=(0, 1))
-    dbound = 4 * K * EPS * np.einsum("k,jkab->ab", w, table)
-    assert np.all(np.abs(V - nested.basis(t)) <= bound)
-    assert np.all(np.abs(Vt - nested.basis(t, derivative=True)) <= dbound)
-    # V' is the time derivative of V: central difference, error h^2/6 |V'''| (h = 1e-4, T = 1)
+    Vt = nested.basis(t, derivative=True)
     h = 1e-4
     fd = (nested.basis(t + h) - nested.basis(t - h)) / (2 * h)
     assert np.allclose(fd, Vt, rtol=0, atol=1e-5 * np.abs(Vt).max())
+    # the sign of the derivative flipped (a wrong V') is far off
+    assert not np.allclose(fd, -Vt, rtol=0, atol=1e-5 * np.abs(Vt).max())
 
 
 def _residual(system, t, P_hat, drop_derivative=False):
