@@ -276,8 +276,9 @@ class HillModelPlant:
         Confirmed when every refined main-mode estimate lies within :data:`MATCH_TOLERANCE` of
         its refinement and no rejected refinement is larger than the response; else the
         labelling pass is repeated with twice the steps (up to 4x).  Not confirmed then: the
-        largest accepted value, else the labelled dominant of the frozen-modal magnus2 product
-        (:meth:`modal_measure`) -- ``confirmed=False``, logged.  A response whose Hill vector is
+        labelled dominant of the frozen-modal magnus2 product (:meth:`modal_measure`) when no value
+        was accepted or a rejected main-mode value is larger than the accepted ones, else the largest
+        accepted value (only a main-mode estimate mismatched) -- ``confirmed=False``, logged.  A response whose Hill vector is
         truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced by the frozen-modal value,
         ``truncated=True``, with a warning; without any candidate the unrefined magnus2
         multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
@@ -326,9 +327,10 @@ class HillModelPlant:
             steps *= 2
         else:
             steps //= 2
-            if not accepted:
-                logger.warning("Hill's method gave no main-mode multiplier of the magnus2 spectrum at gains kp=%s "
-                               "kd=%s (up to %d steps); using the frozen-modal magnus2 product", kp, kd, steps)
+            if not accepted or hidden:
+                logger.warning("Hill's method gave %s at gains kp=%s kd=%s (up to %d steps); using the frozen-modal "
+                               "magnus2 product", "a main-mode value outside the magnus2 spectrum above the accepted "
+                               "ones" if accepted else "no main-mode multiplier of the magnus2 spectrum", kp, kd, steps)
                 return self.modal_measure(kp, kd, label_steps=steps)
             # not confirmed at any step count: the largest accepted Hill value (mismatch ignored) -- flagged, logged
             logger.warning("Hill's method did not confirm the magnus2 labels at gains kp=%s kd=%s (up to %d steps); "
