@@ -278,10 +278,10 @@ class HillModelPlant:
         labelling pass is repeated with twice the steps (up to 4x).  Not confirmed then: the
         labelled dominant of the frozen-modal magnus2 product (:meth:`modal_measure`) when no value
         was accepted or a rejected main-mode value is larger than the accepted ones, else the largest
-        accepted value (only a main-mode estimate mismatched) -- ``confirmed=False``, logged.  A response whose Hill vector is
-        truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced by the frozen-modal value,
-        ``truncated=True``, with a warning; without any candidate the unrefined magnus2
-        multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
+        accepted value (only a main-mode estimate mismatched) -- ``confirmed=False``, logged.
+        A response whose Hill vector is truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced
+        by the frozen-modal value, ``truncated=True``, with a warning; without any candidate the
+        unrefined magnus2 multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
         """
         from stability.hill import RESIDUAL_LIMIT, hill_multipliers
 
