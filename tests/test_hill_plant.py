@@ -241,3 +241,28 @@ def test_no_candidate_returns_the_labelled_unrefined_value(arm, monkeypatch):
     with pytest.warns(RuntimeWarning, match="unrefined magnus2"):
         m = HillModelPlant(lin, orbit, harmonics=8).measure(GAINS[0::2], GAINS[1::2])
     assert m.method == "magnus2-unrefined" and not m.confirmed and m.dominant == m.estimate
+
+
+def test_pair_above_the_residual_limit_is_not_used(arm, monkeypatch):
+    """S9: a Hill pair whose backward error exceeds RESIDUAL_LIMIT is not an eigenpair of the truncated problem and
+    is not used (it was ignored before).  Constructed: every pair reported with residual 1e-10; the measure falls
+    back to the frozen-modal product, whose value agrees with the genuine Hill value within the modal estimate."""
+    import dataclasses
+
+    import stability.hill as hill_mod
+
+    orbit, lin = arm
+    g = GAINS
+    plant = HillModelPlant(lin, orbit, harmonics=16)
+    genuine = plant.measure(g[0::2], g[1::2], error_estimate=True)
+    real = hill_mod.hill_multipliers
+
+    def inaccurate(*args, **kwargs):
+        h = real(*args, **kwargs)
+        return dataclasses.replace(h, residual=np.full(len(h.multipliers), 1e-10))
+
+    monkeypatch.setattr(hill_mod, "hill_multipliers", inaccurate)
+    m = plant.measure(g[0::2], g[1::2])
+    assert genuine.method == "hill" and genuine.residual <= hill_mod.RESIDUAL_LIMIT
+    assert m.method == "modal-magnus2" and not m.confirmed
+    assert abs(m.dominant - genuine.dominant) <= (m.modal_error_estimate + genuine.hill_error_estimate) * abs(m.dominant)
