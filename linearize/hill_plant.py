@@ -282,8 +282,9 @@ class HillModelPlant:
         A response whose Hill vector is truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced
         by the frozen-modal value, ``truncated=True``, with a warning; without any candidate the
         unrefined magnus2 multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
+        A :class:`stability.hill.HillError` also falls back to the frozen-modal value (logged).
         """
-        from stability.hill import RESIDUAL_LIMIT, hill_multipliers
+        from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
 
         steps = self.label_steps
         main = set(self.orbit.drive_names) | {"bending 1"}
@@ -303,8 +304,13 @@ class HillModelPlant:
                               f"({modes[0]['mode']}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
                 return HillMeasure(dominant=mu, mode=modes[0]["mode"], estimate=mu, label_steps=steps,
                                    confirmed=False, method="magnus2-unrefined")
-            h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks], harmonics=self.harmonics,
-                                 error_estimate=error_estimate)
+            try:
+                h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks],
+                                     harmonics=self.harmonics, error_estimate=error_estimate)
+            except HillError as exc:  # no eigenvalue near a candidate / singular shift: the tuning run goes on
+                logger.warning("Hill's method failed at gains kp=%s kd=%s (%s); using the frozen-modal magnus2 "
+                               "product", kp, kd, exc)
+                return self.modal_measure(kp, kd, label_steps=steps)
             labels = [self.hill_label(x) for x in h.states]
             main_off = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
                         if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]

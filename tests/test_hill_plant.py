@@ -266,3 +266,23 @@ def test_pair_above_the_residual_limit_is_not_used(arm, monkeypatch):
     assert genuine.method == "hill" and genuine.residual <= hill_mod.RESIDUAL_LIMIT
     assert m.method == "modal-magnus2" and not m.confirmed
     assert abs(m.dominant - genuine.dominant) <= (m.modal_error_estimate + genuine.hill_error_estimate) * abs(m.dominant)
+
+
+def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
+    """S2: a HillError (no eigenvalue near a candidate, singular shift) no longer ends the evaluation -- before
+    515b7e5 a raise in ``measure`` aborted the whole tuning.  The frozen-modal value is returned instead, and it
+    agrees with Hill's (unpatched) within the two estimates."""
+    import stability.hill as hill_mod
+
+    orbit, lin = arm
+    g = GAINS
+    plant = HillModelPlant(lin, orbit, harmonics=16)
+    genuine = plant.measure(g[0::2], g[1::2], error_estimate=True)
+
+    def failing(*args, **kwargs):
+        raise hill_mod.HillError("Hill matrix singular at the shift (constructed)")
+
+    monkeypatch.setattr(hill_mod, "hill_multipliers", failing)
+    m = plant.measure(g[0::2], g[1::2])
+    assert m.method == "modal-magnus2" and not m.confirmed
+    assert abs(m.dominant - genuine.dominant) <= (m.modal_error_estimate + genuine.hill_error_estimate) * abs(m.dominant)
