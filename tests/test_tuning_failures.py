@@ -109,3 +109,21 @@ def test_a_later_experiment_failing_entirely_stops_with_the_best_point():
     ys = list(it.responses) + [it.confirmation_response]
     assert res.spectral_radius == min(ys, key=lambda y: abs(y - RHO_D))
     assert res.evaluations == 10 + 9
+
+
+def test_tune_text_output_lists_the_failed_run(monkeypatch, capsys):
+    """The text output of ``flexstab tune`` names each failed run (iteration, run, gains, error)."""
+    import argparse
+
+    import flexstab.commands.tune as tune_cmd
+
+    res = taguchi_tune(DrivesObjective(FailingPlant()), TuningConfig(target=RHO_D, ranges=RANGES,
+                                                                     max_evaluations=400))
+    d = res.to_dict()
+    d.update(omega=2 * math.pi, period=1.0, verified_spectral_radius=res.spectral_radius, verified_method="test")
+    monkeypatch.setattr(tune_cmd, "tune_report", lambda args: d)
+    assert tune_cmd.run(argparse.Namespace(robust=False, json=False)) == 0
+    out = capsys.readouterr().out
+    k = res.iterations[0].design.index(BAD)
+    assert (f"failed run (iteration 0, run {k}) at kp1 = 20, kd1 = 5, kp2 = 10, kd2 = 0: HillError: "
+            in out)
