@@ -88,18 +88,20 @@ def _kd2_zero_runs():
     return [tuple(float(v) for v in row) for row in to_design(cfg.orthogonal_array(), levels) if row[3] == 0.0]
 
 
-def _modal_reference(lin, g, near):
+def _modal_reference(lin, g, near, *, by_modulus=False):
     """Nearest multiplier to ``near`` of the Richardson-extrapolated magnus2 product in frozen-modal coordinates
     (stability.modal: no Hill code) at 256 steps, its error bound ``4/3 |r_256 - r_128|`` (4th-order
     extrapolation; 4/3 bounds the error of the coarser for any order >= 2, so over-states the finer's), and the
-    distance from its modulus to the nearest other modulus of that spectrum (a wrong mode is off by that much)."""
+    distance from its modulus to the nearest other modulus of that spectrum (a wrong mode is off by that much).
+    ``by_modulus``: nearest in modulus to ``near`` (a modulus) instead of nearest in the complex plane."""
     from stability.modal import modal_floquet
 
     lg = lin.with_gains(g[0::2], g[1::2])
     out = []
     for n in (128, 256):
         w = np.asarray(modal_floquet(lg, method="magnus2", n_steps=n, extrapolate=True).multipliers)
-        out.append((w, w[int(np.argmin(np.abs(w - near)))]))
+        d = np.abs(np.abs(w) - near) if by_modulus else np.abs(w - near)
+        out.append((w, w[int(np.argmin(d))]))
     w, ref = out[1]
     others = np.abs(w[(np.abs(w - ref) > 1e-12) & (np.abs(w - np.conj(ref)) > 1e-12)])
     return ref, 4.0 / 3.0 * abs(abs(ref) - abs(out[0][1])), float(np.min(np.abs(others - abs(ref))))
@@ -286,3 +288,26 @@ def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
     m = plant.measure(g[0::2], g[1::2])
     assert m.method == "modal-magnus2" and not m.confirmed
     assert abs(m.dominant - genuine.dominant) <= (m.modal_error_estimate + genuine.hill_error_estimate) * abs(m.dominant)
+
+
+def test_gain_slices_hill_layout_against_the_modal_product(arm):
+    """``flexstab.two_link.gain_slices_hill`` (review S8: untested): rows are kd, columns kp, the other drive at
+    ``fixed``.  Two off-diagonal entries (a transposed or swapped slice would put another gain point there) against
+    the frozen-modal magnus2 product at the gains they claim (bound of ``_modal_reference`` + 1e-3 relative for
+    Hill at 8 harmonics, below the 1e-6 tail limit: sqrt(TAIL_LIMIT), stability.hill)."""
+    from flexstab.two_link import gain_slices_hill
+
+    orbit, lin = arm
+    fixed = (15.0, 9.0, 7.0, 1.5)
+    ranges = ((10.0, 30.0), (4.0, 12.0), (4.0, 10.0), (0.5, 2.5))
+    sl = gain_slices_hill(lin, orbit, fixed, ranges=ranges, points=2, harmonics=8)
+    assert sl.shoulder.shape == sl.elbow.shape == (2, 2)
+    claims = [((sl.kp_grid[0][1], sl.kd_grid[0][0], fixed[2], fixed[3]), sl.shoulder[0, 1]),
+              ((fixed[0], fixed[1], sl.kp_grid[1][0], sl.kd_grid[1][1]), sl.elbow[1, 0])]
+    for g, value in claims:
+        ref, bound, gap = _modal_reference(lin, g, value, by_modulus=True)
+        assert abs(value - abs(ref)) <= bound + 1e-3 * abs(ref), (g, value, abs(ref))
+        assert bound + 1e-3 * abs(ref) < gap  # no other multiplier's modulus lies within the tolerance
+    # the slices vary: a transposition would move these values by far more than the tolerance
+    assert abs(sl.shoulder[0, 1] - sl.shoulder[1, 0]) > 1e-2 * sl.shoulder[0, 1]
+    assert abs(sl.elbow[1, 0] - sl.elbow[0, 1]) > 1e-2 * sl.elbow[1, 0]
