@@ -17,11 +17,18 @@ How an evaluation works (:meth:`HillModelPlant.measure`):
    :attr:`linearize.analysis.ModelFloquetResult.dominant_multiplier`) is refined by
    Hill's method on the same linearisation (its samples with the gains: the system
    ``stability.floquet`` integrates);
-3. the response is the largest refined modulus.
+3. the response is the largest refined modulus that is a multiplier of the magnus2
+   spectrum (within :data:`MATCH_TOLERANCE` in ``log rho`` of one, whatever its label), has a
+   backward error below :data:`stability.hill.RESIDUAL_LIMIT` and is not truncated
+   (:data:`stability.hill.TAIL_LIMIT`).
 
 The step count of (1) only has to put each estimate nearer its own exponent than any
 other (checked: the refined value must lie within :data:`MATCH_TOLERANCE` in
 ``log rho`` of its estimate, else the estimate is recomputed with twice the steps).
+When Hill's value cannot be used (not confirmed at 4x the steps, truncated, or a
+:class:`stability.hill.HillError`), the response is the labelled dominant of the
+frozen-modal magnus2 product (:meth:`HillModelPlant.modal_measure`); :attr:`HillMeasure.method`
+says which.
 """
 from __future__ import annotations
 
