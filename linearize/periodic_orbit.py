@@ -373,6 +373,47 @@ def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
     return K, C
 
 
+_FORCE_CHECK_SEED = 20261128
+
+
+def _force_compressed(system: ExudynSystem, q, v, a, t, step, const_mass, pattern, rng):
+    """``(K, C)`` of :func:`_force_fd` by column-compressed differences on the structural
+    force pattern (:func:`linearize.collocation_solver.coupling_pattern`), or ``None`` when
+    the pattern fails its check.
+
+    Same rule (:func:`_richardson`) and steps as :func:`_force_fd`; a row depends on at most
+    one column of a colour, so every entry is the same difference of the same function values
+    (only the division by the step is ordered differently: round-off).  Check: a random
+    directional derivative (:func:`_directional_reference`, refined to a tenth of the
+    tolerance) against ``J e``; a coupling the pattern misses contributes its whole entry
+    (O(1) relative), the rule's own error <= 1e-9 (see
+    :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE`).
+    """
+    n = system.n
+    hq, hv = fd_steps(q, step), fd_steps(v, step)
+
+    def force(x):
+        r = -system.rhs(x, v, t)
+        return r if const_mass else r + system.mass(x, t) @ a
+
+    def damping(y):
+        return -system.rhs(q, y, t)
+
+    K = np.zeros((n, n))
+    C = np.zeros((n, n))
+    tol = structured.PATTERN_CHECK_TOLERANCE
+    for J, fun, x, h in ((K, force, q, hq), (C, damping, v, hv)):
+        structured._compressed(fun, x, h, pattern.force_colours, pattern.force, _richardson, J)
+        e = h * rng.uniform(-1.0, 1.0, n)
+        size = float(np.max(np.abs(J) @ np.abs(e)))
+        if size == 0.0:
+            continue
+        ref = _directional_reference(fun, x, e, 1.0, JACOBIAN_REFERENCE_FRACTION * tol * size)
+        if ref is None or not float(np.max(np.abs(J @ e - ref))) <= tol * size:
+            return None
+    return K, C
+
+
 def _directional_reference(fun, x: np.ndarray, e: np.ndarray, h: float, bound: float) -> Optional[np.ndarray]:
     """``d/ds fun(x + s e)`` at 0 with its error below ``bound`` (max norm), or ``None``.
 
@@ -486,7 +527,10 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     ``K_force`` and ``C`` are Exudyn's own Jacobians when they pass a check
     against Richardson-extrapolated central differences along random
     directions (:data:`JACOBIAN_CHECK_TOLERANCE`) and the mass matrix is
-    constant; otherwise Richardson differences of ``M(q) q'' - f``.  The
+    constant; otherwise Richardson differences of ``M(q) q'' - f``, column-compressed on
+    the model's structural force pattern (:func:`_force_compressed`: ~12 colours for an
+    ANCF chain of any length instead of ``n`` columns), one column at a time from the
+    first sample where the pattern fails its check.  The
     reaction stiffness ``d(C_q^T lambda)/dq`` is always Richardson differences
     of Exudyn's ``C_q``, on the coordinates ``C_q`` depends on.  Step of
     coordinate ``j``: ``step * max(1, |q_j|)`` (:data:`RICHARDSON_STEP`).
@@ -502,7 +546,9 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     const_mass = system.mass_is_constant(Q[0])
     if use_exudyn_jacobian is None:
         use_exudyn_jacobian = _exudyn_jacobians_ok(system, Q[0], V[0], A[0], float(times[0]), step, const_mass)
-    pattern = system.coupling_pattern() if m else None
+    pattern = system.coupling_pattern() if m or not use_exudyn_jacobian else None
+    rng = np.random.default_rng(_FORCE_CHECK_SEED)
+    compressed = not use_exudyn_jacobian
     for k in range(Kn):
         q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
         Ms[k] = system.mass(q, t)
@@ -510,7 +556,14 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
         if use_exudyn_jacobian:
             Kf[k], Cd[k] = system.force_jacobians(q, v, t)
         else:
-            Kf[k], Cd[k] = _force_fd(system, q, v, a, t, step, const_mass)
+            KC = _force_compressed(system, q, v, a, t, step, const_mass, pattern, rng) if compressed else None
+            if KC is None:
+                if compressed:
+                    logger.info("forces depend on coordinates outside the structural pattern at t = %.4g: "
+                                "one difference per column from here on", t)
+                compressed = False
+                KC = _force_fd(system, q, v, a, t, step, const_mass)
+            Kf[k], Cd[k] = KC
         if m and np.any(lam != 0.0):  # C_q(x)^T 0 = 0 for every x: no reaction stiffness
             Kr[k] = _reaction_stiffness(system, q, lam, t, step if accurate else CENTRAL_DIFFERENCE_STEP,
                                         accurate, pattern)

@@ -102,3 +102,53 @@ def test_check_refuses_when_the_reference_cannot_be_made_accurate(monkeypatch):
     system, q, v, t = _state(32, amplitude=1e-2, seed=4)
     monkeypatch.setattr(po, "JACOBIAN_REFERENCE_HALVINGS", 0)
     assert not po._exudyn_jacobians_ok(system, q, v, np.zeros(system.n), t, po.RICHARDSON_STEP, True)
+
+
+# --------------------------------------------------------------------------- coloured differences
+def test_coloured_force_differences_equal_one_column_at_a_time():
+    """Where Exudyn's Jacobians are not used, the force and damping columns are differenced in
+    structurally orthogonal groups: the same rule, steps and function values per entry as one
+    column at a time (a row sees one column per colour), so they agree to round-off only
+    (bound: the round-off term of _fd_bound, no truncation term), with fewer evaluations."""
+    system, q, v, t = _state(4)
+    pattern = system.coupling_pattern()
+    a = np.zeros(system.n)
+    h = po.RICHARDSON_STEP
+    KC = po._force_compressed(system, q, v, a, t, h, True, pattern, np.random.default_rng(0))
+    assert KC is not None
+    ref = po._force_fd(system, q, v, a, t, h, True)
+    for J, R in zip(KC, ref):
+        assert np.max(np.abs(R)) > 0
+        assert np.max(np.abs(J - R)) <= 10.0 * EPS / h * float(np.max(np.abs(R)))
+    assert len(pattern.force_colours) < system.n
+
+
+def _merged_colouring(pattern):
+    """A 'colouring' that puts every column into one group (coupled columns merged)."""
+    from linearize import collocation_solver as cs
+
+    return cs.CouplingPattern(force=pattern.force, reaction=pattern.reaction,
+                              force_colours=(np.arange(pattern.size),), reaction_colours=pattern.reaction_colours)
+
+
+def test_wrong_force_colouring_is_caught_and_falls_back(monkeypatch):
+    """Merged coupled columns give a wrong Jacobian; the directional check rejects it and
+    tangent_blocks differences one column at a time (equal to _force_fd); with the check
+    switched off the wrong Jacobian comes through (what the check prevents)."""
+    from linearize import collocation_solver as cs
+
+    system, q, v, t = _state(4)
+    wrong = _merged_colouring(system.coupling_pattern())
+    a = np.zeros(system.n)
+    h = po.RICHARDSON_STEP
+    assert po._force_compressed(system, q, v, a, t, h, True, wrong, np.random.default_rng(0)) is None
+    monkeypatch.setattr(system, "_coupling_pattern", wrong)
+    times, Q, V, A = np.array([t]), q[None], v[None], a[None]
+    L = np.zeros((1, system.m))
+    tb = po.tangent_blocks(system, times, Q, V, A, L, use_exudyn_jacobian=False)
+    K_ref, C_ref = po._force_fd(system, q, v, a, t, h, True)
+    assert np.max(np.abs(tb.K_force[0] - K_ref)) <= 10.0 * EPS / h * float(np.max(np.abs(K_ref)))
+    assert np.max(np.abs(tb.C[0] - C_ref)) <= 10.0 * EPS / h * float(np.max(np.abs(C_ref)))
+    monkeypatch.setattr(cs, "PATTERN_CHECK_TOLERANCE", math.inf)
+    unchecked = po.tangent_blocks(system, times, Q, V, A, L, use_exudyn_jacobian=False)
+    assert np.max(np.abs(unchecked.K_force[0] - K_ref)) > 1e-3 * float(np.max(np.abs(K_ref)))
