@@ -597,6 +597,7 @@ class _Collocation:
         self.solver = solver
         self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
+        self._assembly: Optional[structured.NewtonAssembly] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
         """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
@@ -625,7 +626,9 @@ class _Collocation:
             J, tb = self.jacobian(X)
             return _solve(J), tb
         tb = self.tangent(X)
-        J = structured.sparse_newton_matrix(tb.M, tb.K, tb.C, tb.Cq, self.B, self.D1, self.D2)
+        if self._assembly is None:
+            self._assembly = structured.NewtonAssembly(self.B, self.D1, self.D2)
+        J = self._assembly(tb.M, tb.K, tb.C, tb.Cq)  # sparse_newton_matrix, structure kept between calls
         return structured.sparse_solver(J), tb
 
     def split(self, X: np.ndarray):

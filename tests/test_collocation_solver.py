@@ -123,6 +123,29 @@ def test_sparse_newton_matrix_equals_dense_assembly(double_orbits):
     assert np.max(np.abs(J_dense @ x - r)) <= 1e-9 * np.max(np.abs(r))
 
 
+def test_cached_assembly_equals_sparse_newton_matrix_and_rebuilds_on_a_new_pattern(double_orbits):
+    """NewtonAssembly (structure kept between calls) gives sparse_newton_matrix's matrix (itself
+    checked against the dense assembly above) entry for entry; when a block gains an entry
+    outside the cached pattern it must rebuild (a stale structure would drop the entry)."""
+    _, orbit = double_orbits
+    col, X = _dense_collocation(orbit)
+    _, tb = col.jacobian(X)
+    asm = cs.NewtonAssembly(col.B, col.D1, col.D2)
+    for scale in (1.0, 1.5):  # second call: same pattern, new values, reused structure
+        K = scale * tb.K
+        ref = cs.sparse_newton_matrix(tb.M, K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+        got = asm(tb.M, K, tb.C, tb.Cq)
+        assert abs(got - ref).max() == 0.0
+    assert asm.builds == 1
+    i, j = np.argwhere((tb.K[0] == 0) & (tb.M[0] == 0) & (tb.C[0] == 0))[0]
+    K = tb.K.copy()
+    K[:, i, j] = 1.0  # a new coupling
+    ref = cs.sparse_newton_matrix(tb.M, K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+    got = asm(tb.M, K, tb.C, tb.Cq)
+    assert asm.builds == 2
+    assert abs(got - ref).max() == 0.0
+
+
 def test_pattern_missing_a_coupling_is_rejected(double_orbits):
     _, orbit = double_orbits
     system, times, Q, V, A, L = _tangent_args(orbit)
@@ -144,14 +167,14 @@ def test_inconsistent_newton_matrix_fails_loudly(monkeypatch, factor):
     """Newton accepts only the true residual: with a Newton matrix 100x too large (steps 100x
     too short) or of the wrong sign it must end in OrbitConvergenceError with the residuals
     reached, never return an orbit."""
-    real = cs.sparse_newton_matrix
-    monkeypatch.setattr(cs, "sparse_newton_matrix", lambda *blocks: factor * real(*blocks))
+    real = cs.NewtonAssembly.__call__
+    monkeypatch.setattr(cs.NewtonAssembly, "__call__", lambda self, *blocks: factor * real(self, *blocks))
     with pytest.raises(OrbitConvergenceError, match="did not converge") as err:
         find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
                    max_iterations=6, amplitude=0.05)
     assert min(err.value.residuals) > po.DEFAULT_TOLERANCE
     # the same call with the consistent matrix converges (so the failure is the matrix's)
-    monkeypatch.setattr(cs, "sparse_newton_matrix", real)
+    monkeypatch.setattr(cs.NewtonAssembly, "__call__", real)
     orbit = find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
                        max_iterations=6, amplitude=0.05)
     assert orbit.residual <= orbit.tolerance
