@@ -429,18 +429,25 @@ class NewtonAssembly:
     blocks hold ``D1_kj C_k + D2_kj M_k`` on the union of the patterns of ``C`` and ``M``
     (plus ``K_k`` on the diagonal blocks) and ``K_k`` alone where only ``K`` has entries
     (no duplicate entries, so the values are only gathered into the cached order: the
-    structure of :func:`sparse_newton_matrix`); a changed pattern (an entry of ``M``, ``C``, ``K`` or ``C_q``
-    turning nonzero) rebuilds the structure.
+    structure of :func:`sparse_newton_matrix`).  Values inside the cached structure are
+    stored as explicit zeros where a block has none; an entry outside it (e.g. the
+    constraint-reaction stiffness once the multipliers leave their zero guess) rebuilds
+    the structure on the union.  ``stiffness_pattern`` (the structural pattern of ``K``,
+    e.g. forces and reactions of :func:`coupling_pattern`) includes such entries from the
+    first build.
 
     Parameters
     ----------
     B : ndarray, shape (n, d)
     D1, D2 : ndarray, shape (K, K)
+    stiffness_pattern : ndarray of bool, shape (n, n), optional
     """
 
-    def __init__(self, B: np.ndarray, D1: np.ndarray, D2: np.ndarray) -> None:
+    def __init__(self, B: np.ndarray, D1: np.ndarray, D2: np.ndarray,
+                 stiffness_pattern: Optional[np.ndarray] = None) -> None:
         self.B, self.D1, self.D2 = np.asarray(B, dtype=float), np.asarray(D1), np.asarray(D2)
         self._key: Optional[tuple] = None
+        self._hint = None if stiffness_pattern is None else np.asarray(stiffness_pattern, dtype=bool)
         self.builds = 0
 
     def _structure(self, qq: np.ndarray, kk: np.ndarray, cq: np.ndarray, Kn: int, n: int, m: int) -> None:
@@ -477,9 +484,16 @@ class NewtonAssembly:
         """The Newton matrix of :func:`sparse_newton_matrix` (same arguments but ``B``, ``D1``, ``D2``)."""
         Kn, n, _ = M.shape
         m = Cq.shape[1]
-        key = (np.any(C != 0.0, axis=0) | np.any(M != 0.0, axis=0), np.any(K != 0.0, axis=0),
-               np.any(Cq != 0.0, axis=0))
-        if self._key is None or any(x.shape != y.shape or not np.array_equal(x, y) for x, y in zip(key, self._key)):
+        kk = np.any(K != 0.0, axis=0)
+        if self._hint is not None and self._hint.shape == kk.shape:
+            kk = kk | self._hint
+        key = (np.any(C != 0.0, axis=0) | np.any(M != 0.0, axis=0), kk, np.any(Cq != 0.0, axis=0))
+        if self._key is not None and all(x.shape == y.shape for x, y in zip(key, self._key)):
+            if all(np.all(y | ~x) for x, y in zip(key, self._key)):
+                key = self._key  # within the cached structure (its other entries are explicit zeros)
+            else:
+                key = tuple(x | y for x, y in zip(key, self._key))  # grown: rebuild on the union
+        if key is not self._key:
             self._structure(*key, Kn, n, m)
             self._key = key
         a, b = self._ab

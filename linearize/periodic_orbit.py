@@ -627,7 +627,8 @@ class _Collocation:
             return _solve(J), tb
         tb = self.tangent(X)
         if self._assembly is None:
-            self._assembly = structured.NewtonAssembly(self.B, self.D1, self.D2)
+            self._assembly = structured.NewtonAssembly(self.B, self.D1, self.D2,
+                                                       stiffness_pattern=self.pattern.force | self.pattern.reaction)
         J = self._assembly(tb.M, tb.K, tb.C, tb.Cq)  # sparse_newton_matrix, structure kept between calls
         return structured.sparse_solver(J), tb
 
