@@ -12,7 +12,7 @@ from flexstab.options import dump_json, add_model_options, gain_pairs, positive_
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant", "check_failure",
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
 
@@ -203,6 +203,10 @@ RESTART_WIDTH = 0.25
 #: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
 MAX_TUNING_STEPS = 4096
 
+#: Hill harmonic counts tried (fewest first) for a Hill-method model (:data:`HILL_MODELS`); see
+#: :func:`linearize.hill_plant.select_harmonics`.
+HILL_HARMONICS = (8, 12, 16, 24, 32)
+
 
 def propagator_steps(plant, tcfg):
     """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
@@ -335,6 +339,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
+    harmonics_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
     hill = model_file and args.model in HILL_MODELS
@@ -342,11 +347,13 @@ def tune_report(args: argparse.Namespace) -> dict:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
         if hill:  # no propagator steps to choose: Hill's harmonics, decided once at the range centre
-            from linearize.hill_plant import HillModelPlant, choose_harmonics
+            from linearize.hill_plant import HillModelPlant, select_harmonics
 
             centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
-            plant = choose_harmonics(HillModelPlant(plant.linearization, plant.orbit), centre[0::2], centre[1::2],
-                                     tcfg.effective_tolerance)
+            harmonics_choice = select_harmonics(HillModelPlant(plant.linearization, plant.orbit), centre[0::2],
+                                                centre[1::2], tcfg.effective_tolerance,
+                                                HILL_HARMONICS)  # warns if none converged
+            plant = harmonics_choice.plant
         else:
             plant = propagator_steps(plant, tcfg)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
@@ -383,8 +390,12 @@ def tune_report(args: argparse.Namespace) -> dict:
                                harmonics=plant.harmonics)
         out["response_method"] = "hill"
         out["harmonics"] = plant.harmonics
+        # whether the count met tolerance / 20 (H vs H/2 at the range centre), and that estimate (absolute)
+        out["harmonics_converged"] = harmonics_choice.converged
+        out["harmonics_error_estimate"] = harmonics_choice.error_estimate
         out["verified_spectral_radius"] = float(abs(chk.streamed[CHECK_STEPS[-1]]))
         out["verified_error_estimate"] = chk.magnus_error_estimate
+        out["hill_error_estimate"] = chk.hill_error_estimate  # relative, H vs H/2 at the tuned gains
         out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
         out["propagator_steps"] = plant.label_steps
         from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
@@ -455,6 +466,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"whole spectrum: max|rho| = {d['spectral_radius_all']:.6g} ({d['spectral_radius_all_mode']}"
               + (f", {freq:.4g} Hz" if freq else "") + ")")
     print(f"{d['evaluations']} Floquet evaluations in {len(d['iterations'])} iterations, {d['elapsed']:.2f} s")
+    for f in d.get("failed_runs") or []:
+        print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
+              + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+    if d.get("harmonics_converged") is False:
+        print(f"warning: Hill's harmonics ({d['harmonics']}) did not meet tolerance / 20 at the range centre "
+              f"(estimate {d['harmonics_error_estimate']:.2e})")
     if len(names) == 2:
         print("\n iter   kp range              kd range              best kp     best kd     max|rho|")
         for it in d["iterations"]:
