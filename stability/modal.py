@@ -83,6 +83,7 @@ from stability.floquet import FloquetResult
 from stability.periodic import PeriodicMatrixFunction
 
 __all__ = ["FrozenModalSystem", "ModalBasisError", "ModalFloquetResult", "modal_floquet", "modal_system",
+           "ADAPTIVE_START_STEPS",
            "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS"]
 
 logger = logging.getLogger(__name__)
@@ -503,6 +504,60 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
                    elapsed=fine.elapsed + extra_elapsed, phase_error_estimate=phase)
 
 
+#: First step count of the adaptive extrapolated solve (``modal_floquet(extrapolate=True,
+#: n_steps=None)``): divisible by 9 (ratio 3, ``N / 3`` and ``N / 9`` from the ``N`` factors, on
+#: systems larger than ``stability.floquet.SMALL_N``) and by 8 (ratio 2 with the premise check on
+#: small ones).
+ADAPTIVE_START_STEPS = 72
+#: Each refinement multiplies the step count by the smallest of these ratios that the order-4
+#: model of the estimate (``est ~ N^-4``) says reaches ``rtol`` with a margin of ``1.2`` in ``N``
+#: (the largest when none does): the counts stay divisible by 72, and a pass never grows the work
+#: more than 4-fold on an extrapolation of the model.
+ADAPTIVE_RATIOS = (2, 3, 4)
+ADAPTIVE_MARGIN = 1.2
+
+
+def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict) -> Any:
+    """:func:`_extrapolated` at ``N = ADAPTIVE_START_STEPS, ...`` until its estimate is ``<= rtol``.
+
+    The step count is chosen from the accuracy reached, not fixed: each pass is one fixed-``N``
+    extrapolated solve (its estimate as :func:`_extrapolated` certifies it); if the estimate
+    ``e`` misses ``rtol`` the next count is ``N r``, ``r`` the smallest of
+    :data:`ADAPTIVE_RATIOS` with ``r >= 1.2 (e / rtol)^(1/4)`` (the estimate falls like
+    ``N^-4`` in the asymptotic range; the largest if none).  Every pass
+    counts in ``n_evaluations`` and ``elapsed``.  Raises :class:`stability.FloquetError` when
+    the next count would exceed ``max_steps`` (the estimate reached is in the message).
+    The premise of any such choice is that the estimate bounds the error at the count where
+    it stops: see the limitation measured in :func:`_extrapolated`.
+    """
+    from stability.floquet import MAX_STEPS, SMALL_N, FloquetError, floquet
+
+    rtol = float(options.get("rtol", 1e-9))
+    if not (math.isfinite(rtol) and rtol > 0):
+        raise ValueError(f"rtol must be finite and > 0, got {rtol!r}")
+    max_steps = int(options.get("max_steps", MAX_STEPS))
+    N = ADAPTIVE_START_STEPS
+    evaluations, elapsed = 0, 0.0
+    while True:
+        opts = dict(options, n_steps=N)
+        if system.n > SMALL_N:
+            fine = floquet(system, **dict(opts, error_estimate=True))
+            res = _extrapolated(system, fine, opts)
+        else:
+            res = _extrapolated(system, floquet(system, **dict(opts, error_estimate=False)), opts)
+        evaluations, elapsed = evaluations + res.n_evaluations, elapsed + res.elapsed
+        est = float(res.error_estimate)
+        if est <= rtol:
+            logger.debug("adaptive extrapolated solve: %d steps, estimate %.2e <= rtol %.1e", N, est, rtol)
+            return replace(res, n_evaluations=evaluations, elapsed=elapsed)
+        need = ADAPTIVE_MARGIN * (est / rtol) ** 0.25 if math.isfinite(est) else math.inf
+        r = next((q for q in ADAPTIVE_RATIOS if need <= q), ADAPTIVE_RATIOS[-1])
+        if N * r > max_steps:
+            raise FloquetError(f"frozen-modal extrapolated solve: estimate {est:.1e} > rtol {rtol:.1e} at {N} "
+                               f"steps, and {N * r} steps exceed max_steps = {max_steps}")
+        N *= r
+
+
 #: Frozen-modal frames stacked by :func:`modal_system`: the second frame is the frozen-modal
 #: basis of the first frame's ``P_hat``, which removes the first-order coupling ``-V^-1 V'``
 #: between the modes (a superadiabatic iteration).  Measured on the 8-element single link at
@@ -578,6 +633,10 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
     ``N``-step factors (``FloquetResult.companion_monodromies``): ``N``
     exponentials in all instead of ``1.75 N``.
+    ``extrapolate=True`` with ``n_steps=None`` (``method="magnus2"``): the step count is
+    chosen from the accuracy reached (:func:`_adaptive_extrapolated`): 72, then 144 or
+    216, ... steps until the extrapolated estimate is ``<= rtol`` (``options["rtol"]``,
+    default that of :func:`stability.floquet`, 1e-9), at most ``max_steps``.
     Without a modal basis (the fallback) no extrapolation is done: in the
     model's coordinates the midpoint error is not in its asymptotic range.
     """
@@ -595,6 +654,10 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
             res = floquet(P, method=FALLBACK_METHOD, n_steps=None, **fallback)
             return _with_frame(res, "model", 0, str(exc))
     steps = options.get("n_steps")
+    if (extrapolate and steps is None and options.get("method", "magnus6") == "magnus2"
+            and options.get("small_multipliers", "flag") != "qr"):
+        res = _adaptive_extrapolated(system, options)
+        return _with_frame(replace(res, monodromy=_to_base(system, res.monodromy)), "modal", _levels(system))
     can_extrapolate = (extrapolate and steps is not None and int(steps) >= 8
                        and options.get("method", "magnus6") == "magnus2"
                        and options.get("small_multipliers", "flag") != "qr")
