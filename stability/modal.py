@@ -83,7 +83,6 @@ from stability.floquet import FloquetResult
 from stability.periodic import PeriodicMatrixFunction
 
 __all__ = ["FrozenModalSystem", "ModalBasisError", "ModalFloquetResult", "modal_floquet", "modal_system",
-           "ADAPTIVE_START_STEPS",
            "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS"]
 
 logger = logging.getLogger(__name__)
