@@ -430,8 +430,8 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     change of the raw solve).  The ratio-3 path keeps ``d1`` (no third level from
     the companions; measured there estimate / error >= 70 on the same cases).
 
-    Limitation (measured, ``benchmarks/modal_estimate_check.py``): on the 8-element
-    single link (2 pi, Table 3 gains, against the same frames at 2592 steps, whose
+    Limitation (measured, ``benchmarks/modal_estimate_check.py``, frames with the 5 %
+    cluster-gap rule): on the 8-element single link (2 pi, Table 3 gains, against the same frames at 2592 steps, whose
     difference from 1296 steps is 1.8e-9) the estimate does *not* bound the error of
     one pair of moduli (0.999875) at several step counts: 144 steps estimate 2.0e-7,
     error 1.6e-6; also 72, 135, 153, 360 (ratio 3) and 160, 256 (ratio 2).  The raw
