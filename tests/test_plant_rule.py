@@ -134,3 +134,43 @@ def test_chart_plants_are_an_explicit_cache_shared_by_the_tasks(tmp_path):
     assert pa is pb and isinstance(pa, ModelPlant) and pa.n_steps == 32
     assert list(plants._linearised) == [6.0]
     assert b({"omega": 6.0, "kp": 1.0, "kd": 0.2}) == pa.spectral_measure([5.0, 1.0], [0.5, 0.2])
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path, monkeypatch, capsys):
+    """tqdm bars on a terminal stderr, none otherwise, for all three commands (``study --model`` once had it
+    inverted: bars off on a terminal); on a non-terminal the study prints one line per stage event instead.
+    The commands' work is stubbed: only the flag each passes on is recorded."""
+    import sys
+    from types import SimpleNamespace
+
+    import flexstab.commands.chart as chart
+    import flexstab.commands.tune as tune
+    import flexstab.model_study as ms
+
+    seen: dict = {}
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
+
+    def fake_charts(args, progress=True, cfg=None):
+        seen["chart"] = progress
+        return {"gain_chart": None, "figures": []}
+
+    def fake_tune(plant, tcfg, *, executor=None, progress=False):
+        seen["tune"] = progress
+        raise RuntimeError("stop here")
+
+    def fake_study(model, cfg, opts):
+        seen["study"] = (opts.progress, opts.log is None)
+        return SimpleNamespace(stages={}, report_md="r.md", report_html="r.html", elapsed=0.0)
+
+    base = SimpleNamespace(drives=("a",), orbit=SimpleNamespace(model=None), linearization=None,
+                           spectral_measure=lambda kp, kd: 0.3)
+    monkeypatch.setattr(chart, "make_charts", fake_charts)
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
+    monkeypatch.setattr(tune, "plant_for", lambda *a, **k: base)
+    monkeypatch.setattr(tune, "tune_model_plant", fake_tune)
+    monkeypatch.setattr(ms, "run_model_study", fake_study)
+    assert cli_main(["chart", "--model", "x.py", "--out", str(tmp_path)]) == 0
+    assert cli_main(["tune", "--model", "x.py"]) == 1
+    assert cli_main(["study", "--model", "x.py", "--out", str(tmp_path)]) == 0
+    assert seen == {"chart": tty, "tune": tty, "study": (tty, tty)}
