@@ -32,6 +32,7 @@ says which.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import uuid
@@ -62,10 +63,6 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Per-process cache of labelling workspaces, by plant token (a process pool unpickles the plant
-#: once per task; the workspace is built once per process).  Bounded: the oldest plant is dropped.
-_WORKSPACES: dict = {}
-
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
 #: Hill harmonics in the tuning loop (two-link arm, 2 elements: relative change vs H/2 below 1e-8).
@@ -78,6 +75,8 @@ RELATIVE_CUTOFF = 1e-2
 MAX_REFINED = 4
 #: A refined multiplier must satisfy ``|log(refined / estimate)| <= MATCH_TOLERANCE``.
 MATCH_TOLERANCE = 0.25
+#: Labelling workspaces (one per plant and step count) kept per process by :func:`_labelling_workspace`.
+WORKSPACE_CACHE = 16
 
 
 def _log_distance(z: complex, spectrum: np.ndarray) -> float:
@@ -125,6 +124,38 @@ def drive_gain_family(lin: LinearizedPeriodicSystem):
 
     names = tuple(f"{k}{j + 1}" for j in range(d) for k in ("kp", "kd"))
     return GainParametrisedSystem(base, inputs, outputs, names=names, period=T)
+
+
+class _PlantKey:
+    """Hashable handle of a plant's linearisation and orbit for the per-process caches below: equal iff
+    the token is (a token is drawn once per :class:`HillModelPlant` and kept by its copies and pickles)."""
+
+    __slots__ = ("token", "linearization", "orbit")
+
+    def __init__(self, token: str, linearization: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> None:
+        self.token, self.linearization, self.orbit = token, linearization, orbit
+
+    def __hash__(self) -> int:
+        return hash(self.token)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _PlantKey) and other.token == self.token
+
+
+@functools.lru_cache(maxsize=WORKSPACE_CACHE)
+def _labelling_workspace(key: _PlantKey, steps: int) -> Any:
+    """The prepared magnus2 workspace of the drive-gain family at ``steps`` (built once per process: a
+    process pool unpickles the plant once per task)."""
+    return drive_gain_family(key.linearization).workspace(steps, method="magnus2")
+
+
+@functools.lru_cache(maxsize=WORKSPACE_CACHE)
+def _frozen_modes(key: _PlantKey) -> tuple[Any, np.ndarray]:
+    """Frozen-time modes of the linearisation (gain-independent) and the inverse of their shape matrix."""
+    from linearize.analysis import frozen_modes
+
+    fm = frozen_modes(key.linearization, key.orbit)
+    return fm, np.linalg.inv(fm.shapes)
 
 
 @dataclass(frozen=True)
@@ -202,8 +233,9 @@ class HillModelPlant:
         self.label_steps = int(label_steps)
         self.harmonics = int(harmonics)
         self._token = uuid.uuid4().hex if _token is None else _token
-        # workspaces per step count, shared by every copy of this plant unpickled in one process
-        self._workspaces: dict = _WORKSPACES.setdefault(self._token, {})
+        # key of the per-process caches (workspaces per step count, frozen modes), shared by every copy
+        # of this plant (replace, pickles) in one process
+        self._key = _PlantKey(self._token, linearization, orbit)
 
     def __getstate__(self) -> dict:
         return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
@@ -228,14 +260,8 @@ class HillModelPlant:
     def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
 
-    def _workspace(self, steps: int):
-        ws = self._workspaces.get(steps)
-        if ws is None:
-            while len(_WORKSPACES) > 8:
-                _WORKSPACES.pop(next(iter(_WORKSPACES)))
-            ws = drive_gain_family(self.linearization).workspace(steps, method="magnus2")
-            self._workspaces[steps] = ws
-        return ws
+    def _workspace(self, steps: int) -> Any:
+        return _labelling_workspace(self._key, int(steps))
 
     def labelled(self, kp, kd, steps: Optional[int] = None):
         """``(lin, floquet_result, modes)`` of the labelling pass."""
@@ -244,25 +270,15 @@ class HillModelPlant:
         res = self._workspace(steps or self.label_steps).floquet(g)
         return lin, res, label_multipliers(lin, self.orbit, res)
 
-    def frozen(self):
-        """Frozen-time modes (gain-independent), computed once."""
-        fm = self._workspaces.get("frozen")
-        if fm is None:
-            from linearize.analysis import frozen_modes
-
-            fm = frozen_modes(self.linearization, self.orbit)
-            self._workspaces["frozen"] = fm
-        return fm
+    def frozen(self) -> Any:
+        """Frozen-time modes (gain-independent), computed once per process."""
+        return _frozen_modes(self._key)[0]
 
     def hill_label(self, state: np.ndarray) -> str:
         """Label of a Floquet state ``[z; z']`` at t = 0: the frozen mode of largest modal energy
         (the rule of :func:`linearize.analysis.label_multipliers`)."""
-        fm = self.frozen()
+        fm, Vinv = _frozen_modes(self._key)
         r = self.linearization.size
-        Vinv = self._workspaces.get("Vinv")
-        if Vinv is None:
-            Vinv = np.linalg.inv(fm.shapes)
-            self._workspaces["Vinv"] = Vinv
         eta, eta_t = Vinv @ state[:r], Vinv @ state[r:]
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
