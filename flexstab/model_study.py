@@ -366,7 +366,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                                                                   [0.0] * len(base.drives))
         else:
             gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
-        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).", check.steps, fig)
+        # the steps the measurement used (d["steps"]: chosen by its own rule, check.steps is empty for step=None)
+        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).",
+                                 d.get("steps") or check.steps, fig)
 
     run("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage)
     has_drives = "uncontrolled" in state and bool(state["uncontrolled"].drives)
