@@ -11,7 +11,7 @@ multiplier (drive modes and the first bending mode).  How it is evaluated depend
   :class:`linearize.analysis.ModelPlant`, its step count chosen once at the centre of the tuning
   ranges (:func:`propagator_steps`) unless given.
 
-:func:`plant_for` applies that rule; the three commands call it with the same tuning
+:func:`select_plant` / :func:`plant_for` apply that rule; the three commands call it with the same tuning
 configuration, so at the same gains they evaluate the same quantity by the same method and
 discretisation.  ``tune``/``study`` may afterwards double a :class:`ModelPlant`'s steps when the
 step-doubling check at the tuned gains asks for it (:func:`flexstab.commands.tune.tune_model_plant`).
@@ -23,17 +23,18 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
 from linearize.analysis import ModelPlant
-from linearize.hill_plant import HillModelPlant, choose_harmonics
+from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_MODELS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "is_hill_model", "hill_plant", "propagator_steps",
-           "plant_for", "whole_spectrum"]
+__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantSelection", "is_hill_model",
+           "hill_harmonics", "hill_plant", "propagator_steps", "select_plant", "plant_for", "whole_spectrum"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,6 +44,10 @@ HILL_MODELS = ("two-link",)
 
 #: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
 MAX_TUNING_STEPS = 4096
+
+#: Hill harmonic counts tried (fewest first) for a Hill-method model (:data:`HILL_MODELS`); see
+#: :func:`linearize.hill_plant.select_harmonics`.
+HILL_HARMONICS = (8, 12, 16, 24, 32)
 
 #: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
@@ -72,15 +77,20 @@ def _centre(config: TuningConfig) -> tuple[list, list]:
     return centre[0::2], centre[1::2]
 
 
+def hill_harmonics(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:
+    """Hill's harmonics decided once, at the centre of the tuning ranges: the fewest of :data:`HILL_HARMONICS`
+    whose H vs H/2 estimate is below ``tolerance / 20`` (:func:`linearize.hill_plant.select_harmonics`; warns
+    and says ``converged=False`` when none is)."""
+    kp, kd = _centre(config)
+    return select_harmonics(HillModelPlant(lin, orbit), kp, kd, config.effective_tolerance, HILL_HARMONICS)
+
+
 def hill_plant(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig, *,
                harmonics: Optional[int] = None) -> HillModelPlant:
-    """:class:`HillModelPlant` with its harmonics decided once, at the centre of the tuning ranges
-    (:func:`linearize.hill_plant.choose_harmonics`, H vs H/2 below ``tolerance / 20``), or ``harmonics``."""
-    plant = HillModelPlant(lin, orbit)
+    """:class:`HillModelPlant` with its harmonics from :func:`hill_harmonics`, or ``harmonics``."""
     if harmonics is not None:
-        return plant.replace(harmonics=harmonics)
-    kp, kd = _centre(config)
-    return choose_harmonics(plant, kp, kd, config.effective_tolerance)
+        return HillModelPlant(lin, orbit, harmonics=harmonics)
+    return hill_harmonics(lin, orbit, config).plant
 
 
 def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
@@ -106,8 +116,26 @@ def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
     return dataclasses.replace(plant, n_steps=n)
 
 
-def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
-              *, steps: Optional[int] = None) -> Plant:
+@dataclass(frozen=True)
+class PlantSelection:
+    """Outcome of :func:`select_plant`.
+
+    Attributes
+    ----------
+    plant : HillModelPlant or ModelPlant
+    method : str
+        ``"hill"`` or ``"magnus2"`` (the frozen-modal, Richardson-extrapolated exponential midpoint).
+    harmonics : HarmonicsChoice or None
+        How Hill's harmonics were chosen (converged, estimate); ``None`` for a time-stepping plant.
+    """
+
+    plant: Plant
+    method: str
+    harmonics: Optional[HarmonicsChoice] = None
+
+
+def select_plant(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
+                 config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantSelection:
     """The tuning plant of a model at one Omega: the one rule of ``tune``, ``study`` and ``chart --model``.
 
     Parameters
@@ -125,7 +153,7 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
 
     Returns
     -------
-    HillModelPlant or ModelPlant
+    PlantSelection
 
     Raises
     ------
@@ -137,14 +165,21 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
             raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
                              "chosen at the centre of the gain ranges): there are no propagator steps to set")
         if config is None:
-            raise ValueError("plant_for: a Hill plant needs the tuning configuration (its ranges and tolerance)")
-        return hill_plant(lin, orbit, config)
+            raise ValueError("select_plant: a Hill plant needs the tuning configuration (its ranges and tolerance)")
+        choice = hill_harmonics(lin, orbit, config)
+        return PlantSelection(plant=choice.plant, method="hill", harmonics=choice)
     plant = ModelPlant(lin, orbit)
     if steps is not None:
-        return dataclasses.replace(plant, n_steps=int(steps))
-    if config is None or not orbit.drive_names:
-        return plant
-    return propagator_steps(plant, config)
+        plant = dataclasses.replace(plant, n_steps=int(steps))
+    elif config is not None and orbit.drive_names:
+        plant = propagator_steps(plant, config)
+    return PlantSelection(plant=plant, method="magnus2")
+
+
+def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
+              *, steps: Optional[int] = None) -> Plant:
+    """``select_plant(...).plant``: the tuning plant by the one rule (see :func:`select_plant`)."""
+    return select_plant(definition, orbit, lin, config, steps=steps).plant
 
 
 def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: Sequence[float]) -> dict:

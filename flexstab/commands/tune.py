@@ -9,13 +9,13 @@ import sys
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_for, propagator_steps,
-                             whole_spectrum)
+from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_for,
+                             propagator_steps, select_plant, whole_spectrum)
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant", "check_failure",
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
 
@@ -287,6 +287,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
+    harmonics_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
     if model_file:
@@ -294,7 +295,8 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre), else the frozen-modal product with its steps chosen at the range centre
-        plant = plant_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        sel = select_plant(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        plant, harmonics_choice = sel.plant, sel.harmonics  # the choice warns if no harmonic count converged
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
@@ -330,8 +332,12 @@ def tune_report(args: argparse.Namespace) -> dict:
                                harmonics=plant.harmonics)
         out["response_method"] = "hill"
         out["harmonics"] = plant.harmonics
+        # whether the count met tolerance / 20 (H vs H/2 at the range centre), and that estimate (absolute)
+        out["harmonics_converged"] = harmonics_choice.converged
+        out["harmonics_error_estimate"] = harmonics_choice.error_estimate
         out["verified_spectral_radius"] = float(abs(chk.streamed[CHECK_STEPS[-1]]))
         out["verified_error_estimate"] = chk.magnus_error_estimate
+        out["hill_error_estimate"] = chk.hill_error_estimate  # relative, H vs H/2 at the tuned gains
         out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
         out["propagator_steps"] = plant.label_steps
         from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
@@ -402,6 +408,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"whole spectrum: max|rho| = {d['spectral_radius_all']:.6g} ({d['spectral_radius_all_mode']}"
               + (f", {freq:.4g} Hz" if freq else "") + ")")
     print(f"{d['evaluations']} Floquet evaluations in {len(d['iterations'])} iterations, {d['elapsed']:.2f} s")
+    for f in d.get("failed_runs") or []:
+        print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
+              + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+    if d.get("harmonics_converged") is False:
+        print(f"warning: Hill's harmonics ({d['harmonics']}) did not meet tolerance / 20 at the range centre "
+              f"(estimate {d['harmonics_error_estimate']:.2e})")
     if len(names) == 2:
         print("\n iter   kp range              kd range              best kp     best kd     max|rho|")
         for it in d["iterations"]:
