@@ -164,7 +164,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     from flexstab.commands.chart import model_charts
     from flexstab.commands.tune import factor_ranges, tune_model_plant
     from flexstab.options import ensure_out_dir, gain_pairs, resolve_model_definition
-    from flexstab.plants import MAX_TUNING_STEPS, select_plant
+    from flexstab.plants import MAX_TUNING_STEPS, plant_choice_for
     from flexstab.study import validation_blocks
     from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, analyze
     from linearize.hill_plant import HillModelPlant
@@ -256,7 +256,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
                             max_evaluations=QUICK_EVALUATIONS if opts.quick else EVALUATIONS)
         # the plant rule of tune --model and chart --model (Hill for the built-in two-link)
-        sel = select_plant(definition, base.orbit, base.linearization, tcfg)
+        sel = plant_choice_for(definition, base.orbit, base.linearization, tcfg)
         plant = sel.plant
         res, plant, passes = tune_model_plant(plant, tcfg, progress=opts.progress)
         hill = isinstance(plant, HillModelPlant)

@@ -11,7 +11,7 @@ multiplier (drive modes and the first bending mode).  How it is evaluated depend
   :class:`linearize.analysis.ModelPlant`, its step count chosen once at the centre of the tuning
   ranges (:func:`propagator_steps`) unless given.
 
-:func:`select_plant` / :func:`plant_for` apply that rule; the three commands call it with the same tuning
+:func:`plant_for` applies that rule; the three commands call it with the same tuning
 configuration, so at the same gains they evaluate the same quantity by the same method and
 discretisation.  ``tune``/``study`` may afterwards double a :class:`ModelPlant`'s steps when the
 step-doubling check at the tuned gains asks for it (:func:`flexstab.commands.tune.tune_model_plant`).
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -33,8 +32,8 @@ from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantSelection", "is_hill_model",
-           "hill_harmonics", "hill_plant", "propagator_steps", "select_plant", "plant_for", "whole_spectrum"]
+__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
+           "hill_plant", "hill_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,12 +41,12 @@ logger = logging.getLogger(__name__)
 #: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
 HILL_MODELS = ("two-link",)
 
-#: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
-MAX_TUNING_STEPS = 4096
-
-#: Hill harmonic counts tried (fewest first) for a Hill-method model (:data:`HILL_MODELS`); see
+#: Hill harmonic counts tried (fewest first) for a model of :data:`HILL_MODELS`; see
 #: :func:`linearize.hill_plant.select_harmonics`.
 HILL_HARMONICS = (8, 12, 16, 24, 32)
+
+#: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
+MAX_TUNING_STEPS = 4096
 
 #: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
@@ -77,20 +76,20 @@ def _centre(config: TuningConfig) -> tuple[list, list]:
     return centre[0::2], centre[1::2]
 
 
-def hill_harmonics(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:
-    """Hill's harmonics decided once, at the centre of the tuning ranges: the fewest of :data:`HILL_HARMONICS`
-    whose H vs H/2 estimate is below ``tolerance / 20`` (:func:`linearize.hill_plant.select_harmonics`; warns
-    and says ``converged=False`` when none is)."""
+def hill_choice(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:
+    """Hill's harmonic count decided once, at the centre of the tuning ranges
+    (:func:`linearize.hill_plant.select_harmonics` over :data:`HILL_HARMONICS`, H vs H/2 below
+    ``tolerance / 20``; warns and says ``converged=False`` when no count meets it)."""
     kp, kd = _centre(config)
     return select_harmonics(HillModelPlant(lin, orbit), kp, kd, config.effective_tolerance, HILL_HARMONICS)
 
 
 def hill_plant(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig, *,
                harmonics: Optional[int] = None) -> HillModelPlant:
-    """:class:`HillModelPlant` with its harmonics from :func:`hill_harmonics`, or ``harmonics``."""
+    """:class:`HillModelPlant` with its harmonics from :func:`hill_choice`, or ``harmonics``."""
     if harmonics is not None:
-        return HillModelPlant(lin, orbit, harmonics=harmonics)
-    return hill_harmonics(lin, orbit, config).plant
+        return HillModelPlant(lin, orbit).replace(harmonics=harmonics)
+    return hill_choice(lin, orbit, config).plant
 
 
 def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
@@ -116,26 +115,35 @@ def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
     return dataclasses.replace(plant, n_steps=n)
 
 
-@dataclass(frozen=True)
-class PlantSelection:
-    """Outcome of :func:`select_plant`.
+@dataclasses.dataclass(frozen=True)
+class PlantChoice:
+    """Outcome of :func:`plant_choice_for`: the plant, and for a Hill plant how its harmonics were chosen."""
 
-    Attributes
-    ----------
-    plant : HillModelPlant or ModelPlant
-    method : str
-        ``"hill"`` or ``"magnus2"`` (the frozen-modal, Richardson-extrapolated exponential midpoint).
-    harmonics : HarmonicsChoice or None
-        How Hill's harmonics were chosen (converged, estimate); ``None`` for a time-stepping plant.
-    """
-
-    plant: Plant
-    method: str
+    plant: Any
     harmonics: Optional[HarmonicsChoice] = None
 
 
-def select_plant(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
-                 config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantSelection:
+def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
+                     config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantChoice:
+    """:func:`plant_for` with the record of the harmonic choice (``tune --model`` reports it)."""
+    if lin.B is not None and lin.B.shape[-1] and is_hill_model(definition):
+        if steps is not None:
+            raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
+                             "chosen at the centre of the gain ranges): there are no propagator steps to set")
+        if config is None:
+            raise ValueError("plant_for: a Hill plant needs the tuning configuration (its ranges and tolerance)")
+        choice = hill_choice(lin, orbit, config)
+        return PlantChoice(choice.plant, choice)
+    plant = ModelPlant(lin, orbit)
+    if steps is not None:
+        return PlantChoice(dataclasses.replace(plant, n_steps=int(steps)))
+    if config is None or not orbit.drive_names:
+        return PlantChoice(plant)
+    return PlantChoice(propagator_steps(plant, config))
+
+
+def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
+              *, steps: Optional[int] = None) -> Plant:
     """The tuning plant of a model at one Omega: the one rule of ``tune``, ``study`` and ``chart --model``.
 
     Parameters
@@ -153,33 +161,14 @@ def select_plant(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicS
 
     Returns
     -------
-    PlantSelection
+    HillModelPlant or ModelPlant
 
     Raises
     ------
     ValueError
         ``steps`` given for a model evaluated by Hill's method (it has no propagator steps).
     """
-    if lin.B is not None and lin.B.shape[-1] and is_hill_model(definition):
-        if steps is not None:
-            raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
-                             "chosen at the centre of the gain ranges): there are no propagator steps to set")
-        if config is None:
-            raise ValueError("select_plant: a Hill plant needs the tuning configuration (its ranges and tolerance)")
-        choice = hill_harmonics(lin, orbit, config)
-        return PlantSelection(plant=choice.plant, method="hill", harmonics=choice)
-    plant = ModelPlant(lin, orbit)
-    if steps is not None:
-        plant = dataclasses.replace(plant, n_steps=int(steps))
-    elif config is not None and orbit.drive_names:
-        plant = propagator_steps(plant, config)
-    return PlantSelection(plant=plant, method="magnus2")
-
-
-def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
-              *, steps: Optional[int] = None) -> Plant:
-    """``select_plant(...).plant``: the tuning plant by the one rule (see :func:`select_plant`)."""
-    return select_plant(definition, orbit, lin, config, steps=steps).plant
+    return plant_choice_for(definition, orbit, lin, config, steps=steps).plant
 
 
 def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: Sequence[float]) -> dict:

@@ -204,7 +204,7 @@ def test_failed_tuning_validates_at_zero_gains_and_says_so(tmp_path, monkeypatch
         asked.append((kp, kd))
         return Confirmed()
 
-    monkeypatch.setattr(plants, "select_plant", fails)
+    monkeypatch.setattr(plants, "plant_choice_for", fails)
     monkeypatch.setattr(chart, "model_charts", fails)
     monkeypatch.setattr(vm, "validate_model_multipliers", measure)
     monkeypatch.setattr(vp, "plot_multiplier_plane", lambda *a, **k: None)

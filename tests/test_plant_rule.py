@@ -30,7 +30,8 @@ def _stub_tune_after_checks(monkeypatch):
 
     class Check:
         streamed = {32768: 0.0}
-        magnus_error_estimate = hill_error_estimate = 0.0
+        magnus_error_estimate = 0.0
+        hill_error_estimate = 0.0
 
     monkeypatch.setattr(tune, "whole_spectrum", lambda *a, **k: {})
     monkeypatch.setattr(tl, "check_multiplier", lambda *a, **k: Check())
@@ -163,11 +164,13 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path,
         seen["study"] = (opts.progress, opts.log is None)
         return SimpleNamespace(stages={}, report_md="r.md", report_html="r.html", elapsed=0.0)
 
+    from flexstab.plants import PlantChoice
+
     base = SimpleNamespace(drives=("a",), orbit=SimpleNamespace(model=None), linearization=None,
                            spectral_measure=lambda kp, kd: 0.3)
     monkeypatch.setattr(chart, "make_charts", fake_charts)
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
-    monkeypatch.setattr(tune, "select_plant", lambda *a, **k: SimpleNamespace(plant=base, harmonics=None))
+    monkeypatch.setattr(tune, "plant_choice_for", lambda *a, **k: PlantChoice(base))
     monkeypatch.setattr(tune, "tune_model_plant", fake_tune)
     monkeypatch.setattr(ms, "run_model_study", fake_study)
     assert cli_main(["chart", "--model", "x.py", "--out", str(tmp_path)]) == 0

@@ -25,12 +25,11 @@ def _run(capsys, argv):
 def test_tune_two_link_hill_path(monkeypatch, capsys):
     """One L9 experiment with Hill's response; the harmonics cannot meet an impossible tolerance (1e-14 / 20,
     below Hill's round-off), which must warn and show as ``harmonics_converged: false`` in the JSON."""
+    import flexstab.plants as plants
     import flexstab.two_link as two_link
 
     monkeypatch.setattr(two_link, "CHECK_STEPS", (4096, 8192))
-    import flexstab.plants as plants
-
-    monkeypatch.setattr(plants, "HILL_HARMONICS", (8,))  # the plant rule's candidates (flexstab.plants)
+    monkeypatch.setattr(plants, "HILL_HARMONICS", (8,))
     with pytest.warns(RuntimeWarning, match="none of"):
         rc, d, err = _run(capsys, ["tune", "--model", "two-link", "--elements", "1", "--max-evaluations", "10",
                                    "--workers", "1", "--tolerance", "1e-14", "--json"])

@@ -171,13 +171,14 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
 
 def _use_plant(monkeypatch, tune, plant) -> None:
     """``tune --model fake.py`` tunes ``plant``: no orbit (build_plant stubbed) and no step choice at the range
-    centre (select_plant returns ``plant`` as it is)."""
+    centre (plant_choice_for returns ``plant`` as it is)."""
     from types import SimpleNamespace
 
     base = SimpleNamespace(drives=plant.drives, orbit=SimpleNamespace(model=None), linearization=None)
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
-    monkeypatch.setattr(tune, "select_plant", lambda definition, orbit, lin, cfg: SimpleNamespace(plant=plant,
-                                                                                                  harmonics=None))
+    from flexstab.plants import PlantChoice
+
+    monkeypatch.setattr(tune, "plant_choice_for", lambda definition, orbit, lin, cfg: PlantChoice(plant))
 
 
 def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails(monkeypatch, capsys):

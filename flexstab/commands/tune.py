@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING, Any, Optional
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_for,
-                             propagator_steps, select_plant, whole_spectrum)
+from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
+                             plant_for, propagator_steps, whole_spectrum)
 
 if TYPE_CHECKING:
     from taguchi.tuning import TuningConfig
@@ -299,9 +299,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
-        # range centre), else the frozen-modal product with its steps chosen at the range centre
-        sel = select_plant(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
-        plant, harmonics_choice = sel.plant, sel.harmonics  # the choice warns if no harmonic count converged
+        # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
+        choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        plant, harmonics_choice = choice.plant, choice.harmonics
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
