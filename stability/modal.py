@@ -109,6 +109,12 @@ MAX_CONDITION = 1e8
 #: ``CLUSTER_MIN_GAP = 4`` merged the two real hub eigenvalues of the 2-element link at 4 pi
 #: (gap 2.5 Omega) and made their midpoint error 3x larger: merging never helps a smooth pair.
 CLUSTER_MARGIN = 10.0
+#: How :class:`FrozenModalSystem` builds its basis samples: ``"eig"`` a full eigen-decomposition per
+#: sample; ``"perturbation"`` (only for a frame nested in another, where ``P`` is nearly block
+#: diagonal) first-order perturbation theory, :func:`_perturbed_basis`, ``O(n^2)`` per sample;
+#: ``"auto"`` the latter for a nested frame, falling back to the former when a correction is not
+#: small, and ``"eig"`` for the first frame.
+BASIS_METHODS = ("auto", "eig", "perturbation")
 CLUSTER_MIN_GAP = 1.0
 
 
@@ -220,11 +226,233 @@ def _cluster_bounds(mods: np.ndarray, omega: float) -> list:
     lie < 5 % apart but vary by < 1e-5 relative, into clusters of 100+ modes.)
     """
     lo, hi = mods.min(axis=0), mods.max(axis=0)
+    cuts = [i + 1 for i in np.flatnonzero(_separated(lo, hi, omega))]
+    return list(zip([0] + cuts, cuts + [mods.shape[1]]))
+
+
+def _separated(lo: np.ndarray, hi: np.ndarray, omega: float) -> np.ndarray:
+    """``(n - 1,)`` booleans: may consecutive moduli ``i``, ``i + 1`` (ranges ``[lo, hi]`` over the
+    period, sorted) be cut apart (the rule of :func:`_cluster_bounds`)."""
     spread = hi - lo
     gap = lo[1:] - hi[:-1]
     need = np.maximum(CLUSTER_MARGIN * np.maximum(spread[1:], spread[:-1]), CLUSTER_MIN_GAP * omega)
-    cuts = [i + 1 for i in np.flatnonzero(gap > need)]
-    return list(zip([0] + cuts, cuts + [mods.shape[1]]))
+    return gap > need
+
+
+class _PerturbationFailed(ArithmeticError):
+    """The first-order basis does not apply (a coupling not small against its gap, a defective block)."""
+
+
+#: Largest entry of the first-order correction ``X`` (:func:`_first_order`) accepted; its error
+#: is ``O(X^2)`` (relative), which only makes the basis less exact, never the similarity.
+MAX_FIRST_ORDER = 0.05
+
+
+def _block_left(S: dict, A: np.ndarray) -> np.ndarray:
+    """``blockdiag(S) @ A`` for block matrices ``S = {size: (idx, blocks)}`` (``blocks`` ``(m, s, s)``)."""
+    out = np.empty(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
+    for idx, blocks in S.values():
+        out[idx] = np.einsum("mij,mjn->min", blocks, A[idx])
+    return out
+
+
+def _block_right(A: np.ndarray, S: dict) -> np.ndarray:
+    """``A @ blockdiag(S)``."""
+    out = np.empty(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
+    for idx, blocks in S.values():
+        out[:, idx] = np.einsum("nmi,mij->nmj", A[:, idx], blocks)
+    return out
+
+
+def _first_order(M: np.ndarray, index: dict, labels: np.ndarray) -> tuple:
+    """First-order invariant subspaces of ``M`` (real, nearly block diagonal over the clusters).
+
+    With ``D`` the cluster blocks of ``M`` and ``E = M - D``: ``X`` (zero on the cluster blocks)
+    solves ``D X - X D = -E``, so that ``(I + X)^-1 M (I + X) = D + O(E X)``: block diagonal to
+    first order (``I + X`` keeps unit projection on the current cluster bases, a parallel
+    transport).  Solved elementwise in the eigenbasis ``S`` of each block: ``X = S Y S^-1`` with
+    ``Y_ij = (S^-1 E S)_ij / (mu_j - mu_i)``.  Returns ``(X, mu)``, ``mu`` the block eigenvalues
+    (``(n,)``, in cluster order).  Cost ``O(n^2)`` per cluster size instead of a full ``eig``.
+    """
+    n = M.shape[0]
+    mu = np.empty(n, dtype=complex)
+    S, Sinv = {}, {}
+    for size, idx in index.items():
+        blocks = M[idx[:, :, None], idx[:, None, :]]
+        lam, vec = np.linalg.eig(blocks)
+        with np.errstate(all="ignore"):
+            try:
+                inv = np.linalg.inv(vec)
+            except np.linalg.LinAlgError:
+                inv = np.full_like(vec, np.inf)
+        growth = np.abs(inv).max(axis=(1, 2)) * np.abs(vec).max(axis=(1, 2))
+        if not np.all(growth <= 1e6):
+            raise _PerturbationFailed("a cluster block is nearly defective")
+        mu[idx] = lam
+        S[size], Sinv[size] = (idx, vec), (idx, inv)
+    same = labels[:, None] == labels[None, :]
+    F = _block_right(_block_left(Sinv, np.where(same, 0.0, M)), S)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Y = np.where(same, 0.0, F / (mu[None, :] - mu[:, None]))
+    X = _block_right(_block_left(S, Y), Sinv)
+    if not np.all(np.isfinite(X)):
+        raise _PerturbationFailed("a coupling between two clusters with equal eigenvalues")
+    return X.real, mu
+
+
+def _merge_cuts(mu: np.ndarray, bounds: list, omega: float) -> list:
+    """``bounds`` with the cuts that break the rule of :func:`_cluster_bounds` removed, judged on
+    the block eigenvalues ``mu`` (``(K, n)``, cluster order) over the period."""
+    mods = np.abs(mu)
+    for a, b in bounds:
+        mods[:, a:b] = np.sort(mods[:, a:b], axis=1)
+    lo, hi = mods.min(axis=0), mods.max(axis=0)
+    cuts = [a for a, _ in bounds[1:]]
+    ok = _separated(lo, hi, omega)
+    # a cut also needs the whole of both neighbouring clusters apart (they need not stay sorted)
+    keep = []
+    for i, c in enumerate(cuts):
+        a = bounds[i][0]
+        b = bounds[i + 2][0] if i + 2 < len(bounds) else mods.shape[1]
+        if ok[c - 1] and mods[:, c:b].min() > mods[:, a:c].max():
+            keep.append(c)
+    return list(zip([0] + keep, keep + [mods.shape[1]]))
+
+
+def _perturbed_basis(Pb: np.ndarray, parent: list, omega: float) -> tuple:
+    """Basis samples ``V_k = I + X_k`` and cluster bounds of a frame nested in another.
+
+    ``Pb`` (``(K, n, n)``) is expressed in a frozen-modal frame with cluster bounds ``parent``,
+    so it is nearly block diagonal; :func:`_first_order` gives ``X_k`` at each sample, and the
+    samples are periodic by construction (no continuation, no holonomy).  The clusters are the
+    parent's, merged (and the samples redone) where the block eigenvalues over the period break
+    the rule of :func:`_cluster_bounds`.  Raises :class:`_PerturbationFailed` when a correction is
+    not small (``> MAX_FIRST_ORDER``).  (A continuation of the *first* frame by the same step,
+    ``V_k = V_{k-1} (I + X_k)``, was tried: on the single link the stiff modes' eigenvectors turn
+    by ~0.25 between 32 samples, too far for one first-order step.)
+    """
+    K, n = Pb.shape[0], Pb.shape[1]
+    bounds = list(parent)
+    for _ in range(4):
+        index = _size_groups(bounds)
+        labels = np.repeat(np.arange(len(bounds)), [b - a for a, b in bounds])
+        mus = np.empty((K, n), dtype=complex)
+        V = np.empty((K, n, n))
+        for k in range(K):
+            X, mus[k] = _first_order(Pb[k], index, labels)
+            worst = float(np.abs(X).max())
+            if not worst <= MAX_FIRST_ORDER:
+                raise _PerturbationFailed(f"first-order correction {worst:.1e} > {MAX_FIRST_ORDER}")
+            V[k] = X
+            V[k].flat[:: n + 1] += 1.0
+        merged = _merge_cuts(mus, bounds, omega)
+        if merged == bounds:
+            return V, bounds
+        bounds = merged
+    raise _PerturbationFailed("the clusters did not settle")
+
+
+def _size_groups(bounds: list) -> dict:
+    """``{size: (clusters, size) index array}``: clusters grouped by size (batched small-block work)."""
+    groups: dict = {}
+    for a, b in bounds:
+        groups.setdefault(b - a, []).append(a)
+    return {size: (np.array(starts)[:, None] + np.arange(size)[None, :]) for size, starts in groups.items()}
+
+
+def _real_columns(lams: np.ndarray, Ws: np.ndarray, bounds: list) -> np.ndarray:
+    """Real basis of each cluster's invariant subspace from eigenvectors ``Ws`` (``(K, n, n)``,
+    columns sorted as ``lams``): Re and Im of the eigenvectors with Im lambda > 0, and the real
+    eigenvectors (conjugates share a modulus, hence a cluster)."""
+    K, n = lams.shape
+    pick = np.empty((K, n), dtype=int)
+    part = np.empty((K, n), dtype=bool)  # True: take Im, False: take Re
+    for k in range(K):
+        lam = lams[k]
+        cols, ims = [], []
+        for a, b in bounds:
+            upper = [j for j in range(a, b) if lam[j].imag > 0]
+            real = [j for j in range(a, b) if lam[j].imag == 0]
+            if 2 * len(upper) + len(real) != b - a:
+                raise ModalBasisError("a cluster of frozen eigenvalues is not closed under conjugation")
+            for j in upper:
+                cols += [j, j]
+                ims += [False, True]
+            cols += real
+            ims += [False] * len(real)
+        pick[k], part[k] = cols, ims
+    return np.where(part[:, None, :], np.take_along_axis(Ws.imag, pick[:, None, :], axis=2),
+                    np.take_along_axis(Ws.real, pick[:, None, :], axis=2))
+
+
+def _remove_holonomy(V: np.ndarray, index: dict, tau: np.ndarray) -> np.ndarray:
+    """``V[:K]`` made periodic: ``V[K] = V[0] H`` (``H`` block diagonal over the clusters of
+    ``index``, the holonomy of the continuation); each sample times ``expm(-G tau)``, ``G`` the
+    real logarithm of ``H``'s cluster block, ``tau = t / T``."""
+    K, n = V.shape[0] - 1, V.shape[1]
+    H = np.linalg.solve(V[0], V[K])
+    for size, idx in index.items():
+        G = np.array([_real_log(H[np.ix_(i, i)]) for i in idx])  # (clusters, size, size)
+        if size == 1:
+            E = np.exp(-G[None, :, 0, 0] * tau[:, None])[:, :, None, None]
+        else:
+            E = scipy.linalg.expm(-G[None] * tau[:, None, None, None])  # (K, clusters, size, size)
+        corr = np.zeros((K, n, n))
+        corr[:, idx[:, :, None], idx[:, None, :]] = E
+        cols = idx.ravel()
+        V[:K, :, cols] = V[:K][:, :, cols] @ corr[:, cols][:, :, cols]
+    return V[:K]
+
+
+def _eig_basis(Pb: np.ndarray, times: np.ndarray, period: float) -> tuple:
+    """Basis samples ``V`` (``(K, n, n)``) and cluster bounds from a full eigen-decomposition per sample.
+
+    Clusters by :func:`_cluster_bounds`; each cluster's real basis continued by discrete parallel
+    transport, the holonomy removed (see the module notes).
+    """
+    K, n = Pb.shape[0], Pb.shape[1]
+    lams = np.empty((K, n), dtype=complex)
+    Ws = np.empty((K, n, n), dtype=complex)
+    for k in range(K):
+        lam, W = np.linalg.eig(Pb[k])
+        order = np.lexsort((lam.imag, np.abs(lam)))  # by modulus, conjugates adjacent
+        lams[k], Ws[k] = lam[order], W[:, order]
+    # clusters: runs of the sorted moduli separated from the next by a gap over the whole
+    # period (then each cluster's invariant subspace is a smooth function of t)
+    bounds = _cluster_bounds(np.abs(lams), 2.0 * np.pi / period)
+    Rs = _real_columns(lams, Ws, bounds)
+    # clusters grouped by size: their small blocks are inverted / exponentiated in batches
+    index = _size_groups(bounds)
+    V = np.empty((K + 1, n, n))
+    V[0] = Rs[0]
+    for k in range(1, K + 1):
+        # discrete parallel transport: each cluster's new basis has unit projection on the
+        # previous left basis (rows of V_{k-1}^-1 belonging to the cluster)
+        Rk = Rs[k % K]
+        proj_all = np.linalg.solve(V[k - 1], Rk)
+        blockinv = np.zeros((n, n))
+        for size, idx in index.items():
+            proj = proj_all[idx[:, :, None], idx[:, None, :]]  # (clusters, size, size)
+            with np.errstate(all="ignore"):
+                try:
+                    inv = np.linalg.inv(proj)
+                except np.linalg.LinAlgError:
+                    inv = np.full_like(proj, np.inf)
+                growth = np.abs(inv).max(axis=(1, 2)) * np.abs(proj).max(axis=(1, 2))
+            if not np.all(growth <= MAX_CONDITION):
+                raise ModalBasisError("a frozen invariant subspace turns by ~90 degrees between two samples "
+                                      "(too few samples)")
+            blockinv[idx[:, :, None], idx[:, None, :]] = inv
+        V[k] = Rk @ blockinv
+    return _remove_holonomy(V, index, times / period), bounds
+
+
+def _parent_bounds(P: Any) -> Optional[list]:
+    """Cluster bounds of ``P`` when it is itself a frozen-modal frame (nearly block diagonal), else None."""
+    if not isinstance(P, FrozenModalSystem):
+        return None
+    cuts = np.cumsum(P.clusters)[:-1].tolist()
+    return list(zip([0] + cuts, cuts + [P.n]))
 
 
 class FrozenModalSystem:
@@ -249,7 +477,10 @@ class FrozenModalSystem:
         If the eigenvector continuation does not close into a real periodic basis.
     """
 
-    def __init__(self, P: Any, samples: Optional[int] = None, period: Optional[float] = None) -> None:
+    def __init__(self, P: Any, samples: Optional[int] = None, period: Optional[float] = None,
+                 method: str = "auto") -> None:
+        if method not in BASIS_METHODS:
+            raise ValueError(f"method must be one of {BASIS_METHODS}, got {method!r}")
         self.original = P
         self._trace: Optional[float] = None
         self._wrapped = PeriodicMatrixFunction(P, period)
@@ -266,76 +497,22 @@ class FrozenModalSystem:
         _, (scale, _) = scipy.linalg.matrix_balance(np.abs(Ps).mean(axis=0), permute=False, separate=True)
         scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
         Pb = Ps * (scale[None, :] / scale[:, None])
-        lams = np.empty((K, self.n), dtype=complex)
-        Ws = np.empty((K, self.n, self.n), dtype=complex)
-        for k in range(K):
-            lam, W = np.linalg.eig(Pb[k])
-            order = np.lexsort((lam.imag, np.abs(lam)))  # by modulus, conjugates adjacent
-            lams[k], Ws[k] = lam[order], W[:, order]
-        # clusters: runs of the sorted moduli separated from the next by a gap over the whole
-        # period (then each cluster's invariant subspace is a smooth function of t)
-        bounds = _cluster_bounds(np.abs(lams), 2.0 * np.pi / self.period)
+        self.method = "eig"
+        V = bounds = None
+        parent = _parent_bounds(P)
+        if method == "perturbation" and parent is None:
+            raise ValueError('method="perturbation" needs P to be a FrozenModalSystem (a nested frame)')
+        if method != "eig" and parent is not None:
+            try:
+                V, bounds = _perturbed_basis(Pb, parent, 2.0 * np.pi / self.period)
+                self.method = "perturbation"
+            except _PerturbationFailed as exc:
+                if method == "perturbation":
+                    raise ModalBasisError(f"no first-order frozen-modal basis ({exc})") from None
+                logger.info("first-order basis refused (%s): full eigen-decompositions", exc)
+        if V is None:
+            V, bounds = _eig_basis(Pb, times, self.period)
         self.clusters = tuple(b - a for a, b in bounds)
-        # a real basis of each cluster's invariant subspace: Re and Im of the eigenvectors with
-        # Im lambda > 0, and the real eigenvectors (conjugates share a modulus, hence a cluster)
-        pick = np.empty((K, self.n), dtype=int)
-        part = np.empty((K, self.n), dtype=bool)  # True: take Im, False: take Re
-        for k in range(K):
-            lam = lams[k]
-            cols, ims = [], []
-            for a, b in bounds:
-                upper = [j for j in range(a, b) if lam[j].imag > 0]
-                real = [j for j in range(a, b) if lam[j].imag == 0]
-                if 2 * len(upper) + len(real) != b - a:
-                    raise ModalBasisError("a cluster of frozen eigenvalues is not closed under conjugation")
-                for j in upper:
-                    cols += [j, j]
-                    ims += [False, True]
-                cols += real
-                ims += [False] * len(real)
-            pick[k], part[k] = cols, ims
-        Rs = np.where(part[:, None, :], np.take_along_axis(Ws.imag, pick[:, None, :], axis=2),
-                      np.take_along_axis(Ws.real, pick[:, None, :], axis=2))
-        # clusters grouped by size: their small blocks are inverted / exponentiated in batches
-        groups: dict = {}
-        for a, b in bounds:
-            groups.setdefault(b - a, []).append(a)
-        index = {size: (np.array(starts)[:, None] + np.arange(size)[None, :]) for size, starts in groups.items()}
-        V = np.empty((K + 1, self.n, self.n))
-        V[0] = Rs[0]
-        for k in range(1, K + 1):
-            # discrete parallel transport: each cluster's new basis has unit projection on the
-            # previous left basis (rows of V_{k-1}^-1 belonging to the cluster)
-            Rk = Rs[k % K]
-            proj_all = np.linalg.solve(V[k - 1], Rk)
-            blockinv = np.zeros((self.n, self.n))
-            for size, idx in index.items():
-                proj = proj_all[idx[:, :, None], idx[:, None, :]]  # (clusters, size, size)
-                with np.errstate(all="ignore"):
-                    try:
-                        inv = np.linalg.inv(proj)
-                    except np.linalg.LinAlgError:
-                        inv = np.full_like(proj, np.inf)
-                    growth = np.abs(inv).max(axis=(1, 2)) * np.abs(proj).max(axis=(1, 2))
-                if not np.all(growth <= MAX_CONDITION):
-                    raise ModalBasisError("a frozen invariant subspace turns by ~90 degrees between two samples "
-                                          "(too few samples)")
-                blockinv[idx[:, :, None], idx[:, None, :]] = inv
-            V[k] = Rk @ blockinv
-        # holonomy: V_K = V_0 H with H block diagonal (the same invariant subspaces at t = 0 and T)
-        H = np.linalg.solve(V[0], V[K])
-        tau = times / self.period
-        for size, idx in index.items():
-            G = np.array([_real_log(H[np.ix_(i, i)]) for i in idx])  # (clusters, size, size)
-            if size == 1:
-                E = np.exp(-G[None, :, 0, 0] * tau[:, None])[:, :, None, None]
-            else:
-                E = scipy.linalg.expm(-G[None] * tau[:, None, None, None])  # (K, clusters, size, size)
-            corr = np.zeros((K, self.n, self.n))
-            corr[:, idx[:, :, None], idx[:, None, :]] = E
-            cols = idx.ravel()
-            V[:K, :, cols] = V[:K][:, :, cols] @ corr[:, cols][:, :, cols]
-        V = V[:K]
         cond = max(float(np.linalg.cond(V[k])) for k in range(0, K, max(1, K // 4)))
         if not cond <= MAX_CONDITION:
             raise ModalBasisError(f"the frozen eigenvector basis is nearly singular (condition {cond:.1e})")
