@@ -250,25 +250,63 @@ class _PerturbationFailed(ArithmeticError):
 MAX_FIRST_ORDER = 0.05
 
 
-def _block_left(S: dict, A: np.ndarray) -> np.ndarray:
-    """``blockdiag(S) @ A`` for block matrices ``S = {size: (idx, blocks)}`` (``blocks`` ``(m, s, s)``):
-    ``s^2`` broadcast passes over ``(m, n)`` slices, ``O(n^2 s)`` (no dense product)."""
-    out = np.zeros(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
-    for idx, blocks in S.values():
-        for i in range(idx.shape[1]):
-            for j in range(idx.shape[1]):
-                out[idx[:, i]] += blocks[:, i, j, None] * A[idx[:, j]]
-    return out
-
-
 def _block_right(A: np.ndarray, S: dict) -> np.ndarray:
-    """``A @ blockdiag(S)`` (see :func:`_block_left`)."""
-    out = np.zeros(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
+    """``A @ blockdiag(S)`` for a block diagonal given as ``S = {size: (idx, blocks)}`` (``idx`` the
+    ``(m, s)`` columns of each block, ``blocks`` ``(m, s, s)``): ``O(n^2 s)``, no dense product."""
+    out = np.empty(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
     for idx, blocks in S.values():
-        for i in range(idx.shape[1]):
-            for j in range(idx.shape[1]):
-                out[:, idx[:, j]] += A[:, idx[:, i]] * blocks[None, :, i, j]
+        out[:, idx] = np.matmul(A[:, idx].transpose(1, 0, 2), blocks).transpose(1, 0, 2)
     return out
+
+
+def _inv2(A: np.ndarray) -> tuple:
+    """Inverses of a batch of 2x2 matrices (``(..., 2, 2)``) in closed form, and their determinants."""
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    inv = np.empty_like(A)
+    inv[..., 0, 0], inv[..., 1, 1] = A[..., 1, 1], A[..., 0, 0]
+    inv[..., 0, 1], inv[..., 1, 0] = -A[..., 0, 1], -A[..., 1, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return inv / det[..., None, None], det
+
+
+def _mul2(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for broadcast batches of 2x2 matrices, entry by entry (numpy's batched ``matmul`` of
+    2x2 matrices costs ~100x more per product)."""
+    a00, a01, a10, a11 = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
+    b00, b01, b10, b11 = B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1]
+    return np.stack([np.stack([a00 * b00 + a01 * b10, a00 * b01 + a01 * b11], axis=-1),
+                     np.stack([a10 * b00 + a11 * b10, a10 * b01 + a11 * b11], axis=-1)], axis=-2)
+
+
+def _sylvester(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``X`` with ``A X - X B = C`` for batches (``A`` ``(..., p, p)``, ``B`` ``(..., q, q)``, ``C``
+    ``(..., p, q)``), in closed form for ``p, q <= 2`` (real arithmetic, elementwise over the batch):
+    ``(p, q) = (2, 2)``: ``X = p_B(A)^-1 (A C + C B - tr(B) C)`` with ``p_B(z) = z^2 - tr(B) z + det B``
+    (from ``A^2 X - X B^2 = A C + C B`` and Cayley-Hamilton for ``B``); else by the Kronecker form.
+    A common eigenvalue of ``A`` and ``B`` gives non-finite entries."""
+    p, q = A.shape[-1], B.shape[-1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if p == 1 and q == 1:
+            return C / (A - B)
+        if p == 2 and q == 1:
+            inv, _ = _inv2(A - B[..., 0, 0, None, None] * np.eye(2))
+            return _mul2(inv, np.concatenate([C, np.zeros_like(C)], axis=-1))[..., :1]
+        if p == 1 and q == 2:
+            inv, _ = _inv2(A[..., 0, 0, None, None] * np.eye(2) - B)
+            return _mul2(np.concatenate([C, np.zeros_like(C)], axis=-2), inv)[..., :1, :]
+        if p == 2 and q == 2:
+            tr = (B[..., 0, 0] + B[..., 1, 1])[..., None, None]
+            det = (B[..., 0, 0] * B[..., 1, 1] - B[..., 0, 1] * B[..., 1, 0])[..., None, None]
+            inv, _ = _inv2(_mul2(A, A) - tr * A + det * np.eye(2))
+            return _mul2(inv, _mul2(A, C) + _mul2(C, B) - tr * C)
+        shape = np.broadcast_shapes(A.shape[:-2], B.shape[:-2], C.shape[:-2])
+        kron = (np.einsum("...ij,kl->...ikjl", A, np.eye(q)) - np.einsum("ij,...lk->...ikjl", np.eye(p), B))
+        kron = np.broadcast_to(kron.reshape(kron.shape[:-4] + (p * q, p * q)), shape + (p * q, p * q))
+        rhs = np.broadcast_to(C, shape + (p, q)).reshape(shape + (p * q,))
+        try:
+            return np.linalg.solve(kron, rhs[..., None])[..., 0].reshape(shape + (p, q))
+        except np.linalg.LinAlgError:
+            return np.full(shape + (p, q), np.inf)
 
 
 def _first_order(M: np.ndarray, index: dict, labels: np.ndarray) -> tuple:
@@ -277,34 +315,37 @@ def _first_order(M: np.ndarray, index: dict, labels: np.ndarray) -> tuple:
     With ``D`` the cluster blocks of ``M`` and ``E = M - D``: ``X`` (zero on the cluster blocks)
     solves ``D X - X D = -E``, so that ``(I + X)^-1 M (I + X) = D + O(E X)``: block diagonal to
     first order (``I + X`` keeps unit projection on the current cluster bases, a parallel
-    transport).  Solved elementwise in the eigenbasis ``S`` of each block: ``X = S Y S^-1`` with
-    ``Y_ij = (S^-1 E S)_ij / (mu_j - mu_i)``.  Returns ``(X, mu)``, ``mu`` the block eigenvalues
-    (``(n,)``, in cluster order).  Cost ``O(n^2)`` per cluster size instead of a full ``eig``.
+    transport).  One small Sylvester equation ``D_a X_ab - X_ab D_b = -E_ab`` per pair of clusters,
+    solved in closed form for blocks of size <= 2 (:func:`_sylvester`), batched over the pairs
+    (clusters of one size made contiguous by one permutation): ``O(n^2)`` real operations instead
+    of a full ``eig``.  Returns ``(X, mu)``, ``mu`` the block eigenvalues (``(n,)``, cluster order).
     """
     n = M.shape[0]
     mu = np.empty(n, dtype=complex)
-    S, Sinv = {}, {}
+    perm = np.concatenate([idx.ravel() for idx in index.values()])
+    Mp = M[np.ix_(perm, perm)]
+    Xp = np.empty_like(Mp)
+    offsets, start = {}, 0
     for size, idx in index.items():
-        blocks = M[idx[:, :, None], idx[:, None, :]]
-        lam, vec = np.linalg.eig(blocks)
-        with np.errstate(all="ignore"):
-            try:
-                inv = np.linalg.inv(vec)
-            except np.linalg.LinAlgError:
-                inv = np.full_like(vec, np.inf)
-        growth = np.abs(inv).max(axis=(1, 2)) * np.abs(vec).max(axis=(1, 2))
-        if not np.all(growth <= 1e6):
-            raise _PerturbationFailed("a cluster block is nearly defective")
-        mu[idx] = lam
-        S[size], Sinv[size] = (idx, vec), (idx, inv)
-    same = labels[:, None] == labels[None, :]
-    F = _block_right(_block_left(Sinv, np.where(same, 0.0, M)), S)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        Y = np.where(same, 0.0, F / (mu[None, :] - mu[:, None]))
-    X = _block_right(_block_left(S, Y), Sinv)
-    if not np.all(np.isfinite(X)):
-        raise _PerturbationFailed("a coupling between two clusters with equal eigenvalues")
-    return X.real, mu
+        offsets[size] = (start, len(idx))
+        start += idx.size
+    blocks = {}
+    for size, (o, m) in offsets.items():
+        diag = Mp[o:o + m * size, o:o + m * size].reshape(m, size, m, size)
+        blocks[size] = diag[np.arange(m), :, np.arange(m), :]  # (m, size, size)
+        mu[index[size]] = np.linalg.eigvals(blocks[size])
+    for sa, (oa, ma) in offsets.items():
+        for sb, (ob, mb) in offsets.items():
+            E = Mp[oa:oa + ma * sa, ob:ob + mb * sb].reshape(ma, sa, mb, sb).transpose(0, 2, 1, 3)
+            Xab = _sylvester(blocks[sa][:, None], blocks[sb][None, :], -E)
+            if sa == sb:
+                Xab[np.arange(ma), np.arange(ma)] = 0.0  # a cluster with itself
+            Xp[oa:oa + ma * sa, ob:ob + mb * sb] = Xab.transpose(0, 2, 1, 3).reshape(ma * sa, mb * sb)
+    if not np.all(np.isfinite(Xp)):
+        raise _PerturbationFailed("a coupling between two clusters with a common eigenvalue")
+    X = np.empty_like(M)
+    X[np.ix_(perm, perm)] = Xp
+    return X, mu
 
 
 def _merge_cuts(mu: np.ndarray, bounds: list, omega: float) -> list:
@@ -551,6 +592,23 @@ def _condition(A: np.ndarray) -> float:
     return float(1.0 / rcond) if info == 0 and rcond > 0 else math.inf
 
 
+def _samples_of(P: Any, K: int) -> Optional[np.ndarray]:
+    """``P_hat`` of a frozen-modal frame ``P`` at its own ``K`` sample times, from the samples it was
+    built from (no new evaluation of the model's ``P``, no trigonometric evaluation): at
+    ``t_k = k T / K`` the interpolant ``V`` is the sample itself and ``V'`` its spectral derivative
+    (the Nyquist term's derivative vanishes there), so this equals ``P.evaluate(t_k)``; None when
+    ``P`` is no frame or was sampled differently.  Used once (the cache is then dropped)."""
+    cache = getattr(P, "_sample_cache", None) if isinstance(P, FrozenModalSystem) else None
+    if cache is None or cache[1].shape[0] != K:
+        return None
+    Pb, V = cache
+    P._sample_cache = None
+    k = np.arange(K // 2 + 1) * (2.0 * np.pi / P.period)
+    k[-1] = 0.0
+    Vt = np.fft.irfft(np.fft.rfft(V, axis=0) * (1j * k)[:, None, None], n=K, axis=0)
+    return np.linalg.solve(V, Pb @ V - Vt)
+
+
 def _parent_bounds(P: Any) -> Optional[list]:
     """Cluster bounds of ``P`` when it is itself a frozen-modal frame (nearly block diagonal), else None."""
     if not isinstance(P, FrozenModalSystem):
@@ -608,7 +666,9 @@ class FrozenModalSystem:
             raise ValueError(f"samples must be an even integer >= 4, got {samples!r}")
         self.samples = K
         times = np.arange(K) * (self.period / K)
-        Ps = self._wrapped.evaluate(times)
+        Ps = _samples_of(P, K)
+        if Ps is None:
+            Ps = self._wrapped.evaluate(times)
         # one diagonal scaling for all samples (LAPACK's balancing of mean |P|): the eigenvector
         # matrices mix metres, radians and their rates; balanced they are well conditioned
         _, (scale, _) = scipy.linalg.matrix_balance(np.abs(Ps).mean(axis=0), permute=False, separate=True)
@@ -637,6 +697,8 @@ class FrozenModalSystem:
         self.scale = scale
         self.condition = cond
         self._coef = _trig_coefficients(V)
+        # what a frame nested in this one needs at the same sample times (see _samples_of)
+        self._sample_cache = (Pb, V)
         self.basis_samples = V * scale[None, :, None]  # in the original (unbalanced) coordinates
 
     def with_system(self, P: Any) -> "FrozenModalSystem":
