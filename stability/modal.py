@@ -63,6 +63,21 @@ between samples, a nearly singular basis) raises :class:`ModalBasisError`;
 :func:`modal_system` retries with more samples, and :func:`modal_floquet` then
 propagates ``P`` itself.
 
+Cost of the basis
+-----------------
+A full ``eig`` per sample (:func:`_eig_basis`) is the reference construction
+and the fallback.  By default (:data:`BASIS_METHODS`) the first frame takes one
+``eig`` at ``t = 0`` and continues the basis by Newton steps ``V <- V (I + X)``,
+``X`` the first-order (Sylvester) correction of ``V^-1 P_k V`` between clusters
+(:func:`_continued_basis`, :func:`_first_order`: a solve and a few products per
+step instead of an ``eig``), and a nested frame, whose ``P_hat`` is already
+nearly block diagonal, is ``V = I + X`` at ``O(n^2)`` per sample
+(:func:`_perturbed_basis`).  Measured on the single link at Omega = 2 pi with the
+Table 3 gains (two frames, 32 samples, CPU s on the shared 2-core machine):
+64 elements (516 states) 29.7 s with an ``eig`` per sample and the former 5 %
+gap (a cluster of 423 modes), 8.5 s now (clusters of <= 2); the multipliers of
+both constructions agree to ~1e-10 (32 elements, 144 steps).
+
 References
 ----------
 .. [1] Iserles, A., "On the global error of discretization methods for
