@@ -48,8 +48,8 @@ interpolant of eigenvector samples and ``V'`` its *exact* derivative, so the
 transformation is an exact similarity whatever the sample count.  The frozen
 eigenvalues are grouped into clusters by modulus: a cut between two consecutive
 moduli (sorted) wherever they stay apart over the whole period by many times
-their own variation (:data:`CLUSTER_MARGIN`) and by more than the orbit
-frequency (:data:`CLUSTER_MIN_GAP`), so that each cluster's invariant subspace
+their own variation (:data:`CLUSTER_MARGIN`) or by 5 % relative, and by more
+than the orbit frequency (:data:`CLUSTER_MIN_GAP`), so that each cluster's invariant subspace
 is a smooth function of ``t`` (a crossing, or the hub pair turning from complex
 to real and back at 6 pi, stays inside one cluster; conjugate pairs always do;
 see :func:`_cluster_bounds`).  Each cluster's real basis
@@ -100,7 +100,8 @@ from stability.floquet import FloquetResult
 from stability.periodic import PeriodicMatrixFunction
 
 __all__ = ["FrozenModalSystem", "ModalBasisError", "ModalFloquetResult", "modal_floquet", "modal_system",
-           "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS", "CLUSTER_MARGIN", "CLUSTER_MIN_GAP"]
+           "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS", "CLUSTER_MARGIN", "CLUSTER_MIN_GAP",
+           "CLUSTER_RELATIVE_GAP", "BASIS_METHODS"]
 
 logger = logging.getLogger(__name__)
 
@@ -116,15 +117,21 @@ MAX_MODAL_SAMPLES = 64
 #: loses digits.
 MAX_CONDITION = 1e8
 #: Two consecutive frozen moduli (sorted) start separate clusters when the gap between them
-#: over the whole period, ``g = min_t |lambda_{i+1}| - max_t |lambda_i|``, exceeds both
-#: ``CLUSTER_MARGIN`` times their own variation over the period (the larger spread
-#: ``max_t - min_t`` of the two) and ``CLUSTER_MIN_GAP`` times the orbit frequency ``2 pi / T``.
-#: See :func:`_cluster_bounds`.  Measured on the single link (Omega = 2 pi, Table 3 gains, two
-#: frames, 144 steps extrapolated), largest cluster / error estimate with the former fixed 5 %
-#: relative gap: 16 el 27 / 5.7e-5, 32 el 133 / 0.47; with this rule 2 / 7.5e-10 and 2 / 1.3e-7.
-#: ``CLUSTER_MIN_GAP = 4`` merged the two real hub eigenvalues of the 2-element link at 4 pi
-#: (gap 2.5 Omega) and made their midpoint error 3x larger: merging never helps a smooth pair.
+#: over the whole period, ``g = min_t |lambda_{i+1}| - max_t |lambda_i|``, exceeds
+#: ``CLUSTER_MIN_GAP`` times the orbit frequency ``2 pi / T`` and either ``CLUSTER_MARGIN`` times
+#: their own variation over the period (the larger spread ``max_t - min_t`` of the two) or
+#: ``CLUSTER_RELATIVE_GAP`` of the lower one (the former rule alone).  See :func:`_cluster_bounds`.
+#: Measured on the single link (Omega = 2 pi, Table 3 gains, two frames, 144 steps extrapolated),
+#: largest cluster / error estimate with the relative gap alone: 16 el 27 / 5.7e-5, 32 el
+#: 133 / 0.47, 64 el 423 / 0.7; with this rule 2 / 7.5e-10, 2 / 1.3e-7, 2 / 1.3e-5 (1.4e-9 at 288
+#: steps).  The spread rule alone merged the two-link arm's slow modes (|lambda| 3 ... 205, varying
+#: by up to 50 %) with its stiff ones (1442 ... 3025) into one cluster of 10 and moved its dominant
+#: multiplier (4 pi, kp = (20, 10), kd = (5, 2)) by 1.3e-3: hence the union.  ``CLUSTER_MIN_GAP =
+#: 4`` merged the two real hub eigenvalues of the 2-element link at 4 pi (gap 2.5 Omega) and made
+#: their midpoint error 3x larger: merging never helps a smooth pair.
 CLUSTER_MARGIN = 10.0
+CLUSTER_RELATIVE_GAP = 0.05
+CLUSTER_MIN_GAP = 1.0
 #: How :class:`FrozenModalSystem` builds its basis samples: ``"eig"`` a full eigen-decomposition per
 #: sample (:func:`_eig_basis`); ``"perturbation"`` first-order perturbation theory: for a frame
 #: nested in another (``P`` nearly block diagonal) ``V = I + X`` at ``O(n^2)`` per sample
@@ -132,7 +139,6 @@ CLUSTER_MARGIN = 10.0
 #: (:func:`_continued_basis`); ``"auto"`` (default) the latter, falling back to ``"eig"`` when it
 #: does not apply.  Measured on the single link, 64 elements (516 states): see the module notes.
 BASIS_METHODS = ("auto", "eig", "perturbation")
-CLUSTER_MIN_GAP = 1.0
 
 
 class ModalBasisError(ArithmeticError):
@@ -228,9 +234,10 @@ def _cluster_bounds(mods: np.ndarray, omega: float) -> list:
     """``[(start, stop), ...]``: clusters of the frozen moduli ``mods`` (``(K, n)``, sorted per sample).
 
     A cut between ``i`` and ``i + 1`` where the gap over the whole period
-    ``g = min_t m_{i+1} - max_t m_i`` exceeds ``CLUSTER_MARGIN * max(s_i, s_{i+1})``
-    (``s`` the spread ``max_t m - min_t m`` of each modulus over the period) and
-    ``CLUSTER_MIN_GAP * omega``.  Why this rule: the rate at which a cluster's
+    ``g = min_t m_{i+1} - max_t m_i`` exceeds ``CLUSTER_MIN_GAP * omega`` and either
+    ``CLUSTER_MARGIN * max(s_i, s_{i+1})`` (``s`` the spread ``max_t m - min_t m`` of
+    each modulus over the period) or ``CLUSTER_RELATIVE_GAP * max_t m_i`` (a gap large
+    against the moduli themselves, the former rule).  Why the spread rule: the rate at which a cluster's
     invariant subspace turns is ``~ |P'| / g`` (first-order perturbation), and
     ``|P'|`` shows in the moduli's own spread; a gap many times the spread keeps
     the subspaces of both sides smooth over the period, and a gap several times
@@ -240,7 +247,9 @@ def _cluster_bounds(mods: np.ndarray, omega: float) -> list:
     coupling ``~ omega x turn / g``).  A crossing (``g <= 0``) or a pair turning from complex to real
     never cuts.  (A fixed relative gap, the former rule, merged the interleaving
     bending ``~ k^2`` and axial ``~ k`` frequencies of fine meshes, whose moduli
-    lie < 5 % apart but vary by < 1e-5 relative, into clusters of 100+ modes.)
+    lie < 5 % apart but vary by < 1e-5 relative, into clusters of 100+ modes; it
+    stays as the alternative because the spread rule alone merges slow modes that
+    vary by tens of % with stiff ones far above, see :data:`CLUSTER_MARGIN`.)
     """
     lo, hi = mods.min(axis=0), mods.max(axis=0)
     cuts = [i + 1 for i in np.flatnonzero(_separated(lo, hi, omega))]
@@ -252,8 +261,9 @@ def _separated(lo: np.ndarray, hi: np.ndarray, omega: float) -> np.ndarray:
     period, sorted) be cut apart (the rule of :func:`_cluster_bounds`)."""
     spread = hi - lo
     gap = lo[1:] - hi[:-1]
-    need = np.maximum(CLUSTER_MARGIN * np.maximum(spread[1:], spread[:-1]), CLUSTER_MIN_GAP * omega)
-    return gap > need
+    own = gap > CLUSTER_MARGIN * np.maximum(spread[1:], spread[:-1])
+    relative = lo[1:] > (1.0 + CLUSTER_RELATIVE_GAP) * hi[:-1]
+    return (own | relative) & (gap > CLUSTER_MIN_GAP * omega)
 
 
 class _PerturbationFailed(ArithmeticError):

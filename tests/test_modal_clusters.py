@@ -119,8 +119,9 @@ def test_a_cut_through_the_crossing_is_refused(monkeypatch):
 
 
 def test_cluster_rule_against_spread_and_orbit_frequency():
-    """``_cluster_bounds`` on hand-made moduli: a clean gap is cut; a gap below 10x the spread, below
-    Omega, or a crossing (negative gap) is not."""
+    """``_cluster_bounds`` on hand-made moduli: a clean gap is cut; a gap below 10x the spread (and < 5 %
+    relative), below Omega, or a crossing (negative gap) is not; a gap of many times the moduli is cut
+    whatever their spread."""
     from stability.modal import _cluster_bounds
 
     t = np.linspace(0.0, 1.0, 16, endpoint=False)[:, None]
@@ -133,6 +134,8 @@ def test_cluster_rule_against_spread_and_orbit_frequency():
     assert _cluster_bounds(mods(300, 310, 0.5, 0.5), omega) == [(0, 2)]           # gap 9 < 10 x spread 1
     assert _cluster_bounds(mods(300, 305, 0.01, 0.01), omega) == [(0, 2)]         # gap 5 < 2 pi
     assert _cluster_bounds(mods(300, 305, 15.0, 0.0), omega) == [(0, 2)]          # crossing
+    # slow moduli varying by tens of % far below a stiff one: gap 1237 < 10 x spread 500 but 7x relative
+    assert _cluster_bounds(mods(160, 1692, 44.6, 250.0), omega) == [(0, 1), (1, 2)]
 
 
 def test_first_order_basis_leaves_a_second_order_residual():
