@@ -25,7 +25,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import scipy.linalg
 
-__all__ = ["ArmLayout", "arm_layout", "beam_centerlines", "plot_poses", "floquet_mode_shapes", "plot_floquet_mode"]
+__all__ = ["ArmLayout", "arm_layout", "beam_centerlines", "plot_poses", "floquet_mode_shapes", "plot_floquet_mode",
+           "mode_title"]
 
 logger = logging.getLogger(__name__)
 
@@ -185,12 +186,26 @@ def floquet_mode_shapes(result: Any, index: int = 0, *, substeps: int = 16) -> t
     return times, dq, rho
 
 
+def mode_title(orbit: Any, rho: complex, label: str, measured: Optional[tuple[complex, str]] = None) -> str:
+    """Title of :func:`plot_floquet_mode`: the multiplier's modulus -- ``measured`` = ``(value, method)``
+    when the value reported elsewhere comes from another method than the product whose eigenvector
+    gives the shape (e.g. Hill's method in the two-link table), else the product's ``rho``."""
+    if measured is not None:
+        value = f"|rho| = {abs(measured[0]):.6f} ({label}; {measured[1]})"
+    else:
+        value = f"|rho| = {abs(rho):.4f} ({label})"
+    return (f"{orbit.model.name}, Omega = {orbit.omega:.4g}: Floquet mode of {value}; "
+            "grey: orbit pose, red: pose + mode")
+
+
 def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] = None, snapshots: int = 8,
-                      amplitude: float = 0.08, title: Optional[str] = None) -> Path:
+                      amplitude: float = 0.08, title: Optional[str] = None,
+                      measured: Optional[tuple[complex, str]] = None) -> Path:
     """Snapshots of the Floquet mode of multiplier ``index`` (default: the dominant damped one) on the pose.
 
     The deformation ``dq`` is scaled so that its largest coordinate is
-    ``amplitude`` times the arm's reach; the undeformed orbit pose is grey.
+    ``amplitude`` times the arm's reach; the undeformed orbit pose is grey.  ``measured``
+    (``(value, method)``): the title shows that value of the multiplier (see :func:`mode_title`).
     """
     import matplotlib.pyplot as plt
 
@@ -220,6 +235,5 @@ def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] =
         ax.tick_params(labelsize=7)
     for ax in axes.ravel()[len(picks):]:
         ax.axis("off")
-    fig.suptitle(title or f"{orbit.model.name}, Omega = {orbit.omega:.4g}: Floquet mode of |rho| = {abs(rho):.4f} "
-                 f"({label}); grey: orbit pose, red: pose + mode", fontsize=9)
+    fig.suptitle(title or mode_title(orbit, rho, label, measured), fontsize=9)
     return _save(fig, path, dpi=120)

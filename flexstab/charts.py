@@ -23,6 +23,7 @@ __all__ = [
     "PlantRadius",
     "ExudynOmegaRadius",
     "ModelRadius",
+    "ModelPlants",
     "GainChart",
     "OmegaChart",
     "gain_chart",
@@ -82,63 +83,95 @@ class ExudynOmegaRadius:
         return float(abs(r.dominant_multiplier))
 
 
-@dataclass(frozen=True)
-class ModelRadius:
-    """Task for a model file: ``{"omega", "kp", "kd"} -> |rho|`` of its dominant labelled multiplier.
+class ModelPlants:
+    """Explicit cache of a model's orbits, linearisations and tuning plants per Omega (for the charts).
 
-    The response is :meth:`linearize.analysis.ModelPlant.spectral_measure` (drive modes and the
-    first bending mode; the tuning response of ``flexstab tune --model``).  A point's ``kp``/``kd``
-    are either numbers -- the gains of the charted drive ``drive`` (``None``: every drive), the
-    other drives at ``fixed_kp``/``fixed_kd`` -- or lists with one value per drive.
+    The orbit at a new Omega starts Newton from the orbit at the nearest Omega computed so far
+    (continuation along an Omega sweep), so the values depend on the order of evaluation only to the
+    Newton tolerance.  The plant at an Omega is :func:`flexstab.plants.plant_for` (the rule of ``tune``
+    and ``study --model``), cached per (Omega, tuning configuration, steps).  It holds Exudyn systems
+    built from a file loaded at run time: use it in this process (serial executor).
 
-    The plant (orbit + linearisation, gains 0) is computed once per Omega and kept; the orbit at
-    a new Omega starts Newton from the orbit at the nearest Omega computed so far (continuation
-    along an Omega sweep).  It holds Exudyn systems built from a file loaded at run time: run it
-    in this process (serial executor).
-
-    Attributes
+    Parameters
     ----------
     model : ModelDefinition
     options : dict
         Keyword options of the model's ``build``.
-    drive : int or None
-        Index of the charted drive; ``None``: the same (kp, kd) on every drive.
-    fixed_kp, fixed_kd : tuple of float
-        Gains of every drive (the charted one's are replaced by the point's).
     samples : int
         Collocation samples per period.
-    n_steps : int
-        Sub-intervals of each Floquet evaluation (:meth:`linearize.analysis.ModelPlant.floquet`).
     """
 
-    model: Any
-    options: dict = field(default_factory=dict)
-    drive: Optional[int] = 0
-    fixed_kp: tuple = ()
-    fixed_kd: tuple = ()
-    samples: int = 32
-    n_steps: int = 256
-    _plants: dict = field(default_factory=dict, compare=False, repr=False)
+    def __init__(self, model: Any, options: Optional[dict] = None, *, samples: int = 32) -> None:
+        self.model = model
+        self.options = dict(options or {})
+        self.samples = int(samples)
+        self._linearised: dict = {}
+        self._plants: dict = {}
 
-    def plant(self, omega: float):
-        """The :class:`~linearize.analysis.ModelPlant` at ``omega`` (cached; orbit continued in Omega)."""
-        import dataclasses
-
-        from linearize.analysis import ModelPlant
+    def linearised(self, omega: float) -> tuple:
+        """``(orbit, linearisation)`` at ``omega`` (gains 0; cached, orbit continued in Omega)."""
         from linearize.constrained import linearize_orbit
         from linearize.periodic_orbit import find_orbit
 
         omega = float(omega)
-        hit = self._plants.get(omega)
+        hit = self._linearised.get(omega)
         if hit is None:
-            near = min(self._plants, key=lambda w: abs(w - omega), default=None)
-            guess = self._plants[near].orbit if near is not None else None
+            near = min(self._linearised, key=lambda w: abs(w - omega), default=None)
+            guess = self._linearised[near][0] if near is not None else None
             orbit = find_orbit(self.model, omega, samples=self.samples, verify=False, guess=guess, **self.options)
-            hit = dataclasses.replace(ModelPlant(linearize_orbit(orbit), orbit), n_steps=self.n_steps)
-            self._plants[omega] = hit
+            hit = (orbit, linearize_orbit(orbit))
+            self._linearised[omega] = hit
         return hit
 
-    def gains(self, kp, kd, n_drives: int) -> tuple[list, list]:
+    def plant(self, omega: float, config: Any = None, steps: Optional[int] = None) -> Any:
+        """:func:`flexstab.plants.plant_for` at ``omega`` with ``config`` (a TuningConfig, or ``None``) and ``steps``."""
+        from flexstab.plants import plant_for
+
+        key = (float(omega), repr(config), steps)
+        hit = self._plants.get(key)
+        if hit is None:
+            orbit, lin = self.linearised(omega)
+            hit = plant_for(self.model, orbit, lin, config, steps=steps)
+            self._plants[key] = hit
+        return hit
+
+
+@dataclass(frozen=True)
+class ModelRadius:
+    """Task for a model file: ``{"omega", "kp", "kd"} -> |rho|`` of its dominant labelled multiplier.
+
+    The response is the ``spectral_measure`` of :func:`flexstab.plants.plant_for`'s plant (drive modes
+    and the first bending mode; the tuning response of ``flexstab tune --model`` and ``study --model``,
+    evaluated by the same method: Hill's for the built-in two-link, the frozen-modal product otherwise).
+    A point's ``kp``/``kd`` are either numbers -- the gains of the charted drive ``drive`` (``None``: every
+    drive), the other drives at ``fixed_kp``/``fixed_kd`` -- or lists with one value per drive.
+
+    Attributes
+    ----------
+    plants : ModelPlants
+        The explicit cache of orbits and plants per Omega (shared by copies of the task).
+    config : TuningConfig or None
+        Ranges and tolerance of the plant rule (``None``: a model without drives).
+    steps : int, optional
+        Fixed propagator steps (``chart --steps``); ``None``: the rule's choice.
+    drive : int or None
+        Index of the charted drive; ``None``: the same (kp, kd) on every drive.
+    fixed_kp, fixed_kd : tuple of float
+        Gains of every drive (the charted one's are replaced by the point's).
+    """
+
+    plants: ModelPlants
+    config: Any = None
+    steps: Optional[int] = None
+    drive: Optional[int] = 0
+    fixed_kp: tuple = ()
+    fixed_kd: tuple = ()
+
+    def plant(self, omega: float) -> Any:
+        """The plant at ``omega`` (:meth:`ModelPlants.plant`)."""
+        return self.plants.plant(omega, self.config, self.steps)
+
+    def gains(self, kp: Any, kd: Any, n_drives: int) -> tuple[list, list]:
         """Per-drive gains of a point (see the class docstring)."""
         if isinstance(kp, (list, tuple)):
             return [float(v) for v in kp], [float(v) for v in kd]

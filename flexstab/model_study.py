@@ -7,18 +7,23 @@ beside the report:
    shooting check), constraint-correct linearisation and the uncontrolled
    multipliers with their mode labels (:func:`linearize.analysis.analyze`);
 2. ``tuning``   -- Taguchi tuning of the ``2 N`` gains of the ``N`` drives to
-   ``rho_d`` (:func:`flexstab.commands.tune.tune_model_plant`: step-doubling
-   check at the tuned gains) and the labelled multipliers at the tuned gains
-   from a separate evaluation (:func:`~linearize.analysis.analyze` with twice
-   the loop's steps, at least its default and at most 4096, with its own
-   step-doubling estimate);
+   ``rho_d`` on the plant of :func:`flexstab.plants.plant_for` (the rule of
+   ``tune --model`` and ``chart --model``: Hill's method for the built-in
+   two-link, else the frozen-modal product, with
+   :func:`flexstab.commands.tune.tune_model_plant`'s step-doubling check at the
+   tuned gains) and the labelled multipliers at the tuned gains from a separate
+   evaluation (:func:`~linearize.analysis.analyze` with twice the loop's steps,
+   at least its default and at most 4096 -- a Hill loop: its default -- with its
+   own step-doubling estimate);
 3. ``charts``   -- the gain chart of the first drive (the others at their tuned
    gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
 4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
    tuned closed loop (:func:`validation.multipliers.validate_model_multipliers`).
 
 A model without drives has no gains: stages 2 and the gain chart are skipped
-and the validation runs uncontrolled.  A failed stage is reported (its error
+and the validation runs uncontrolled.  If the tuning stage fails, the charts
+and the validation run at zero gains and say so (a note in the section and in
+``study.json``: "tuning failed: validated at zero gains").  A failed stage is reported (its error
 in the report, exit code 1) and the study goes on; so is a stage that computed but
 whose check failed (status ``"check failed"``, exit code 1): a tuning that did not
 converge, a separate evaluation at the tuned gains further than the tolerance plus
@@ -47,9 +52,17 @@ from typing import Any, Callable, Optional
 from flexstab.report import figure, table, text, to_html, to_markdown
 from flexstab.study import StudyResult
 
-__all__ = ["ModelStudyOptions", "run_model_study", "tuning_check_failures", "STATUS_CHECK_FAILED"]
+__all__ = ["ModelStudyOptions", "run_model_study", "tuning_check_failures", "STATUS_CHECK_FAILED",
+           "TUNING_FAILED_VALIDATION", "QUICK_EVALUATIONS", "EVALUATIONS"]
 
 logger = logging.getLogger(__name__)
+
+#: Taguchi evaluations per tuning pass of a ``quick`` study and of a full one.
+QUICK_EVALUATIONS = 300
+EVALUATIONS = 600
+#: Notes of the validation and chart stages when the tuning stage failed (no tuned gains).
+TUNING_FAILED_VALIDATION = "tuning failed: validated at zero gains"
+TUNING_FAILED_CHARTS = "tuning failed: the other drives at zero gains, the Omega chart's controlled curve at zero gains"
 
 #: Status of a stage that computed but whose check failed (tuning not converged, the separate evaluation
 #: outside rho_d +- (tolerance + estimate), validation not confirming the prediction): exit code 1.
@@ -72,6 +85,8 @@ class ModelStudyOptions:
         Initial ranges of every drive's kp and kd.
     samples : int
         Collocation samples per period.
+    elements : int, optional
+        ANCF elements of a built-in model (``None``: its default; the single link: the configuration's).
     quick : bool
         Coarser charts and validation (see the module docstring).
     log : callable, optional
@@ -86,6 +101,7 @@ class ModelStudyOptions:
     kp_range: tuple = (0.0, 60.0)
     kd_range: tuple = (0.0, 40.0)
     samples: int = 32
+    elements: Optional[int] = None
     quick: bool = False
     log: Optional[Callable[[str], None]] = None
     progress: bool = False
@@ -146,15 +162,17 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     import argparse
 
     from flexstab.commands.chart import model_charts
-    from flexstab.commands.tune import MAX_TUNING_STEPS, factor_ranges, propagator_steps, tune_model_plant
+    from flexstab.commands.tune import factor_ranges, tune_model_plant
     from flexstab.options import ensure_out_dir, gain_pairs, resolve_model_definition
+    from flexstab.plants import MAX_TUNING_STEPS, plant_for
     from flexstab.study import validation_blocks
-    from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, ModelPlant, analyze
+    from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, analyze
+    from linearize.hill_plant import HillModelPlant
     from mbs_models.model_file import ModelFileError
     from taguchi.tuning import TuningConfig
 
     t0, c0 = time.perf_counter(), _cpu()
-    definition, options = resolve_model_definition(model, cfg, None)
+    definition, options = resolve_model_definition(model, cfg, opts.elements)
     out = ensure_out_dir(opts.out)
     for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
         (out / f).unlink(missing_ok=True)
@@ -166,11 +184,13 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     state: dict = {}
 
     checks: list = []  # the running stage's failed checks (one line each)
+    stage_notes: list = []  # the running stage's notes for the section and study.json (one line each)
 
     def run(name: str, title: str, fn: Callable[[], list]) -> None:
         say(f"study: {name} started")
         ts, cs = time.perf_counter(), _cpu()
         checks.clear()
+        stage_notes.clear()
         caught: list = []
         try:
             try:
@@ -203,6 +223,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         stages[name] = {"status": STATUS_CHECK_FAILED if checks else "computed", "json": f"{name}.json",
                         "elapsed": el, "cpu": cpu}
         head = [text(f"Data: `{name}.json`; {el:.1f} s (CPU {cpu:.1f} s)")]
+        if stage_notes:
+            stages[name]["note"] = "; ".join(stage_notes)
+            head.append(text(f"**Note:** {'; '.join(stage_notes)}"))
         if checks:
             stages[name]["error"] = "; ".join(checks)
             head.append(text(f"**Check failed:** {'; '.join(checks)}"))
@@ -231,19 +254,25 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         nd = len(base.drives)
         names, ranges = factor_ranges(nd, opts.kp_range, opts.kd_range, None)
         tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
-                            max_evaluations=300 if opts.quick else 600)
-        plant = propagator_steps(ModelPlant(base.linearization, base.orbit), tcfg)
+                            max_evaluations=QUICK_EVALUATIONS if opts.quick else EVALUATIONS)
+        # the plant rule of tune --model and chart --model (Hill for the built-in two-link)
+        plant = plant_for(definition, base.orbit, base.linearization, tcfg)
         res, plant, passes = tune_model_plant(plant, tcfg, progress=opts.progress)
+        hill = isinstance(plant, HillModelPlant)
         kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in gain_pairs(res.gains, nd))
         state["gains"] = (kp, kd)
-        # beside the loop's evaluations: twice its propagator steps (at least analyze's default, at most the
-        # tuning's cap, which bounds the work arrays), with analyze's own step-doubling estimate
-        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit,
-                        n_steps=max(DEFAULT_PROPAGATOR_STEPS, min(2 * plant.n_steps, MAX_TUNING_STEPS)), **options)
+        # beside the loop's evaluations: a frozen-modal product (twice a time-stepping loop's propagator steps,
+        # at least analyze's default, at most the tuning's cap, which bounds the work arrays; a Hill loop: analyze's
+        # default), with analyze's own step-doubling estimate
+        n_check = DEFAULT_PROPAGATOR_STEPS if hill else max(DEFAULT_PROPAGATOR_STEPS,
+                                                            min(2 * plant.n_steps, MAX_TUNING_STEPS))
+        check = analyze(definition, omega, kp=kp, kd=kd, orbit=base.orbit, n_steps=n_check, **options)
         state["tuned"] = check
         _write_csv(out / "multipliers.csv", {"uncontrolled": base, "tuned": check})
         doc = {"drives": list(base.drives), "target": opts.target, "tolerance": tcfg.effective_tolerance,
                "kp": kp, "kd": kd, "tuning": res.to_dict(), "propagator_passes": passes,
+               "response_method": "hill" if hill else "magnus2",
+               "harmonics": plant.harmonics if hill else None,
                "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
                          "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
                          "modes": check.modes}}
@@ -251,15 +280,20 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                                             _absolute_estimate(check), opts.target, tcfg.effective_tolerance))
         doc["check"]["failures"] = list(checks)
         (out / "tuning.json").write_text(json.dumps(_ready(doc), indent=2))
-        last = passes[-1]
+        if hill:
+            how = (f"{res.status} after {res.evaluations} evaluations by Hill's method ({plant.harmonics} harmonics, "
+                   f"chosen at the centre of the ranges; response {res.spectral_radius:.6f})")
+        else:
+            last = passes[-1]
+            how = (f"{res.status} after {sum(p['evaluations'] for p in passes)} Floquet evaluations in "
+                   f"{len(passes)} pass(es) with {last['propagator_steps']} `magnus2` steps (response "
+                   f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})")
         return [
             text(f"Iterative Taguchi ({tcfg.orthogonal_array().name}, {len(names)} factors "
                  f"{', '.join(names)}) to the dominant labelled multiplier |ρ| = ρ_d = {opts.target:g} "
                  f"(tolerance {tcfg.effective_tolerance:.1e}), initial ranges kp ∈ [{opts.kp_range[0]:g}, "
                  f"{opts.kp_range[1]:g}], kd ∈ [{opts.kd_range[0]:g}, {opts.kd_range[1]:g}] for every drive: "
-                 f"{res.status} after {sum(p['evaluations'] for p in passes)} Floquet evaluations in "
-                 f"{len(passes)} pass(es) with {last['propagator_steps']} `magnus2` steps (response "
-                 f"{last['spectral_radius']:.6f}; with twice the steps {last['check_2n']:.6f})."),
+                 f"{how}."),
             table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
                   [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
             *_multiplier_blocks(check, "Check at the tuned gains, a separate evaluation",
@@ -269,8 +303,11 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     def charts_stage() -> list:
         base = state["uncontrolled"]
         kp, kd = state.get("gains", ([], []))
+        untuned = bool(base.drives) and not kp
+        if untuned:
+            stage_notes.append(TUNING_FAILED_CHARTS)
         args = argparse.Namespace(
-            model=model, elements=None, drive=None, samples=opts.samples, steps=None,
+            model=model, elements=opts.elements, drive=None, samples=opts.samples, steps=None,
             kp=tuple(kp) or None, kd=tuple(kd) or None, kp_range=list(opts.kp_range), kd_range=list(opts.kd_range),
             grid=5 if opts.quick else 11, omega_points=3 if opts.quick else 9, omega_range=None,
             target=opts.target, no_taguchi=True, out=str(out), scheduler=None, workers=None, omega=omega,
@@ -286,13 +323,19 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
             others = [d for d in base.drives if d != s["charted_drive"]]
             blocks.append(figure(figs[0], f"Dominant |ρ| over the (kp, kd) plane of drive {s['charted_drive']} "
                                           f"({len(g['kp'])} × {len(g['kd'])} grid)"
-                                 + (f", {', '.join(others)} at the tuned gains" if others else "")
+                                 + (f", {', '.join(others)} at "
+                                    + ("zero gains (tuning failed)" if untuned else "the tuned gains")
+                                    if others else "")
                                  + f"; the ρ_d = {opts.target:g} contour dashed."))
         blocks.append(figure(figs[-1], f"Dominant |ρ| against Ω ({len(o['omega'])} values from "
                                        f"{o['omega'][0]:.4g} to {o['omega'][-1]:.4g} rad/s, each orbit continued "
-                                       "from the previous), uncontrolled and at the tuned gains."))
-        blocks.insert(0, text(f"{s['propagator_steps']} `magnus2` steps per point; step-doubling estimate at Ω = "
-                              f"{omega:.4g} rad/s and the tuned gains {s['propagator_error_estimate']:.1e}."))
+                                       "from the previous), uncontrolled and at "
+                                       + ("zero gains (tuning failed: both curves coincide)." if untuned
+                                          else "the tuned gains.")))
+        how = (f"Hill's method ({s['harmonics']} harmonics) per point; H vs H/2 estimate" if s.get("harmonics")
+               else f"{s['propagator_steps']} `magnus2` steps per point; step-doubling estimate")
+        blocks.insert(0, text(f"{how} at Ω = {omega:.4g} rad/s and the tuned gains "
+                              f"{s['propagator_error_estimate']:.1e} (the tuning's response rule)."))
         return blocks
 
     def validation_stage() -> list:
@@ -301,12 +344,16 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
 
         kp, kd = state.get("gains", ([], []))
         base = state.get("uncontrolled")
+        untuned = base is not None and bool(base.drives) and not kp
+        if untuned:  # the tuning stage failed: there are no tuned gains to validate
+            stage_notes.append(TUNING_FAILED_VALIDATION)
         # the validation path's own step rule (suggested_step: unresolved damped modes keep spurious
         # multipliers below 1e-2) and amplitude; three step levels in every mode, so the step error bar
         # rests on an observed convergence order (two levels cannot show one)
         check = MultiplierCheckConfig(step=None, amplitude=None, refinements=2)
         v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
         d = v.to_dict()
+        d["gains_source"] = TUNING_FAILED_VALIDATION if untuned else ("tuned" if kp else "no drives")
         if not d.get("agrees"):
             checks.append("validation: the multipliers measured from the nonlinear runs do not confirm the "
                           "predicted ones (agrees = false)")
@@ -314,7 +361,11 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         fig = "validation_multipliers.png"
         plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],
                               suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
-        gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
+        if untuned:
+            gains = f"{TUNING_FAILED_VALIDATION}, " + _gains_text(base.drives, [0.0] * len(base.drives),
+                                                                  [0.0] * len(base.drives))
+        else:
+            gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
         return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).", check.steps, fig)
 
     run("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage)

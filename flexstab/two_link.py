@@ -13,16 +13,21 @@ structural damping the axial and most bending modes of the FE model keep
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from linearize.hill_plant import HillGainObjective, HillModelPlant, choose_harmonics
+from flexstab.plants import hill_plant  # the one copy of the harmonics-at-the-range-centre rule
+from linearize.hill_plant import HillGainObjective, HillModelPlant
 from taguchi.tuning import DriveGainObjective, TaguchiResult, TuningConfig, taguchi_tune
+
+if TYPE_CHECKING:
+    from linearize.periodic_orbit import PeriodicOrbit
 
 __all__ = [
     "MODEL",
@@ -76,7 +81,7 @@ TUNED_GAINS = {
 TUNING_RANGES = ((0.0, 40.0), (0.0, 10.0), (0.0, 10.0), (0.0, 3.0))
 
 
-def two_link_orbit(omega: float, elements: Optional[int] = None, **options: Any):
+def two_link_orbit(omega: float, elements: Optional[int] = None, **options: Any) -> "PeriodicOrbit":
     """The periodic orbit of the built-in two-link arm (generic collocation path)."""
     from linearize.periodic_orbit import find_orbit
     from mbs_models.model_file import builtin_model
@@ -164,15 +169,6 @@ def tune_four_gains(lin: Any, target: float = 0.3, *, orbit: Any = None, ranges:
     else:
         raise ValueError(f"response must be 'hill' or 'magnus', got {response!r}")
     return taguchi_tune(obj, cfg, executor=executor)
-
-
-def hill_plant(lin: Any, orbit: Any, cfg: TuningConfig, *, harmonics: Optional[int] = None) -> HillModelPlant:
-    """:class:`HillModelPlant` with its harmonics decided once, at the centre of the tuning ranges."""
-    plant = HillModelPlant(lin, orbit)
-    if harmonics is not None:
-        return plant.replace(harmonics=harmonics)
-    centre = [0.5 * (lo + hi) for lo, hi in cfg.factor_ranges]
-    return choose_harmonics(plant, centre[0::2], centre[1::2], cfg.effective_tolerance)
 
 
 def compare_direct_methods(lin: Any, orbit: Any, target: float, *,
@@ -271,8 +267,8 @@ def plot_gain_slices(sl: GainSlices, path, *, target: float = 0.3, title: str = 
     plt.close(fig)
 
 
-def timed(fn, *args, **kwargs):
-    """``(result, seconds)``."""
+def timed(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> tuple[Any, float]:
+    """``(fn(*args, **kwargs), wall seconds)``."""
     t0 = time.perf_counter()
     out = fn(*args, **kwargs)
     return out, time.perf_counter() - t0
@@ -367,7 +363,7 @@ class TwoLinkFloquet:
     """Orbit, linearisation and the labelled multipliers of the two-link arm at one Omega and gains.
 
     ``labelled`` is the magnus2 pass (all multipliers, mode labels); ``measure`` the
-    dominant drive-mode / bending-1 multiplier measured by Hill's method.
+    dominant drive-mode / bending-1 multiplier measured by Hill's method with ``harmonics``.
     """
 
     omega: float
@@ -379,6 +375,7 @@ class TwoLinkFloquet:
     modes: list = field(repr=False)
     measure: Any = None
     cpu_seconds: dict = field(default_factory=dict)
+    harmonics: int = 16
 
 
 def two_link_floquet(omega: float, elements: Optional[int] = None, gains: Sequence[float] = (0.0, 0.0, 0.0, 0.0), *,
@@ -413,11 +410,28 @@ def two_link_floquet(omega: float, elements: Optional[int] = None, gains: Sequen
 
         n_el = DEFAULT_ELEMENTS
     return TwoLinkFloquet(omega=float(omega), elements=int(n_el), gains=tuple(g), orbit=orbit, linearization=lin,
-                          floquet=res, modes=modes, measure=m, cpu_seconds=cpu)
+                          floquet=res, modes=modes, measure=m, cpu_seconds=cpu, harmonics=int(harmonics))
 
 
-#: Orbit + linearisation per noise value, per process (outer runs recur in every crossed experiment).
-_NOISE_PLANTS: dict = {}
+#: Most noise values whose plant :func:`_noise_plant` keeps per process (an outer array of a robust
+#: design has 9 runs; the worst-case grid ``grid^3``, e.g. 64).
+NOISE_PLANT_CACHE = 400
+
+
+@functools.lru_cache(maxsize=NOISE_PLANT_CACHE)
+def _noise_plant(omega: float, elements: Optional[int], harmonics: int, tip_mass: float, omega_scale: float,
+                 youngs_modulus_scale: float) -> HillModelPlant:
+    """Orbit + linearisation of the two-link arm at one noise value, as a Hill plant.
+
+    A pure function of hashable keys, cached per process (``lru_cache``): the outer runs of a
+    crossed array recur in every experiment of the robust design.
+    """
+    from linearize.constrained import linearize_orbit
+    from mbs_models.builtin.two_link import TwoLinkParameters
+
+    orbit = two_link_orbit(omega * omega_scale, elements, tip_mass=tip_mass,
+                           youngs_modulus=TwoLinkParameters.youngs_modulus * youngs_modulus_scale)
+    return HillModelPlant(linearize_orbit(orbit, 0.0, 0.0), orbit, harmonics=harmonics)
 
 
 @dataclass(frozen=True)
@@ -427,7 +441,7 @@ class TwoLinkNoisePlant:
     ``noise`` may hold ``tip_mass`` (kg), ``omega_scale`` and ``youngs_modulus_scale``
     (missing: nominal).  Each noise value gets its own periodic orbit and
     linearisation (payload, frequency and stiffness change the orbit), cached per
-    process; the plant's ``spectral_measure(*gains)`` takes the flat
+    process (:func:`_noise_plant`); the plant's ``spectral_measure(*gains)`` takes the flat
     ``(kp1, kd1, kp2, kd2)`` of :class:`taguchi.robust.PlantNoiseObjective`.
     """
 
@@ -436,22 +450,12 @@ class TwoLinkNoisePlant:
     harmonics: int = 12
 
     def __call__(self, noise: Any) -> "_FlatGainPlant":
-        from linearize.constrained import linearize_orbit
         from mbs_models.builtin.two_link import TwoLinkParameters
 
         tip = float(noise.get("tip_mass", TwoLinkParameters.tip_mass))
         w = float(noise.get("omega_scale", 1.0))
         e = float(noise.get("youngs_modulus_scale", 1.0))
-        key = (self.omega, self.elements, self.harmonics, tip, w, e)
-        plant = _NOISE_PLANTS.get(key)
-        if plant is None:
-            orbit = two_link_orbit(self.omega * w, self.elements, tip_mass=tip,
-                                   youngs_modulus=TwoLinkParameters.youngs_modulus * e)
-            plant = HillModelPlant(linearize_orbit(orbit, 0.0, 0.0), orbit, harmonics=self.harmonics)
-            while len(_NOISE_PLANTS) > 400:
-                _NOISE_PLANTS.pop(next(iter(_NOISE_PLANTS)))
-            _NOISE_PLANTS[key] = plant
-        return _FlatGainPlant(plant)
+        return _FlatGainPlant(_noise_plant(float(self.omega), self.elements, int(self.harmonics), tip, w, e))
 
 
 class _FlatGainPlant:

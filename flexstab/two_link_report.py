@@ -8,10 +8,14 @@ Floquet mode.
 
 Read from the cached results of ``scripts/two_link_study.py`` (minutes of CPU: the
 four-gain tunings, Nelder-Mead / differential evolution, the independent
-streamed-product check, the mesh study and the robust design): copied into the
-study folder as ``two_link_cached.json`` with the SHA-256 of the source, so that
-every number in the section comes from a file beside the report.  Without that
-file the section says so and uses :data:`flexstab.two_link.TUNED_GAINS`.
+streamed-product check, the mesh study and the robust design) in the study's own
+folder (never relative to the working directory): copied into the study folder as
+``two_link_cached.json`` with the SHA-256 of the source, so that every number in the
+section comes from a file beside the report.  Each part of that file carries the keys
+it was computed with (:func:`cache_keys`: the code hash of the packages, the mesh, the
+gain ranges, rho_d); a part whose keys differ from this study's is ignored, and the
+section says so.  Without a usable tuning the section uses
+:data:`flexstab.two_link.TUNED_GAINS` and says so.
 """
 from __future__ import annotations
 
@@ -24,10 +28,47 @@ from typing import Any, Optional
 
 from flexstab.report import figure, table, text
 
-__all__ = ["stage_two_link", "CACHE_NAME", "find_cache"]
+__all__ = ["stage_two_link", "CACHE_NAME", "CACHE_PARTS", "find_cache", "cache_keys", "fresh_parts"]
 
 #: File written by ``scripts/two_link_study.py`` into its output folder.
 CACHE_NAME = "two_link.json"
+#: Parts (stages) of the script's results, each with its own keys under ``keys[part]``.
+CACHE_PARTS = ("tune", "mesh", "robust", "direct", "figures")
+
+
+def cache_keys(target: float) -> dict:
+    """What the script's numbers depend on besides Omega (each part is stored per Omega): the
+    SHA-256 of the packages' source (:func:`flexstab.study._code_hash`, as ``chart --model`` keys its
+    stores), the default mesh, the four-gain ranges and rho_d.  JSON-normalised (comparable with a
+    file's)."""
+    from flexstab.study import _code_hash
+    from flexstab.two_link import TUNING_RANGES
+    from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
+
+    keys = {"code": _code_hash(), "elements": DEFAULT_ELEMENTS, "ranges": [list(r) for r in TUNING_RANGES],
+            "target": float(target)}
+    return json.loads(json.dumps(keys))
+
+
+def fresh_parts(cache: dict, expected: dict) -> tuple[dict, list]:
+    """The parts of ``cache`` (the script's merged JSON) computed with the ``expected`` keys, and one
+    note per part ignored (keys missing or different, naming the keys that differ)."""
+    keys = cache.get("keys") or {}
+    fresh: dict = {}
+    notes = []
+    for part in CACHE_PARTS:
+        if part not in cache:
+            continue
+        k = keys.get(part)
+        if k == expected:
+            fresh[part] = cache[part]
+            continue
+        diff = sorted(n for n in set(expected) | set(k or {}) if (k or {}).get(n) != expected.get(n))
+        notes.append(f"`{part}` ignored: " + ("computed without keys (an older script)" if not k else
+                                               "computed with other " + ", ".join(diff)))
+    if fresh and "target" in cache:
+        fresh["target"] = cache["target"]
+    return fresh, notes
 
 
 def find_cache(out: Path) -> Optional[Path]:
@@ -51,17 +92,24 @@ def _mode_rows(fl: Any) -> str:
 def stage_two_link(cfg: Any, opts: Any) -> dict:
     """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> dict``)."""
     from flexstab.arm_figures import plot_floquet_mode, plot_poses
-    from flexstab.commands.tune import whole_spectrum
+    from flexstab.plants import whole_spectrum
     from flexstab.two_link import TUNED_GAINS, two_link_floquet
 
     out = Path(opts.out)
     omegas = (2,) if opts.quick else (2, 4)
     cache_path = find_cache(out)
-    cache = json.loads(cache_path.read_text()) if cache_path is not None else None
+    raw = json.loads(cache_path.read_text()) if cache_path is not None else None
     doc: dict = {"omegas_over_pi": list(omegas), "cache": None, "rows": []}
-    if cache is not None:
-        doc["cache"] = {"source": str(cache_path), "sha256": hashlib.sha256(cache_path.read_bytes()).hexdigest()}
-        (out / "two_link_cached.json").write_text(json.dumps(cache, indent=2))
+    cache = None
+    stale: list = []
+    if raw is not None:
+        expected = cache_keys(getattr(cfg, "target", 0.3))
+        cache, stale = fresh_parts(raw, expected)
+        doc["cache"] = {"source": str(cache_path), "sha256": hashlib.sha256(cache_path.read_bytes()).hexdigest(),
+                        "keys": expected, "used": [p for p in CACHE_PARTS if p in cache], "ignored": stale}
+        (out / "two_link_cached.json").write_text(json.dumps(raw, indent=2))
+        if not any(p in cache for p in CACHE_PARTS):
+            cache = None
     tuned_src = {}
     for k in omegas:
         g = None
@@ -100,7 +148,12 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
         res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
                                     linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
                                     dominant_multiplier=ctl.measure.dominant)
-        figs.append(str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png").name))
+        # the title shows the modulus the table shows (Hill's), not the labelling product's (512 steps: 0.3023
+        # against Hill's 0.300027 at 4 pi); the shape is that product's eigenvector nearest Hill's multiplier
+        measured = (ctl.measure.dominant, f"Hill's method, {ctl.harmonics} harmonics, as in the table")
+        row["tuned"]["mode_figure"] = {"file": f"two_link_mode_{k}pi.png", "modulus": abs(ctl.measure.dominant),
+                                       "method": measured[1]}
+        figs.append(str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png", measured=measured).name))
     doc["figures"] = figs
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
     blocks = [
@@ -118,11 +171,15 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
                "tuned: whole-spectrum max|ρ| (mode)", "CPU s (orbit+lin.+Floquet)"], rows_tab),
         text("Tuned gains from " + "; ".join(f"{k}π: {tuned_src[k][0]}" for k in omegas) + "."),
     ]
+    if stale:
+        blocks.append(text("**Note:** results of `scripts/two_link_study.py` in `two_link/` that do not belong to this "
+                           "code and these inputs were ignored (keys in `two_link.json`, cache section): "
+                           + "; ".join(stale) + ". Re-run `python3 scripts/two_link_study.py --out <study out>/two_link`."))
     if cache is not None:
         blocks += _cached_blocks(cache)
     else:
-        blocks.append(text("No results of `scripts/two_link_study.py` in this study's folder (`two_link/`): the tuning, "
-                           "method comparison, independent check, mesh study and robust design are not in this "
+        blocks.append(text("No usable results of `scripts/two_link_study.py` in this study's folder (`two_link/`): the "
+                           "tuning, method comparison, independent check, mesh study and robust design are not in this "
                            "report (run `python3 scripts/two_link_study.py --out <study out>/two_link` first)."))
     for f in figs:
         k = f.split("_")[-1].replace(".png", "").replace("pi", "π")
@@ -131,7 +188,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
                "period (red) on the orbit pose (grey)")
         blocks.append(figure(f, cap))
     return {"json": "two_link.json", "title": "Two-link flexible arm (issue 11)", "blocks": blocks,
-            "files": ["two_link.json"] + (["two_link_cached.json"] if cache is not None else []) + figs}
+            "files": ["two_link.json"] + (["two_link_cached.json"] if raw is not None else []) + figs}
 
 
 def _cached_blocks(c: dict) -> list:

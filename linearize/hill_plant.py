@@ -17,17 +17,26 @@ How an evaluation works (:meth:`HillModelPlant.measure`):
    :attr:`linearize.analysis.ModelFloquetResult.dominant_multiplier`) is refined by
    Hill's method on the same linearisation (its samples with the gains: the system
    ``stability.floquet`` integrates);
-3. the response is the largest refined modulus.
+3. the response is the largest refined modulus that is a multiplier of the magnus2
+   spectrum (within :data:`MATCH_TOLERANCE` in ``log rho`` of one, whatever its label), has a
+   backward error below :data:`stability.hill.RESIDUAL_LIMIT` and is not truncated
+   (:data:`stability.hill.TAIL_LIMIT`).
 
 The step count of (1) only has to put each estimate nearer its own exponent than any
 other (checked: the refined value must lie within :data:`MATCH_TOLERANCE` in
 ``log rho`` of its estimate, else the estimate is recomputed with twice the steps).
+When Hill's value cannot be used (not confirmed at 4x the steps, truncated, or a
+:class:`stability.hill.HillError`), the response is the labelled dominant of the
+frozen-modal magnus2 product (:meth:`HillModelPlant.modal_measure`); :attr:`HillMeasure.method`
+says which.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import uuid
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Optional, Sequence
 
@@ -37,6 +46,7 @@ from linearize.analysis import UNDAMPED_TOLERANCE, label_multipliers
 from linearize.fourier import trig_interpolate
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.hill import TAIL_LIMIT
 
 __all__ = [
     "HillModelPlant",
@@ -46,14 +56,12 @@ __all__ = [
     "TUNING_HARMONICS",
     "MATCH_TOLERANCE",
     "choose_harmonics",
+    "select_harmonics",
+    "HarmonicsChoice",
     "HillGainObjective",
 ]
 
 logger = logging.getLogger(__name__)
-
-#: Per-process cache of labelling workspaces, by plant token (a process pool unpickles the plant
-#: once per task; the workspace is built once per process).  Bounded: the oldest plant is dropped.
-_WORKSPACES: dict = {}
 
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
@@ -67,6 +75,15 @@ RELATIVE_CUTOFF = 1e-2
 MAX_REFINED = 4
 #: A refined multiplier must satisfy ``|log(refined / estimate)| <= MATCH_TOLERANCE``.
 MATCH_TOLERANCE = 0.25
+#: Labelling workspaces (one per plant and step count) kept per process by :func:`_labelling_workspace`.
+WORKSPACE_CACHE = 16
+
+
+def _log_distance(z: complex, spectrum: np.ndarray) -> float:
+    """``min_k |log(z / w_k)|`` over the (non-zero) multipliers ``w_k`` of ``spectrum`` (inf if empty)."""
+    if spectrum.size == 0:
+        return math.inf
+    return float(np.min(np.abs(np.log(complex(z) / spectrum))))
 
 
 def drive_gain_family(lin: LinearizedPeriodicSystem):
@@ -109,6 +126,38 @@ def drive_gain_family(lin: LinearizedPeriodicSystem):
     return GainParametrisedSystem(base, inputs, outputs, names=names, period=T)
 
 
+class _PlantKey:
+    """Hashable handle of a plant's linearisation and orbit for the per-process caches below: equal iff
+    the token is (a token is drawn once per :class:`HillModelPlant` and kept by its copies and pickles)."""
+
+    __slots__ = ("token", "linearization", "orbit")
+
+    def __init__(self, token: str, linearization: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> None:
+        self.token, self.linearization, self.orbit = token, linearization, orbit
+
+    def __hash__(self) -> int:
+        return hash(self.token)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, _PlantKey) and other.token == self.token
+
+
+@functools.lru_cache(maxsize=WORKSPACE_CACHE)
+def _labelling_workspace(key: _PlantKey, steps: int) -> Any:
+    """The prepared magnus2 workspace of the drive-gain family at ``steps`` (built once per process: a
+    process pool unpickles the plant once per task)."""
+    return drive_gain_family(key.linearization).workspace(steps, method="magnus2")
+
+
+@functools.lru_cache(maxsize=WORKSPACE_CACHE)
+def _frozen_modes(key: _PlantKey) -> tuple[Any, np.ndarray]:
+    """Frozen-time modes of the linearisation (gain-independent) and the inverse of their shape matrix."""
+    from linearize.analysis import frozen_modes
+
+    fm = frozen_modes(key.linearization, key.orbit)
+    return fm, np.linalg.inv(fm.shapes)
+
+
 @dataclass(frozen=True)
 class HillMeasure:
     """One evaluation of :meth:`HillModelPlant.measure`.
@@ -129,6 +178,14 @@ class HillMeasure:
     confirmed : bool
         False when Hill's labels and the magnus2 estimates did not agree at any step
         count tried (the value is then the best candidate, see :meth:`HillModelPlant.measure`).
+    method : str
+        Where ``dominant`` comes from: ``"hill"``; ``"modal-magnus2"`` (the frozen-modal product,
+        :meth:`HillModelPlant.modal_measure`: Hill's value was truncated or not in the magnus2
+        spectrum); ``"magnus2-unrefined"`` (nothing to refine: the labelling pass's largest multiplier).
+    tail, residual : float
+        :attr:`stability.hill.HillResult.tail` / ``residual`` of the Hill pair behind the value (NaN without one).
+    modal_error_estimate : float
+        Step-doubling estimate (relative) of the frozen-modal value (``method="modal-magnus2"``; else NaN).
     """
 
     dominant: complex
@@ -138,6 +195,16 @@ class HillMeasure:
     hill_error_estimate: float = math.nan
     label_steps: int = LABEL_STEPS
     confirmed: bool = True
+    method: str = "hill"
+    tail: float = math.nan
+    residual: float = math.nan
+    modal_error_estimate: float = math.nan
+
+    @property
+    def truncated(self) -> bool:
+        """Hill's Floquet vector of the response kept more than :data:`stability.hill.TAIL_LIMIT` of its
+        energy in the outer quarter of the harmonics (too few harmonics)."""
+        return bool(self.tail > TAIL_LIMIT)
 
 
 class HillModelPlant:
@@ -166,8 +233,9 @@ class HillModelPlant:
         self.label_steps = int(label_steps)
         self.harmonics = int(harmonics)
         self._token = uuid.uuid4().hex if _token is None else _token
-        # workspaces per step count, shared by every copy of this plant unpickled in one process
-        self._workspaces: dict = _WORKSPACES.setdefault(self._token, {})
+        # key of the per-process caches (workspaces per step count, frozen modes), shared by every copy
+        # of this plant (replace, pickles) in one process
+        self._key = _PlantKey(self._token, linearization, orbit)
 
     def __getstate__(self) -> dict:
         return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
@@ -192,14 +260,8 @@ class HillModelPlant:
     def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
 
-    def _workspace(self, steps: int):
-        ws = self._workspaces.get(steps)
-        if ws is None:
-            while len(_WORKSPACES) > 8:
-                _WORKSPACES.pop(next(iter(_WORKSPACES)))
-            ws = drive_gain_family(self.linearization).workspace(steps, method="magnus2")
-            self._workspaces[steps] = ws
-        return ws
+    def _workspace(self, steps: int) -> Any:
+        return _labelling_workspace(self._key, int(steps))
 
     def labelled(self, kp, kd, steps: Optional[int] = None):
         """``(lin, floquet_result, modes)`` of the labelling pass."""
@@ -208,25 +270,15 @@ class HillModelPlant:
         res = self._workspace(steps or self.label_steps).floquet(g)
         return lin, res, label_multipliers(lin, self.orbit, res)
 
-    def frozen(self):
-        """Frozen-time modes (gain-independent), computed once."""
-        fm = self._workspaces.get("frozen")
-        if fm is None:
-            from linearize.analysis import frozen_modes
-
-            fm = frozen_modes(self.linearization, self.orbit)
-            self._workspaces["frozen"] = fm
-        return fm
+    def frozen(self) -> Any:
+        """Frozen-time modes (gain-independent), computed once per process."""
+        return _frozen_modes(self._key)[0]
 
     def hill_label(self, state: np.ndarray) -> str:
         """Label of a Floquet state ``[z; z']`` at t = 0: the frozen mode of largest modal energy
         (the rule of :func:`linearize.analysis.label_multipliers`)."""
-        fm = self.frozen()
+        fm, Vinv = _frozen_modes(self._key)
         r = self.linearization.size
-        Vinv = self._workspaces.get("Vinv")
-        if Vinv is None:
-            Vinv = np.linalg.inv(fm.shapes)
-            self._workspaces["Vinv"] = Vinv
         eta, eta_t = Vinv @ state[:r], Vinv @ state[r:]
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
@@ -237,10 +289,25 @@ class HillModelPlant:
         Candidates: every magnus2 multiplier labelled as a main mode, and every other
         one off the unit circle at least as large as the largest main one (a coarse
         product can mislabel the slow mode on a fine mesh); each is refined by Hill and
-        labelled again from Hill's Floquet vector; the response is the largest refined
-        one whose Hill label is a main mode and which is off the unit circle.
+        labelled again from Hill's Floquet vector.  A refined value is *accepted* when its
+        Hill label is a main mode, it is off the unit circle, its backward error is below
+        :data:`stability.hill.RESIDUAL_LIMIT` and some magnus2 multiplier (any label) lies
+        within :data:`MATCH_TOLERANCE` of it in ``log rho`` (a refinement that lands on a
+        main mode "from afar" must be a multiplier of the time-stepping spectrum, not a
+        truncation eigenvalue of Hill's matrices).  The response is the largest accepted one.
+
+        Confirmed when every refined main-mode estimate lies within :data:`MATCH_TOLERANCE` of
+        its refinement and no rejected refinement is larger than the response; else the
+        labelling pass is repeated with twice the steps (up to 4x).  Not confirmed then: the
+        labelled dominant of the frozen-modal magnus2 product (:meth:`modal_measure`) when no value
+        was accepted or a rejected main-mode value is larger than the accepted ones, else the largest
+        accepted value (only a main-mode estimate mismatched) -- ``confirmed=False``, logged.
+        A response whose Hill vector is truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced
+        by the frozen-modal value, ``truncated=True``, with a warning; without any candidate the
+        unrefined magnus2 multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
+        A :class:`stability.hill.HillError` also falls back to the frozen-modal value (logged).
         """
-        from stability.hill import hill_multipliers
+        from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
 
         steps = self.label_steps
         main = set(self.orbit.drive_names) | {"bending 1"}
@@ -254,64 +321,140 @@ class HillModelPlant:
             picks = [p for p in mains if abs(p[1]) >= RELATIVE_CUTOFF * top][:MAX_REFINED]
             picks += [p for p in upper if p[0] not in main and abs(p[1]) >= top]
             if not picks:
-                return HillMeasure(dominant=complex(res.multipliers[0]), mode=modes[0]["mode"],
-                                   estimate=complex(res.multipliers[0]), label_steps=steps)
-            h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks], harmonics=self.harmonics,
-                                 error_estimate=error_estimate)
+                mu = complex(res.multipliers[0])
+                warnings.warn(f"Hill plant: no multiplier to refine at kp={list(kp)} kd={list(kd)} (all undamped or "
+                              f"below the rounding floor): the unrefined magnus2 multiplier |rho| = {abs(mu):.6g} "
+                              f"({modes[0]['mode']}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
+                return HillMeasure(dominant=mu, mode=modes[0]["mode"], estimate=mu, label_steps=steps,
+                                   confirmed=False, method="magnus2-unrefined")
+            try:
+                h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks],
+                                     harmonics=self.harmonics, error_estimate=error_estimate)
+            except HillError as exc:  # no eigenvalue near a candidate / singular shift: the tuning run goes on
+                logger.warning("Hill's method failed at gains kp=%s kd=%s (%s); using the frozen-modal magnus2 "
+                               "product", kp, kd, exc)
+                return self.modal_measure(kp, kd, label_steps=steps)
             labels = [self.hill_label(x) for x in h.states]
-            ok = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
-                  if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
+            main_off = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
+                        if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
+            ok = [j for j in main_off if h.residual[j] <= RESIDUAL_LIMIT]
+            spectrum = np.asarray(res.multipliers)
+            spectrum = spectrum[spectrum != 0]
+            accepted = [j for j in ok if _log_distance(h.multipliers[j], spectrum) <= MATCH_TOLERANCE]
             # a magnus2 main-mode estimate must be near its refined value (the refinement of another
-            # candidate may land on a main mode from afar: that is a find, not a mismatch)
+            # candidate may land on a main mode from afar: accepted above only if it is in the magnus2 spectrum)
             both = [j for j in ok if picks[j][0] in main]
             mismatch = (np.abs(np.log(h.multipliers[both] / np.array([picks[j][1] for j in both])))
                         if both else np.array([]))
-            if ok and np.all(mismatch <= MATCH_TOLERANCE):
+            best = max((abs(h.multipliers[j]) for j in accepted), default=0.0)
+            hidden = [j for j in main_off if j not in accepted and abs(h.multipliers[j]) > best]  # rejected, above
+            if accepted and np.all(mismatch <= MATCH_TOLERANCE) and not hidden:
                 break
-            logger.info("Hill refinement: %s main-mode candidates, log mismatch %.3g: labelling again with %d steps",
-                        len(ok), float(np.max(mismatch)) if mismatch.size else math.nan, 2 * steps)
+            logger.info("Hill refinement: %d accepted main-mode values, log mismatch %.3g, %d rejected above them: "
+                        "labelling again with %d steps", len(accepted),
+                        float(np.max(mismatch)) if mismatch.size else math.nan, len(hidden), 2 * steps)
             steps *= 2
         else:
-            # not confirmed at any step count: the largest Hill-labelled main mode (mismatch ignored), else the
-            # largest refined magnus2 main-mode candidate, else the largest refined one -- flagged, logged
             steps //= 2
-            main_est = [j for j, p in enumerate(picks) if p[0] in main]
-            pool = ok or main_est or list(range(len(picks)))
+            if not accepted or hidden:
+                logger.warning("Hill's method gave %s at gains kp=%s kd=%s (up to %d steps); using the frozen-modal "
+                               "magnus2 product", "a main-mode value outside the magnus2 spectrum above the accepted "
+                               "ones" if accepted else "no main-mode multiplier of the magnus2 spectrum", kp, kd, steps)
+                return self.modal_measure(kp, kd, label_steps=steps)
+            # not confirmed at any step count: the largest accepted Hill value (mismatch ignored) -- flagged, logged
             logger.warning("Hill's method did not confirm the magnus2 labels at gains kp=%s kd=%s (up to %d steps); "
-                           "using the %s", kp, kd, steps, "Hill-labelled main mode" if ok else "best candidate")
-            j = max(pool, key=lambda i: abs(h.multipliers[i]))
-            return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
-                               refined=[(labels[i], complex(h.multipliers[i])) for i in pool],
-                               hill_error_estimate=float(h.error_estimate[j]), label_steps=steps, confirmed=False)
-        j = max(ok, key=lambda i: abs(h.multipliers[i]))
+                           "using the largest accepted Hill-labelled main mode", kp, kd, steps)
+        j = max(accepted, key=lambda i: abs(h.multipliers[i]))
+        confirmed = bool(np.all(mismatch <= MATCH_TOLERANCE) and not hidden)
+        if h.truncated[j]:
+            warnings.warn(f"Hill plant: {self.harmonics} harmonics truncate the Floquet vector of the response at "
+                          f"kp={list(kp)} kd={list(kd)} (tail {h.tail[j]:.1e} > {TAIL_LIMIT:.0e}): the frozen-modal "
+                          f"magnus2 value is used; raise the harmonics", RuntimeWarning, stacklevel=2)
+            return self.modal_measure(kp, kd, label_steps=steps, tail=float(h.tail[j]),
+                                      residual=float(h.residual[j]))
         distinct: list = []  # two candidates refined onto the same exponent are listed once
-        for i in ok:
+        for i in accepted:
             z = complex(h.multipliers[i])
             if all(abs(z - w) > 1e-9 * max(abs(z), 1e-300) for _, w in distinct):
                 distinct.append((labels[i], z))
         return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
-                           refined=distinct,
-                           hill_error_estimate=float(h.error_estimate[j]), label_steps=steps)
+                           refined=distinct, hill_error_estimate=float(h.error_estimate[j]), label_steps=steps,
+                           confirmed=confirmed, tail=float(h.tail[j]), residual=float(h.residual[j]))
+
+    def modal_measure(self, kp, kd, *, label_steps: int = LABEL_STEPS, tail: float = math.nan,
+                      residual: float = math.nan) -> HillMeasure:
+        """The fallback of :meth:`measure`: the labelled dominant multiplier (drive modes / ``bending 1``, the rule
+        of :class:`linearize.analysis.ModelFloquetResult`) of the exponential-midpoint product in the frozen-modal
+        frame (:meth:`linearize.analysis.ModelPlant.floquet`, Richardson-extrapolated), ``method="modal-magnus2"``,
+        ``confirmed=False``; ``tail``/``residual`` are those of the rejected Hill value."""
+        from linearize.analysis import ModelPlant, _dominant, _multiplier_estimate
+
+        res = ModelPlant(self.linearization, self.orbit).floquet(kp, kd)
+        modes = label_multipliers(self.with_gains(kp, kd), self.orbit, res)
+        mu = _dominant(res, modes, self.orbit.drive_names)
+        i = int(np.argmin(np.abs(np.asarray(res.multipliers) - mu)))
+        return HillMeasure(dominant=mu, mode=modes[i]["mode"], estimate=mu, label_steps=label_steps,
+                           confirmed=False, method="modal-magnus2", tail=tail, residual=residual,
+                           modal_error_estimate=_multiplier_estimate(res, mu))
 
     def spectral_measure(self, kp, kd) -> float:
         """``|rho|`` of the dominant labelled multiplier (Hill)."""
         return float(abs(self.measure(kp, kd).dominant))
 
 
-def choose_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[float], tolerance: float,
-                     candidates: Sequence[int] = (8, 12, 16, 24, 32)) -> HillModelPlant:
-    """``plant`` with the fewest Hill harmonics whose H vs H/2 estimate is below ``tolerance / 20``.
+@dataclass(frozen=True)
+class HarmonicsChoice:
+    """Outcome of :func:`select_harmonics`.
+
+    Attributes
+    ----------
+    plant : HillModelPlant
+        The plant with the chosen harmonics (the last candidate when none met the tolerance).
+    harmonics : int
+    converged : bool
+        Whether the chosen count met ``tolerance / 20`` (Hill's value, not truncated).
+    error_estimate : float
+        Absolute H vs H/2 estimate of the response at the chosen count (NaN when Hill gave no value).
+    tolerance : float
+        The tuning tolerance it was chosen for.
+    """
+
+    plant: HillModelPlant
+    harmonics: int
+    converged: bool
+    error_estimate: float
+    tolerance: float
+
+
+def select_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[float], tolerance: float,
+                     candidates: Sequence[int] = (8, 12, 16, 24, 32)) -> HarmonicsChoice:
+    """The fewest Hill harmonics whose H vs H/2 estimate of the response is below ``tolerance / 20``.
 
     Decided once, at one gain point (e.g. the centre of the initial ranges): the
     estimate is the relative change from ``H/2`` to ``H`` (spectral convergence: it
-    bounds the error of ``H/2``, so over-states that of ``H``).
+    bounds the error of ``H/2``, so over-states that of ``H``).  A count whose response is
+    not Hill's own value (``method != "hill"``) or whose Floquet vector is truncated
+    (:attr:`HillMeasure.truncated`) does not qualify.  When no candidate qualifies, the last
+    is returned with ``converged=False`` and a ``RuntimeWarning``.
     """
+    if not candidates:
+        raise ValueError("candidates: need at least one harmonic count")
     for H in candidates:
         p = plant.replace(harmonics=H)
         m = p.measure(kp, kd, error_estimate=True)
-        if m.hill_error_estimate * abs(m.dominant) <= tolerance / 20:
-            return p
-    return p
+        est = m.hill_error_estimate * abs(m.dominant) if m.method == "hill" else math.nan
+        if m.method == "hill" and not m.truncated and est <= tolerance / 20:
+            return HarmonicsChoice(plant=p, harmonics=H, converged=True, error_estimate=est, tolerance=tolerance)
+    warnings.warn(f"Hill harmonics: none of {list(candidates)} meets the estimate tolerance {tolerance / 20:.2e} "
+                  f"(tolerance / 20) at kp={list(kp)} kd={list(kd)}; using {H} (estimate {est:.2e}, method "
+                  f"{m.method}{', truncated' if m.truncated else ''})", RuntimeWarning, stacklevel=2)
+    return HarmonicsChoice(plant=p, harmonics=H, converged=False, error_estimate=est, tolerance=tolerance)
+
+
+def choose_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[float], tolerance: float,
+                     candidates: Sequence[int] = (8, 12, 16, 24, 32)) -> HillModelPlant:
+    """``select_harmonics(...).plant`` (warns when no candidate met the tolerance)."""
+    return select_harmonics(plant, kp, kd, tolerance, candidates).plant
 
 
 class HillGainObjective:

@@ -332,11 +332,23 @@ def _richardson(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
 
 
 #: Exudyn's force Jacobians are accepted when Richardson differences along
-#: random directions agree to this, relative to ``||K|| ||d||`` (Richardson's
-#: own error is ~1e-12 relative; a forward-difference Jacobian with Exudyn's
-#: default step 1e-7 would be off by ~1e-7).
+#: random directions agree to this, relative to ``||K|| ||d||`` (a forward-difference
+#: Jacobian with Exudyn's default step 1e-7 would be off by ~1e-7; an exact one only by
+#: the reference's own error, which :func:`_directional_reference` keeps below
+#: :data:`JACOBIAN_REFERENCE_FRACTION` of this).
 JACOBIAN_CHECK_TOLERANCE = 1e-8
 JACOBIAN_CHECK_DIRECTIONS = 2
+#: The reference directional derivative must have an estimated error below this
+#: fraction of :data:`JACOBIAN_CHECK_TOLERANCE` (so that a correct Jacobian passes with
+#: a margin of 10 and one off by more than 1.1x the tolerance fails) ...
+JACOBIAN_REFERENCE_FRACTION = 0.1
+#: ... reached by halving the step at most this often (the truncation error of the
+#: Richardson rule falls 16-fold per halving, its round-off grows 2-fold).  Measured on
+#: the single link at 32 elements, the estimate equals the true error (against Exudyn's
+#: Jacobian) down to a round-off floor of ~1e-11 relative at ``RICHARDSON_STEP / 16``;
+#: at a strongly distorted state (random 1e-2 m coordinate perturbations) 1e-9 needs 4
+#: halvings, 6 leave a margin.
+JACOBIAN_REFERENCE_HALVINGS = 6
 
 
 def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
@@ -361,23 +373,96 @@ def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
     return K, C
 
 
+_FORCE_CHECK_SEED = 20261128
+
+
+def _force_compressed(system: ExudynSystem, q, v, a, t, step, const_mass, pattern, rng):
+    """``(K, C)`` of :func:`_force_fd` by column-compressed differences on the structural
+    force pattern (:func:`linearize.collocation_solver.coupling_pattern`), or ``None`` when
+    the pattern fails its check.
+
+    Same rule (:func:`_richardson`) and steps as :func:`_force_fd`; a row depends on at most
+    one column of a colour, so every entry is the same difference of the same function values
+    (only the division by the step is ordered differently: round-off).  Check: a random
+    directional derivative (:func:`_directional_reference`, refined to a tenth of the
+    tolerance) against ``J e``; a coupling the pattern misses contributes its whole entry
+    (O(1) relative), the rule's own error <= 1e-9 (see
+    :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE`).
+    """
+    n = system.n
+    hq, hv = fd_steps(q, step), fd_steps(v, step)
+
+    def force(x):
+        r = -system.rhs(x, v, t)
+        return r if const_mass else r + system.mass(x, t) @ a
+
+    def damping(y):
+        return -system.rhs(q, y, t)
+
+    K = np.zeros((n, n))
+    C = np.zeros((n, n))
+    tol = structured.PATTERN_CHECK_TOLERANCE
+    for J, fun, x, h in ((K, force, q, hq), (C, damping, v, hv)):
+        structured._compressed(fun, x, h, pattern.force_colours, pattern.force, _richardson, J)
+        e = h * rng.uniform(-1.0, 1.0, n)
+        size = float(np.max(np.abs(J) @ np.abs(e)))
+        if size == 0.0:
+            continue
+        ref = _directional_reference(fun, x, e, 1.0, JACOBIAN_REFERENCE_FRACTION * tol * size)
+        if ref is None or not float(np.max(np.abs(J @ e - ref))) <= tol * size:
+            return None
+    return K, C
+
+
+def _directional_reference(fun, x: np.ndarray, e: np.ndarray, h: float, bound: float) -> Optional[np.ndarray]:
+    """``d/ds fun(x + s e)`` at 0 with its error below ``bound`` (max norm), or ``None``.
+
+    Richardson differences at ``h, h/2, h/4, ...``: the rule is ``O(h^4)``, so the error of
+    ``D(h/2)`` is estimated by ``|D(h/2) - D(h)| / 15`` (``(2^4 - 1)`` in the denominator;
+    the estimate includes the round-off of both).  Along a random direction every
+    coordinate moves at once, so the fourth-order term (the stiff beams' cubic strains
+    summed over a whole element) is far larger than for one column: measured on the single
+    link's orbit with the base step :data:`RICHARDSON_STEP`, 1.6e-8 of ``||K|| ||d||`` at
+    32 elements, 1e-9 at 16; one halving takes it to 1e-9 at 32 elements.
+    """
+    prev = _richardson(fun, x, e, h)
+    for _ in range(JACOBIAN_REFERENCE_HALVINGS):
+        h *= 0.5
+        cur = _richardson(fun, x, e, h)
+        if float(np.max(np.abs(cur - prev))) / 15.0 <= bound:
+            return cur
+        prev = cur
+    return None
+
+
 def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> bool:
-    """Check Exudyn's K, C against Richardson differences along random directions."""
-    K, C = system.force_jacobians(q, v, t)
+    """Check Exudyn's K, C against Richardson differences along random directions.
+
+    The reference (:func:`_directional_reference`) is refined until its estimated error is
+    below :data:`JACOBIAN_REFERENCE_FRACTION` of the tolerance; if it cannot be, Exudyn's
+    Jacobians are not accepted (differences everywhere, the safe side).
+    """
     if not const_mass:
         return False  # the M(q) q'' term is not in Exudyn's Jacobian: differentiate everything
+    K, C = system.force_jacobians(q, v, t)
     rng = np.random.default_rng(11)
     hq = fd_steps(q, step)
     hv = fd_steps(v, step)
     for _ in range(JACOBIAN_CHECK_DIRECTIONS):
         d = rng.standard_normal(system.n)
-        dk = _richardson(lambda x: -system.rhs(x, v, t), q, d * hq / step, step)
-        dc = _richardson(lambda y: -system.rhs(q, y, t), v, d * hv / step, step)
-        for J, ref, h in ((K, dk, hq), (C, dc, hv)):
-            scale = max(float(np.max(np.abs(J))) * float(np.max(np.abs(d * h / step))), 1e-300)
-            if float(np.max(np.abs(J @ (d * h / step) - ref))) > JACOBIAN_CHECK_TOLERANCE * scale:
+        for J, fun, x, h in ((K, lambda y: -system.rhs(y, v, t), q, hq), (C, lambda y: -system.rhs(q, y, t), v, hv)):
+            e = d * h / step
+            scale = max(float(np.max(np.abs(J))) * float(np.max(np.abs(e))), 1e-300)
+            ref = _directional_reference(fun, x, e, step, JACOBIAN_REFERENCE_FRACTION * JACOBIAN_CHECK_TOLERANCE
+                                         * scale)
+            if ref is None:
+                logger.info("Exudyn's force Jacobian not checked (the differences do not reach %.0e of the "
+                            "tolerance): using Richardson differences", JACOBIAN_REFERENCE_FRACTION)
+                return False
+            mismatch = float(np.max(np.abs(J @ e - ref))) / scale
+            if not mismatch <= JACOBIAN_CHECK_TOLERANCE:
                 logger.info("Exudyn's force Jacobian disagrees with differences (%.1e relative): "
-                            "using Richardson differences", float(np.max(np.abs(J @ (d * h / step) - ref))) / scale)
+                            "using Richardson differences", mismatch)
                 return False
     return True
 
@@ -442,7 +527,10 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     ``K_force`` and ``C`` are Exudyn's own Jacobians when they pass a check
     against Richardson-extrapolated central differences along random
     directions (:data:`JACOBIAN_CHECK_TOLERANCE`) and the mass matrix is
-    constant; otherwise Richardson differences of ``M(q) q'' - f``.  The
+    constant; otherwise Richardson differences of ``M(q) q'' - f``, column-compressed on
+    the model's structural force pattern (:func:`_force_compressed`: ~12 colours for an
+    ANCF chain of any length instead of ``n`` columns), one column at a time from the
+    first sample where the pattern fails its check.  The
     reaction stiffness ``d(C_q^T lambda)/dq`` is always Richardson differences
     of Exudyn's ``C_q``, on the coordinates ``C_q`` depends on.  Step of
     coordinate ``j``: ``step * max(1, |q_j|)`` (:data:`RICHARDSON_STEP`).
@@ -458,7 +546,9 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
     const_mass = system.mass_is_constant(Q[0])
     if use_exudyn_jacobian is None:
         use_exudyn_jacobian = _exudyn_jacobians_ok(system, Q[0], V[0], A[0], float(times[0]), step, const_mass)
-    pattern = system.coupling_pattern() if m else None
+    pattern = system.coupling_pattern() if m or not use_exudyn_jacobian else None
+    rng = np.random.default_rng(_FORCE_CHECK_SEED)
+    compressed = not use_exudyn_jacobian
     for k in range(Kn):
         q, v, a, lam, t = Q[k], V[k], A[k], L[k], float(times[k])
         Ms[k] = system.mass(q, t)
@@ -466,7 +556,14 @@ def tangent_blocks(system: ExudynSystem, times: np.ndarray, Q: np.ndarray, V: np
         if use_exudyn_jacobian:
             Kf[k], Cd[k] = system.force_jacobians(q, v, t)
         else:
-            Kf[k], Cd[k] = _force_fd(system, q, v, a, t, step, const_mass)
+            KC = _force_compressed(system, q, v, a, t, step, const_mass, pattern, rng) if compressed else None
+            if KC is None:
+                if compressed:
+                    logger.info("forces depend on coordinates outside the structural pattern at t = %.4g: "
+                                "one difference per column from here on", t)
+                compressed = False
+                KC = _force_fd(system, q, v, a, t, step, const_mass)
+            Kf[k], Cd[k] = KC
         if m and np.any(lam != 0.0):  # C_q(x)^T 0 = 0 for every x: no reaction stiffness
             Kr[k] = _reaction_stiffness(system, q, lam, t, step if accurate else CENTRAL_DIFFERENCE_STEP,
                                         accurate, pattern)
@@ -500,6 +597,7 @@ class _Collocation:
         self.solver = solver
         self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
+        self._assembly: Optional[structured.NewtonAssembly] = None
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
         """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
@@ -528,7 +626,10 @@ class _Collocation:
             J, tb = self.jacobian(X)
             return _solve(J), tb
         tb = self.tangent(X)
-        J = structured.sparse_newton_matrix(tb.M, tb.K, tb.C, tb.Cq, self.B, self.D1, self.D2)
+        if self._assembly is None:
+            self._assembly = structured.NewtonAssembly(self.B, self.D1, self.D2,
+                                                       stiffness_pattern=self.pattern.force | self.pattern.reaction)
+        J = self._assembly(tb.M, tb.K, tb.C, tb.Cq)  # sparse_newton_matrix, structure kept between calls
         return structured.sparse_solver(J), tb
 
     def split(self, X: np.ndarray):

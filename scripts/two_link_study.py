@@ -39,13 +39,29 @@ def _c(z):
 
 
 def merge(out: Path) -> dict:
-    doc: dict = {}
-    for stage in ("tune", "mesh", "robust", "direct", "figures"):
+    """All stage files present, merged into ``two_link.json``; each stage's keys under ``keys[stage]``
+    (the study ignores a part whose keys differ from its own: flexstab.two_link_report.fresh_parts)."""
+    from flexstab.two_link_report import CACHE_PARTS
+
+    doc: dict = {"keys": {}}
+    for stage in CACHE_PARTS:
         p = out / f"two_link_{stage}.json"
         if p.exists():
-            doc.update(json.loads(p.read_text()))
+            d = json.loads(p.read_text())
+            doc["keys"][stage] = d.pop("keys", None)
+            doc.update(d)
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
     return doc
+
+
+def _resume(path: Path, keys: dict, empty: dict) -> dict:
+    """A stage file to add rows to: the existing one if it was computed with ``keys``, else ``empty``."""
+    if path.exists():
+        d = json.loads(path.read_text())
+        if d.get("keys") == keys:
+            return d
+        print(f"{path.name}: computed with other code or inputs: starting it again", flush=True)
+    return dict(empty, keys=keys)
 
 
 def main(argv=None) -> int:
@@ -71,10 +87,12 @@ def main(argv=None) -> int:
     from flexstab.executor import make_executor
     from flexstab.two_link import (TUNED_GAINS, TUNING_RANGES, check_multiplier, compare_direct_methods,
                                    tune_four_gains, two_link_floquet, two_link_orbit)
+    from flexstab.two_link_report import cache_keys
     from linearize.constrained import linearize_orbit
     from taguchi.tuning import TuningConfig
 
     arms: dict = {}
+    keys = cache_keys(args.target)  # code hash, mesh, ranges, rho_d: stored with every stage's results
 
     def arm(k, N=None):
         if (k, N) not in arms:
@@ -85,16 +103,15 @@ def main(argv=None) -> int:
     def tuned_gains(k):
         p = out / "two_link_tune.json"
         if p.exists():
-            t = json.loads(p.read_text())["tune"].get(f"{k}pi")
+            d = json.loads(p.read_text())
+            t = d["tune"].get(f"{k}pi") if d.get("keys") == keys else None
             if t:
                 return t["gains"]
         return list(TUNED_GAINS[k])
 
     if "tune" in stages:
-        doc = {"target": args.target, "tune": {}}
         p = out / "two_link_tune.json"
-        if p.exists():
-            doc = json.loads(p.read_text())
+        doc = _resume(p, keys, {"target": args.target, "tune": {}})
         for k in omegas:
             o, lin = arm(k)
             with make_executor("process", max_workers=args.workers) as ex:
@@ -127,7 +144,7 @@ def main(argv=None) -> int:
         merge(out)
 
     if "mesh" in stages:
-        doc = {"mesh": {}}
+        doc = {"mesh": {}, "keys": keys}
         for k in omegas:
             rows = []
             for N in MESH:
@@ -153,10 +170,8 @@ def main(argv=None) -> int:
         from flexstab.two_link import TwoLinkNoisePlant, two_link_noise_factors
         from taguchi.robust import RobustConfig
 
-        doc = {"robust": {}}
         p = out / "two_link_robust.json"
-        if p.exists():
-            doc = json.loads(p.read_text())
+        doc = _resume(p, keys, {"robust": {}})
         rs = RobustSettings()
         for k in omegas:
             tcfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=2000)
@@ -180,7 +195,7 @@ def main(argv=None) -> int:
         from mbs_models.builtin.two_link import build
         from validation.direct_monodromy import direct_monodromy
 
-        doc = {"direct": {}}
+        doc = {"direct": {}, "keys": keys}
         for k in omegas:
             o, lin = arm(k)
             rows = []
@@ -200,7 +215,7 @@ def main(argv=None) -> int:
     if "figures" in stages:
         from flexstab.two_link import gain_slices_hill, plot_gain_slices
 
-        doc = {"figures": {}}
+        doc = {"figures": {}, "keys": keys}
         for k in omegas:
             o, lin = arm(k)
             g = tuned_gains(k)

@@ -56,7 +56,8 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
-__all__ = ["HillResult", "HillError", "hill_multipliers", "fourier_coefficients", "DEFAULT_HARMONICS"]
+__all__ = ["HillResult", "HillError", "hill_multipliers", "fourier_coefficients", "DEFAULT_HARMONICS",
+           "RESIDUAL_LIMIT", "TAIL_LIMIT"]
 
 #: Harmonics ``H`` of the Floquet vector (``2 H + 1`` blocks).
 DEFAULT_HARMONICS = 48
@@ -66,6 +67,21 @@ EIG_RTOL = 1e-14
 MAX_ITERATIONS = 60
 #: Up to this many unknowns ``n (2 H + 1)`` the Hill matrices are dense (LAPACK LU), sparse beyond.
 DENSE_LIMIT = 3000
+#: A pair whose backward error :attr:`HillResult.residual` exceeds this is not an eigenpair of the truncated
+#: problem (:attr:`HillResult.unconverged`).  Derivation: the iteration stops when ``lambda`` changes by less
+#: than ``EIG_RTOL = 1e-14`` (~45 eps) relative, which leaves a backward error of about that change times the
+#: ``|Q'(lambda)| / |Q|`` ratio (~2 in the residual's scaling), ~1e2 eps; the LU solves add ~sqrt(N) eps
+#: (partial pivoting, N <= 1e5 unknowns: <= 316 eps).  ``1e3 eps`` (2.2e-13) is above both; measured on the
+#: two-link arm: 1e-21 .. 1e-18.
+RESIDUAL_LIMIT = 1e3 * np.finfo(float).eps
+#: A pair whose Floquet vector keeps more than this fraction of its energy in the outer quarter of the
+#: harmonics (:attr:`HillResult.tail`) is flagged as truncated (:attr:`HillResult.truncated`).  Derivation:
+#: truncation drops the coupling of the retained harmonics to the outer ones; to first order the relative
+#: change of the eigenvalue is of the relative amplitude of the outermost retained coefficients,
+#: ``sqrt(tail)``; a tuning tolerance of ``1e-3 rho_d`` (the default of :mod:`taguchi.tuning`) asks
+#: ``sqrt(tail) <= 1e-3``, i.e. ``tail <= 1e-6``.  An indicator, not a bound (the bound is the ``H / 2``
+#: estimate): with an outer quarter of one harmonic (``H <= 3``) it can under-read.
+TAIL_LIMIT = 1e-6
 
 
 class HillError(ArithmeticError):
@@ -116,6 +132,16 @@ class HillResult:
     elapsed: float = field(default=0.0, compare=False)
     states: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
 
+    @property
+    def truncated(self) -> np.ndarray:
+        """Per multiplier: ``tail > TAIL_LIMIT`` (too few harmonics for this Floquet vector)."""
+        return np.asarray(self.tail) > TAIL_LIMIT
+
+    @property
+    def unconverged(self) -> np.ndarray:
+        """Per multiplier: ``residual > RESIDUAL_LIMIT`` (not an eigenpair of the truncated problem)."""
+        return np.asarray(self.residual) > RESIDUAL_LIMIT
+
     def to_dict(self) -> dict:
         c = lambda z: [float(np.real(z)), float(np.imag(z))]  # noqa: E731
         return {
@@ -127,6 +153,8 @@ class HillResult:
             "error_estimate": [float(v) for v in self.error_estimate],
             "tail": [float(v) for v in self.tail],
             "residual": [float(v) for v in self.residual],
+            "truncated": [bool(v) for v in self.truncated],
+            "unconverged": [bool(v) for v in self.unconverged],
             "period": self.period,
             "size": self.size,
             "elapsed": self.elapsed,

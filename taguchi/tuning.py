@@ -34,6 +34,17 @@ drives: ``(kp1, kd1, kp2, kd2)``, :attr:`TuningConfig.ranges`).  One
    would exceed ``max_evaluations`` -- status ``"budget exhausted"``, with
    the best point reached.
 
+**Failed runs.** A run whose objective raises a numerical error
+(:data:`RUN_FAILURES`: ``ArithmeticError`` -- e.g. ``FloquetError``,
+``HillError`` -- or ``numpy.linalg.LinAlgError``) does not abort the tuning,
+as a diverging simulation does not abort a physical experiment: the run is
+recorded (``failures`` of its iteration, ``failed_runs`` of the result, with
+the error), its response is NaN (``null`` in JSON), it is scored with the
+worst S/N of the experiment's other runs and never becomes the incumbent.
+When every run of an experiment fails, the tuning stops: with
+``ArithmeticError`` naming the first failure if no run has succeeded yet,
+else with status ``"runs failed"`` and the best point reached.
+
 This is the sequential "iterative Taguchi" scheme of range reduction about
 the current optimum used by Khang et al. for tuned-mass dampers (the
 paper's Refs. [10, 11]); the paper does not print its own rule, so the one
@@ -75,12 +86,17 @@ __all__ = [
     "taguchi_tune",
     "STATUS_CONVERGED",
     "STATUS_BUDGET",
+    "STATUS_FAILED",
+    "RUN_FAILURES",
 ]
 
 logger = logging.getLogger(__name__)
 
 STATUS_CONVERGED = "converged"
 STATUS_BUDGET = "budget exhausted"
+STATUS_FAILED = "runs failed"
+#: Exceptions of one run that are recorded as a failed run instead of aborting :func:`taguchi_tune`.
+RUN_FAILURES = (ArithmeticError, np.linalg.LinAlgError)
 
 
 class GainObjective:
@@ -319,6 +335,7 @@ class TaguchiIteration:
     confirmation_sn: float
     incumbent_gains: tuple[float, ...]
     incumbent_response: float
+    failures: tuple[dict, ...] = ()
 
     @property
     def kp_range(self) -> tuple[float, float]:
@@ -371,6 +388,7 @@ class TaguchiIteration:
                 **_named(self.names, self.incumbent_gains),
                 "spectral_radius": self.incumbent_response,
             },
+            "failures": [dict(f) for f in self.failures],
         })
         return out
 
@@ -410,7 +428,7 @@ class TaguchiResult(NamedGains):
     target, tolerance : float
     converged : bool
     status : str
-        ``"converged"`` or ``"budget exhausted"``.
+        ``"converged"``, ``"budget exhausted"`` or ``"runs failed"`` (every run of an experiment failed).
     message : str
     evaluations : int
         Floquet evaluations used.
@@ -420,6 +438,9 @@ class TaguchiResult(NamedGains):
         The orthogonal array used.
     elapsed : float
         Wall time in s.
+    failed_runs : tuple of dict
+        Every run whose objective raised one of :data:`RUN_FAILURES`: ``iteration``, ``run`` (index in
+        the array, or ``"confirmation"``), ``gains``, ``error``.
     """
 
     gains: tuple[float, ...]
@@ -435,6 +456,7 @@ class TaguchiResult(NamedGains):
     array: str
     elapsed: float
     config: TuningConfig = field(repr=False, default_factory=TuningConfig)
+    failed_runs: tuple[dict, ...] = ()
 
     def __repr__(self) -> str:  # one line: the history is summarised, not printed (see ``iterations``)
         gains = ", ".join(f"{s}={g:.6g}" for s, g in zip(self.names, self.gains))
@@ -458,6 +480,7 @@ class TaguchiResult(NamedGains):
             "evaluations": self.evaluations,
             "array": self.array,
             "elapsed": self.elapsed,
+            "failed_runs": [dict(f) for f in self.failed_runs],
             "iterations": [it.to_dict() for it in self.iterations],
         })
         return out
@@ -493,10 +516,26 @@ def recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[
 _recentre = recentre  # former private name, kept for callers on other branches
 
 
-def _evaluate(fn: Callable, points: list, executor: Optional[cf.Executor]) -> list[float]:
+class _Guarded:
+    """``point -> (response, None)``, or ``(nan, "ErrorType: message")`` when the objective raises one of
+    :data:`RUN_FAILURES` (picklable if the objective is)."""
+
+    def __init__(self, fn: Callable) -> None:
+        self.fn = fn
+
+    def __call__(self, point: tuple) -> tuple[float, Optional[str]]:
+        try:
+            return float(self.fn(point)), None
+        except RUN_FAILURES as exc:
+            logger.warning("run at %s failed: %s: %s", point, type(exc).__name__, exc)
+            return math.nan, f"{type(exc).__name__}: {exc}"
+
+
+def _evaluate(fn: Callable, points: list, executor: Optional[cf.Executor]) -> list[tuple[float, Optional[str]]]:
+    guarded = _Guarded(fn)
     if executor is None:
-        return [float(fn(p)) for p in points]
-    return [float(v) for v in executor.map(fn, points)]
+        return [guarded(p) for p in points]
+    return list(executor.map(guarded, points))
 
 
 def taguchi_tune(
@@ -530,6 +569,9 @@ def taguchi_tune(
     ------
     ValueError
         If the objective returns NaN/inf or a negative value.
+    ArithmeticError
+        If every run of the first experiment fails (one of :data:`RUN_FAILURES`); single failed
+        runs are recorded instead (module docstring, "Failed runs").
     """
     t0 = time.perf_counter()
     oa = config.orthogonal_array()
@@ -543,6 +585,8 @@ def taguchi_tune(
     history: list[TaguchiIteration] = []
     best_gains: Optional[tuple[float, ...]] = None
     best_y = math.inf
+    failed: list[dict] = []
+    all_failed = False
 
     bar = None
     if progress:
@@ -554,18 +598,41 @@ def taguchi_tune(
             lv_values = [_levels(r, s) for r, s in zip(rngs, oa.levels)]
             design = to_design(oa, [v.tolist() for v in lv_values])
             points = [tuple(float(x) for x in row) for row in design]
-            ys = _evaluate(objective, points, executor)
-            _check_responses(ys, points, names)
-            sn = np.array([sn_target(y, target) for y in ys])
+            runs = _evaluate(objective, points, executor)
+            ys = [y for y, _ in runs]
+            fails = [{"iteration": len(history), "run": i, "gains": list(points[i]), "error": err}
+                     for i, (_, err) in enumerate(runs) if err is not None]
+            good = [i for i, (_, err) in enumerate(runs) if err is None]
+            _check_responses([ys[i] for i in good], [points[i] for i in good], names)
+            if not good:
+                evaluations += n_runs
+                failed.extend(fails)
+                all_failed = True
+                if best_gains is None:
+                    f = fails[0]
+                    raise ArithmeticError(
+                        f"every run of the first Taguchi experiment failed ({n_runs} runs); the first at "
+                        + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+                logger.warning("every run of experiment %d failed: stopping with the best point so far", len(history))
+                break
+            sn_good = {i: sn_target(ys[i], target) for i in good}
+            worst = min(sn_good.values())  # a failed run scores as the worst run of its experiment
+            sn = np.array([sn_good.get(i, worst) for i in range(n_runs)])
             result = analyze(oa, sn, factor_names=names)
             lv = result.best_levels
             conf = tuple(float(v[k]) for v, k in zip(lv_values, lv))
-            y_conf = float(objective(conf))  # one run: no point shipping it to a worker
-            _check_responses([y_conf], [conf], names)
+            y_conf, err = _Guarded(objective)(conf)  # one run: no point shipping it to a worker
+            if err is None:
+                _check_responses([y_conf], [conf], names)
+            else:
+                fails.append({"iteration": len(history), "run": "confirmation", "gains": list(conf), "error": err})
+            failed.extend(fails)
             evaluations += n_runs + 1
             if bar is not None:
                 bar.update(n_runs + 1)
             for p, y in list(zip(points, ys)) + [(conf, y_conf)]:
+                if not math.isfinite(y):  # a failed run
+                    continue
                 if abs(y - target) < abs(best_y - target):
                     best_y, best_gains = y, p
             assert best_gains is not None
@@ -586,6 +653,7 @@ def taguchi_tune(
                     confirmation_sn=float(sn_target(y_conf, target)),
                     incumbent_gains=best_gains,
                     incumbent_response=best_y,
+                    failures=tuple(fails),
                 )
             )
             logger.debug("iteration %d: ranges %s -> best %s rho=%.6g", len(history), rngs, best_gains, best_y)
@@ -604,14 +672,18 @@ def taguchi_tune(
             f"({n_runs} runs + 1 confirmation with {oa.name})"
         )
     converged = abs(best_y - target) <= tol
-    status = STATUS_CONVERGED if converged else STATUS_BUDGET
+    status = STATUS_CONVERGED if converged else (STATUS_FAILED if all_failed else STATUS_BUDGET)
     at = ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, best_gains))
-    message = (
-        f"|max|rho| - rho_d| = {abs(best_y - target):.2e} <= {tol:.2e} after {evaluations} evaluations"
-        if converged
-        else f"target rho_d = {target:g} not reached within {config.max_evaluations} evaluations; "
-        f"best max|rho| = {best_y:.6g} at {at}"
-    )
+    if converged:
+        message = f"|max|rho| - rho_d| = {abs(best_y - target):.2e} <= {tol:.2e} after {evaluations} evaluations"
+    elif all_failed:
+        message = (f"every run of experiment {len(history)} failed (see failed_runs); best max|rho| = "
+                   f"{best_y:.6g} at {at}")
+    else:
+        message = (f"target rho_d = {target:g} not reached within {config.max_evaluations} evaluations; "
+                   f"best max|rho| = {best_y:.6g} at {at}")
+    if failed:
+        message += f"; {len(failed)} run(s) failed with a numerical error (failed_runs)"
     return TaguchiResult(
         gains=best_gains,
         names=names,
@@ -626,6 +698,7 @@ def taguchi_tune(
         array=oa.name,
         elapsed=time.perf_counter() - t0,
         config=config,
+        failed_runs=tuple(failed),
     )
 
 

@@ -85,7 +85,7 @@ def test_structured_orbit_satisfies_the_dense_equations(double_orbits):
 def test_compressed_blocks_equal_dense_differences(double_orbits):
     _, orbit = double_orbits
     args = _tangent_args(orbit)
-    dense_tb = po.tangent_blocks(*args, use_exudyn_jacobian=False)  # one difference per column
+    dense_tb = _per_column_blocks(*args)  # one difference per column
     pattern = cs.coupling_pattern(args[0])
     sb = cs.compressed_blocks(*args, pattern, derivative=po._richardson,
                               steps=lambda x: po.fd_steps(x, po.RICHARDSON_STEP))
@@ -94,6 +94,16 @@ def test_compressed_blocks_equal_dense_differences(double_orbits):
     for name in ("M", "K_force", "K_reaction", "C", "Cq"):
         a, b = getattr(dense_tb, name), getattr(sb, name)
         assert np.max(np.abs(a - b)) <= 1e-8 * max(float(np.max(np.abs(a))), 1e-300), name
+
+
+def _per_column_blocks(system, times, Q, V, A, L):
+    """tangent_blocks with one Richardson difference per force column (no pattern)."""
+    tb = po.tangent_blocks(system, times, Q, V, A, L, use_exudyn_jacobian=False)
+    const_mass = system.mass_is_constant(Q[0])
+    Kf, Cd = np.empty_like(tb.K_force), np.empty_like(tb.C)
+    for k in range(times.size):
+        Kf[k], Cd[k] = po._force_fd(system, Q[k], V[k], A[k], float(times[k]), po.RICHARDSON_STEP, const_mass)
+    return po.TangentBlocks(M=tb.M, K_force=Kf, K_reaction=tb.K_reaction, C=Cd, Cq=tb.Cq)
 
 
 def _tangent_args(orbit):
@@ -111,6 +121,35 @@ def test_sparse_newton_matrix_equals_dense_assembly(double_orbits):
     r = np.random.default_rng(0).standard_normal(J_dense.shape[0])
     x = cs.sparse_solver(J_sparse)(r)
     assert np.max(np.abs(J_dense @ x - r)) <= 1e-9 * np.max(np.abs(r))
+
+
+def test_cached_assembly_equals_sparse_newton_matrix_and_rebuilds_on_a_new_pattern(double_orbits):
+    """NewtonAssembly (structure kept between calls) gives sparse_newton_matrix's matrix (itself
+    checked against the dense assembly above) entry for entry; when a block gains an entry
+    outside the cached pattern it must rebuild (a stale structure would drop the entry)."""
+    _, orbit = double_orbits
+    col, X = _dense_collocation(orbit)
+    _, tb = col.jacobian(X)
+    asm = cs.NewtonAssembly(col.B, col.D1, col.D2)
+    for scale in (1.0, 1.5):  # second call: same pattern, new values, reused structure
+        K = scale * tb.K
+        ref = cs.sparse_newton_matrix(tb.M, K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+        got = asm(tb.M, K, tb.C, tb.Cq)
+        assert abs(got - ref).max() == 0.0
+    assert asm.builds == 1
+    i, j = np.argwhere((tb.K[0] == 0) & (tb.M[0] == 0) & (tb.C[0] == 0))[0]
+    K = tb.K.copy()
+    K[:, i, j] = 1.0  # a new coupling
+    ref = cs.sparse_newton_matrix(tb.M, K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+    got = asm(tb.M, K, tb.C, tb.Cq)
+    assert asm.builds == 2
+    assert abs(got - ref).max() == 0.0
+    # an entry dropping to zero stays inside the structure: no rebuild, the same values
+    K[:, i, j] = 0.0
+    ref = cs.sparse_newton_matrix(tb.M, K, tb.C, tb.Cq, col.B, col.D1, col.D2)
+    got = asm(tb.M, K, tb.C, tb.Cq)
+    assert asm.builds == 2
+    assert abs(got - ref).max() == 0.0
 
 
 def test_pattern_missing_a_coupling_is_rejected(double_orbits):
@@ -134,14 +173,14 @@ def test_inconsistent_newton_matrix_fails_loudly(monkeypatch, factor):
     """Newton accepts only the true residual: with a Newton matrix 100x too large (steps 100x
     too short) or of the wrong sign it must end in OrbitConvergenceError with the residuals
     reached, never return an orbit."""
-    real = cs.sparse_newton_matrix
-    monkeypatch.setattr(cs, "sparse_newton_matrix", lambda *blocks: factor * real(*blocks))
+    real = cs.NewtonAssembly.__call__
+    monkeypatch.setattr(cs.NewtonAssembly, "__call__", lambda self, *blocks: factor * real(self, *blocks))
     with pytest.raises(OrbitConvergenceError, match="did not converge") as err:
         find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
                    max_iterations=6, amplitude=0.05)
     assert min(err.value.residuals) > po.DEFAULT_TOLERANCE
     # the same call with the consistent matrix converges (so the failure is the matrix's)
-    monkeypatch.setattr(cs, "sparse_newton_matrix", real)
+    monkeypatch.setattr(cs.NewtonAssembly, "__call__", real)
     orbit = find_orbit(PENDULUM, 80.0, samples=8, verify=False, solver="structured", continuation=False,
                        max_iterations=6, amplitude=0.05)
     assert orbit.residual <= orbit.tolerance

@@ -108,3 +108,39 @@ def test_bad_input():
         hill_multipliers(M, 0 * M, M, 1.0, [1.0], harmonics=1)
     with pytest.raises(ValueError, match="NaN"):
         hill_multipliers(M * np.nan, 0 * M, M, 1.0, [1.0])
+
+
+def test_truncation_flag_on_damped_mathieu():
+    """``HillResult.truncated`` (tail > TAIL_LIMIT) on y'' + c y' + (a - 2 q cos 2t) y = 0 with
+    a = a_2(q) + c^2 / 4: y = exp(-c t / 2) u turns it into Mathieu's equation at a_2(q), so the
+    multiplier over T = pi is exactly exp(-c pi / 2) (double: rounding splits it by ~1e-7, as above).
+    Too few harmonics (H = 4 at q = 10) are flagged and off by > 1e-2; H = 12 is not flagged and exact."""
+    from stability.hill import TAIL_LIMIT
+
+    T, N, q, c = math.pi, 8, 10.0, 0.1
+    t = np.arange(N) * T / N
+    M = np.ones((N, 1, 1))
+    C = c * np.ones((N, 1, 1))
+    K = (mathieu_a(2, q) + c * c / 4 - 2 * q * np.cos(2 * t)).reshape(N, 1, 1)
+    exact = math.exp(-c * T / 2)
+    few = hill_multipliers(M, C, K, T, [exact * (1 + 1e-3j)], harmonics=4, error_estimate=False)
+    enough = hill_multipliers(M, C, K, T, [exact * (1 + 1e-3j)], harmonics=12, error_estimate=False)
+    assert few.truncated[0] and few.tail[0] > TAIL_LIMIT and abs(few.multipliers[0] - exact) > 1e-2
+    assert not enough.truncated[0] and abs(enough.multipliers[0] - exact) < 1e-6
+    assert not few.unconverged[0] and not enough.unconverged[0]  # truncation does not show in the residual
+
+
+def test_residual_flag_on_an_iteration_stopped_early(monkeypatch):
+    """``HillResult.unconverged`` (residual > RESIDUAL_LIMIT): the converged pairs of the exact rotating-frame
+    system are below it; the same pairs with inverse iteration stopped at a 1e-2 change are above it -- and are
+    off by more than the converged pairs' 1e-11 (test_rotating_frame_is_exact)."""
+    import stability.hill as hill_mod
+
+    M, C, K = _rotating_system(1.0, 12)
+    exact = _exact(1.0)
+    good = hill_multipliers(M, C, K, 1.0, exact * 1.02, harmonics=6, error_estimate=False)
+    assert not np.any(good.unconverged) and np.all(good.residual <= hill_mod.RESIDUAL_LIMIT)
+    monkeypatch.setattr(hill_mod, "EIG_RTOL", 1e-2)
+    early = hill_multipliers(M, C, K, 1.0, exact * 1.02, harmonics=6, error_estimate=False)
+    assert np.all(early.unconverged)
+    assert np.all(np.abs(early.multipliers - exact) / np.abs(exact) > 1e-11)

@@ -175,3 +175,46 @@ def test_other_warning_categories_reach_the_caller(tmp_path, monkeypatch):
     with pytest.warns(UserWarning, match="a user-visible note from the model"):
         assert cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(tmp_path)]) == 1
     assert json.loads((tmp_path / "study.json").read_text())["stages"]["floquet"]["status"] == "failed"
+
+
+def test_failed_tuning_validates_at_zero_gains_and_says_so(tmp_path, monkeypatch):
+    """When the tuning stage fails there are no tuned gains: the validation runs at zero gains and the section
+    and study.json say "tuning failed: validated at zero gains" (it used to say "no drives (uncontrolled)" for
+    a model that has two).  The tuning is made to fail by a stand-in plant rule that raises; the charts are
+    stubbed out and the nonlinear measurement is a stand-in recording the gains it is asked for (cheap)."""
+    import flexstab.commands.chart as chart
+    import flexstab.plants as plants
+    import flexstab.study as fs
+    import validation.multipliers as vm
+    import validation.plots as vp
+    from flexstab.model_study import TUNING_FAILED_VALIDATION
+
+    def fails(*a, **k):
+        raise ArithmeticError("no main-mode multiplier confirmed")
+
+    asked: list = []
+    headers: list = []
+
+    class Confirmed:
+        def to_dict(self):
+            return {"agrees": True}
+
+    def measure(definition, omega, kp, kd, **k):
+        asked.append((kp, kd))
+        return Confirmed()
+
+    monkeypatch.setattr(plants, "plant_for", fails)
+    monkeypatch.setattr(chart, "model_charts", fails)
+    monkeypatch.setattr(vm, "validate_model_multipliers", measure)
+    monkeypatch.setattr(vp, "plot_multiplier_plane", lambda *a, **k: None)
+    monkeypatch.setattr(fs, "validation_blocks", lambda d, header, *a: headers.append(header) or [])
+    out = tmp_path / "o"
+    assert cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(out)]) == 1
+    stages = json.loads((out / "study.json").read_text())["stages"]
+    assert stages["tuning"]["status"] == "failed" and "no main-mode multiplier" in stages["tuning"]["error"]
+    assert asked == [(0.0, 0.0)]  # validated at zero gains ...
+    v = stages["validation"]
+    assert v["status"] == "computed" and v["note"] == TUNING_FAILED_VALIDATION  # ... and said so
+    assert json.loads((out / "validation.json").read_text())["gains_source"] == TUNING_FAILED_VALIDATION
+    assert TUNING_FAILED_VALIDATION in headers[0] and "no drives" not in headers[0]
+    assert f"**Note:** {TUNING_FAILED_VALIDATION}" in (out / "report.md").read_text()

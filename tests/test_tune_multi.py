@@ -169,6 +169,18 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
     assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
 
 
+def _use_plant(monkeypatch, tune, plant) -> None:
+    """``tune --model fake.py`` tunes ``plant``: no orbit (build_plant stubbed) and no step choice at the range
+    centre (plant_choice_for returns ``plant`` as it is)."""
+    from types import SimpleNamespace
+
+    base = SimpleNamespace(drives=plant.drives, orbit=SimpleNamespace(model=None), linearization=None)
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
+    from flexstab.plants import PlantChoice
+
+    monkeypatch.setattr(tune, "plant_choice_for", lambda definition, orbit, lin, cfg: PlantChoice(plant))
+
+
 def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails(monkeypatch, capsys):
     """A plant whose response carries a second-order propagator error c / n^2 (c = 30): 256 steps err by
     4.6e-4 > tol 3e-4, so the tuning is repeated with 512 (1.1e-4, estimate above tol / 4) and 1024 steps
@@ -188,8 +200,7 @@ def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails
         def spectral_measure(self, kp, kd):
             return exact(kp, kd) + 30.0 / self.n_steps**2
 
-    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake())
-    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)  # no check at the range centre
+    _use_plant(monkeypatch, tune, Fake())  # no check at the range centre
     rc = cli_main(["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10",
                    "--json"])
     d = json.loads(capsys.readouterr().out)
@@ -215,8 +226,7 @@ def _fake_tune(monkeypatch, capsys, shift):
         def spectral_measure(self, kp, kd):
             return 0.6 * math.exp(-0.1 * (sum(kp) + sum(kd) - shift(self.n_steps))) + 30.0 / self.n_steps**2
 
-    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake())
-    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)
+    _use_plant(monkeypatch, tune, Fake())
     rc = cli_main(["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10",
                    "--json"])
     assert rc == 0
@@ -271,8 +281,7 @@ def test_recheck_outside_the_tolerance_exits_1_with_one_line(monkeypatch, capsys
         def spectral_measure(self, kp, kd):
             return 0.6 * math.exp(-0.1 * (sum(kp) + sum(kd))) + self.bias
 
-    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake(plant=Fake(bias=0.05)))
-    monkeypatch.setattr(tune, "propagator_steps", lambda plant, cfg: plant)
+    _use_plant(monkeypatch, tune, Fake(plant=Fake(bias=0.05)))
     argv = ["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10"]
     assert cli_main(argv + ["--json"]) == 1
     cap = capsys.readouterr()
@@ -281,7 +290,7 @@ def test_recheck_outside_the_tolerance_exits_1_with_one_line(monkeypatch, capsys
     err = cap.err.strip().splitlines()
     assert len(err) == 1 and "check failed" in err[0] and "twice the propagator steps (512)" in err[0], err
     # the same plant without the biased independent path passes: exit 0, nothing on stderr
-    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: Fake(plant=Fake()))
+    _use_plant(monkeypatch, tune, Fake(plant=Fake()))
     assert cli_main(argv) == 0 and capsys.readouterr().err == ""
 
 

@@ -27,8 +27,9 @@ def test_dominant_damped_skips_the_unit_circle():
 
 
 def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp_path):
-    """The study's two-link stage (quick: 2 pi) with a cached script result; the tuned gains of the
-    section give |rho| within 1e-3 rho_d of rho_d = 0.3 by Hill (the loop's method) AND by an independent
+    """The study's two-link stage (quick: 2 pi) with a cached script result whose mesh part has this
+    study's keys and whose tuning part was computed by other code (its gains 30 % off: ignored, with a
+    note; used, the band check below would fail); the tuned gains of the section give |rho| within 1e-3 rho_d of rho_d = 0.3 by Hill (the loop's method) AND by an independent
     method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-extrapolated
     from 512 / 256 steps, whose own estimate (~1.5e-5) is far below the band (3e-4).  All gains 30 % lower
     leave the band (the check can fail)."""
@@ -41,9 +42,16 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
     from flexstab.study import StudyOptions, run_study
     from stability.modal import modal_floquet
 
+    from flexstab.two_link import TUNED_GAINS
+    from flexstab.two_link_report import cache_keys
+
+    keys = cache_keys(0.3)
+    stale = dict(keys, code="0" * 64)  # the tuning part of a run of other code: must not be used
     cache = tmp_path / "two_link" / "two_link.json"
     cache.parent.mkdir()
-    cache.write_text(json.dumps({"target": 0.3, "mesh": {"2pi": [{"elements": 2, "size": 20, "harmonics": 16,
+    cache.write_text(json.dumps({"target": 0.3, "keys": {"mesh": keys, "tune": stale},
+        "tune": {"2pi": {"gains": [0.7 * v for v in TUNED_GAINS[2]], "rho": 0.3, "evaluations": 1, "cpu_s": 1.0}},
+        "mesh": {"2pi": [{"elements": 2, "size": 20, "harmonics": 16,
         "uncontrolled": {"modulus": 43.85, "mode": "elbow", "hill_error_estimate": 1e-8},
         "tuned": {"modulus": 0.3001, "mode": "elbow", "hill_error_estimate": 1e-9}}]}}))
     res = run_study(StudyConfig(), StudyOptions(out=tmp_path, quick=True, stages=("two_link",), progress=False,
@@ -51,10 +59,16 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
     assert res.stages["two_link"]["status"] == "computed"
     doc = json.loads((tmp_path / "two_link.json").read_text())
     assert doc["cache"]["sha256"] and (tmp_path / "two_link_cached.json").exists()
+    assert doc["cache"]["used"] == ["mesh"] and doc["cache"]["ignored"][0].startswith("`tune` ignored")
     md = (tmp_path / "report.md").read_text()
     assert "Two-link flexible arm" in md and "Mesh convergence" in md
+    assert "`tune` ignored: computed with other code" in md and "Four-gain Taguchi" not in md
     row = doc["rows"][0]
     g = row["tuned_gains"]
+    assert row["gains_source"] == "flexstab.two_link.TUNED_GAINS"  # not the stale part's gains
+    # the mode figure states the modulus the table states (Hill's), with the method
+    fig = row["tuned"]["mode_figure"]
+    assert fig["modulus"] == row["tuned"]["dominant_modulus"] and fig["method"].startswith("Hill's method")
     hill = row["tuned"]["dominant_modulus"]
     assert row["tuned"]["mode"] in ("shoulder", "elbow")
     band = 1e-3 * 0.3
@@ -76,3 +90,46 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
     assert abs(m - hill) <= est + 1e-6
     off, _ = modal(tuple(0.7 * v for v in g))
     assert abs(off - 0.3) > band
+
+
+def test_stale_cache_parts_are_ignored_with_a_note(tmp_path):
+    """The script's merge keeps each stage's keys; the study uses a part only if its keys equal its own
+    (code hash, mesh, ranges, rho_d) and names what differs otherwise.  Rejects a cache read whatever
+    code or inputs produced it (review S10).  No orbit: the merge and the key rule only."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from flexstab.two_link_report import cache_keys, fresh_parts
+
+    spec = importlib.util.spec_from_file_location(
+        "two_link_study_script", Path(__file__).resolve().parents[1] / "scripts" / "two_link_study.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    keys = cache_keys(0.3)
+    (tmp_path / "two_link_tune.json").write_text(json.dumps({"target": 0.3, "tune": {"2pi": {}}, "keys": keys}))
+    (tmp_path / "two_link_mesh.json").write_text(json.dumps({"mesh": {"2pi": []}, "keys": dict(keys, target=0.5)}))
+    (tmp_path / "two_link_robust.json").write_text(json.dumps({"robust": {"2pi": {}}}))  # an older script: no keys
+    doc = script.merge(tmp_path)
+    assert json.loads((tmp_path / "two_link.json").read_text()) == doc
+    fresh, notes = fresh_parts(doc, keys)
+    assert set(fresh) == {"tune", "target"}
+    assert notes == ["`mesh` ignored: computed with other target",
+                     "`robust` ignored: computed without keys (an older script)"]
+    assert fresh_parts(doc, dict(keys, code="other"))[0] == {}  # a code change invalidates every part
+    # the script starts a stage file again when its keys are not the current ones
+    assert script._resume(tmp_path / "two_link_mesh.json", keys, {"mesh": {}}) == {"mesh": {}, "keys": keys}
+    assert script._resume(tmp_path / "two_link_tune.json", keys, {})["tune"] == {"2pi": {}}
+
+
+def test_mode_title_shows_the_measured_modulus_and_its_method():
+    """The two-link figure at 4 pi showed the 512-step product's 0.3023 while the table showed Hill's 0.300027:
+    with ``measured`` the title carries the table's value (6 digits, as the table) and the method."""
+    from types import SimpleNamespace
+
+    from flexstab.arm_figures import mode_title
+
+    orbit = SimpleNamespace(model=SimpleNamespace(name="two-link"), omega=4 * 3.141592653589793)
+    t = mode_title(orbit, 0.3023 + 0.0j, "elbow", (0.300027 + 0.0j, "Hill's method, 16 harmonics"))
+    assert "|rho| = 0.300027 (elbow; Hill's method, 16 harmonics)" in t and "0.3023" not in t
+    assert "|rho| = 0.3023 (elbow)" in mode_title(orbit, 0.3023 + 0.0j, "elbow")

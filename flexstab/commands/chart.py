@@ -31,8 +31,9 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=None,
                    help="model files: collocation samples per period (even; default 32)")
     p.add_argument("--steps", type=int, default=None,
-                   help="model files: magnus2 sub-intervals per Floquet evaluation (default: the tuning's, "
-                        "linearize.analysis.TUNING_PROPAGATOR_STEPS)")
+                   help="model files: magnus2 sub-intervals per Floquet evaluation (default: chosen as tune and "
+                        "study --model choose them, at the centre of the gain ranges; not for the built-in two-link, "
+                        "whose response is measured by Hill's method)")
     add_model_options(p)
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
     p.add_argument("--kd-range", type=float, nargs=2, metavar=("LO", "HI"), default=None)
@@ -173,10 +174,12 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     import dataclasses
     import hashlib
 
-    from flexstab.charts import ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart
+    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
+                                 plot_omega_chart)
     from flexstab.executor import make_executor
     from flexstab.options import resolve_model_definition
-    from linearize.analysis import TUNING_PROPAGATOR_STEPS
+    from flexstab.plants import is_hill_model
+    from linearize.hill_plant import HillModelPlant
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from taguchi.tuning import TuningConfig, check_gain_range, taguchi_tune
 
@@ -195,16 +198,23 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     if isinstance(samples, bool) or samples < 4 or samples % 2:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
-    steps = args.steps if args.steps is not None else TUNING_PROPAGATOR_STEPS
-    if steps < 1:
+    steps = args.steps
+    if steps is not None and steps < 1:
         raise ValueError(f"--steps must be >= 1, got {steps}")
     target = args.target if args.target is not None else cfg.target
     definition, options = resolve_model_definition(args.model, cfg, args.elements)
+    if steps is not None and is_hill_model(definition):
+        raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (harmonics chosen at the "
+                         "centre of the gain ranges): there are no propagator steps to set")
     out = ensure_out_dir(args.out)
 
-    task = ModelRadius(definition, options, samples=samples, n_steps=steps)
-    drives = task.plant(omega).drives  # the orbit at the chart's Omega: the drives, and the first check
+    plants = ModelPlants(definition, options, samples=samples)
+    drives = plants.linearised(omega)[0].drive_names  # the orbit at the chart's Omega: the drives, the first check
     nd = len(drives)
+    # the plant rule of tune and study --model (flexstab.plants.plant_for) with the tuning configuration they
+    # build from the same ranges and target: same method and discretisation, so the same response
+    tcfg = TuningConfig(target=target, ranges=(tuple(kp_rng), tuple(kd_rng)) * nd) if nd else None
+    task = ModelRadius(plants, config=tcfg, steps=steps)
     if args.drive in (None, "all"):
         idx = None if args.drive == "all" else 0
     elif args.drive in drives:
@@ -212,7 +222,7 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     else:
         raise ValueError(f"--drive {args.drive!r}: the model's drives are {', '.join(drives) or '(none)'}")
     fkp, fkd = _fixed_gains(args.kp, nd, "kp"), _fixed_gains(args.kd, nd, "kd")
-    task = dataclasses.replace(task, drive=idx, fixed_kp=fkp, fixed_kd=fkd)  # same plants (cache shared)
+    task = dataclasses.replace(task, drive=idx, fixed_kp=fkp, fixed_kd=fkd)  # same plants (the cache object)
     charted = ("all drives" if idx is None else drives[idx]) if nd else None
 
     from flexstab.study import _code_hash
@@ -221,11 +231,16 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     code = hashlib.sha1(Path(source).read_bytes()).hexdigest()[:8] if source else definition.name
     # the resumable stores are keyed by everything that changes the numbers: the model file, its
     # options, the discretisation and the package's own source (a changed engine starts a new store)
+    # (the plant rule's inputs: fixed steps, or the ranges and target it chooses the discretisation from)
     fingerprint = hashlib.sha1(json.dumps(
-        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps, _code_hash()]
+        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps,
+         repr(tcfg) if steps is None else None, _code_hash()]
     ).encode()).hexdigest()[:8]
     tag = f"{definition.name}_w{omega:.6g}_{fingerprint}"
-    label = f"model {definition.name} (dominant labelled multiplier, {steps} magnus2 steps)"
+    plant = task.plant(omega)
+    hill = isinstance(plant, HillModelPlant)
+    method = (f"Hill's method, {plant.harmonics} harmonics" if hill else f"{plant.n_steps} magnus2 steps")
+    label = f"model {definition.name} (dominant labelled multiplier, {method})"
 
     path = tuned = None
     gc = None
@@ -247,13 +262,18 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
             gkp, gkd = list(fkp), list(fkd)
         otag = hashlib.sha1(json.dumps([gkp, gkd]).encode()).hexdigest()[:6]
         oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{tag}_{otag}.jsonl", progress=progress)
-    # propagator check at the chart point of the Omega chart's gains: ModelPlant's value is the
+    # discretisation check at the chart point of the Omega chart's gains.  ModelPlant: the value is the
     # Richardson-extrapolated exponential midpoint (4th order, error ~ 16/15 |r_n - r_2n| asymptotically);
-    # 4/3 |r_n - r_2n| bounds the error for any observed order >= 2 (2^p / (2^p - 1) falls with p)
-    plant = task.plant(omega)
-    r_n = plant.spectral_measure(gkp, gkd)
-    r_2n = dataclasses.replace(plant, n_steps=2 * steps).spectral_measure(gkp, gkd)
-    estimate = 4.0 / 3.0 * abs(r_n - r_2n)
+    # 4/3 |r_n - r_2n| bounds the error for any observed order >= 2 (2^p / (2^p - 1) falls with p).
+    # Hill: the relative H vs H/2 change (spectral convergence: it bounds the error of H/2, so over-states
+    # that of H) times the modulus
+    if hill:
+        m = plant.measure(gkp, gkd, error_estimate=True)
+        estimate = float(m.hill_error_estimate) * abs(m.dominant)
+    else:
+        r_n = plant.spectral_measure(gkp, gkd)
+        r_2n = dataclasses.replace(plant, n_steps=2 * plant.n_steps).spectral_measure(gkp, gkd)
+        estimate = 4.0 / 3.0 * abs(r_n - r_2n)
     drawn = hashlib.sha1(json.dumps(
         [tag, charted, fkp, fkd, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
     ).encode()).hexdigest()[:8]
@@ -269,7 +289,10 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
                "tuned": ({"kp": tuned.kp, "kd": tuned.kd, "response": tuned.spectral_radius, "status": tuned.status,
                           "evaluations": tuned.evaluations} if tuned is not None else None),
                "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
-               "propagator_steps": steps, "propagator_error_estimate": estimate,
+               "response_method": "hill" if hill else "magnus2",
+               "harmonics": plant.harmonics if hill else None,
+               "propagator_steps": plant.label_steps if hill else plant.n_steps,
+               "propagator_error_estimate": estimate,
                "inputs": {"model": args.model, "source": source, "options": {k: repr(v) for k, v in options.items()},
                           "omega": omega, "grid": [kp.size, kd.size], "kp_range": list(kp_rng),
                           "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],

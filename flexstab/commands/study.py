@@ -35,6 +35,8 @@ def register(sub) -> None:
                    help="--model: frequency of the periodic motion, rad/s or like '2pi' (default: [study] omega of "
                         "--config, else 2pi)")
     p.add_argument("--samples", type=int, default=None, help="--model: collocation samples per period (default 32)")
+    p.add_argument("--elements", type=int, default=None,
+                   help="--model: ANCF elements of a built-in model (default: its own; single-link: --config's)")
     p.set_defaults(func=run)
 
 
@@ -54,6 +56,7 @@ def run_model(args: argparse.Namespace, cfg) -> int:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
     opts = ModelStudyOptions(out=Path(args.out), omega=resolve_omega(args, cfg), target=cfg.target,
                              kp_range=tuple(cfg.kp_range), kd_range=tuple(cfg.kd_range), samples=samples,
+                             elements=args.elements,
                              quick=args.quick, progress=sys.stderr.isatty(), log=_progress_log())
     return _report_exit_code(run_model_study(args.model, cfg, opts))
 
@@ -82,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config)
     if args.model is not None:
         return run_model(args, cfg)
-    for flag in ("omega", "samples"):
+    for flag in ("omega", "samples", "elements"):
         if getattr(args, flag) is not None:
             raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
     if args.scheduler:

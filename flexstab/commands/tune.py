@@ -8,11 +8,14 @@ import sys
 
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
+# the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
+from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
+                             plant_for, propagator_steps, whole_spectrum)
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "tune_model_plant", "check_failure",
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
 
@@ -193,50 +196,20 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
     return names, tuple(ranges)
 
 
-#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
-#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
-HILL_MODELS = ("two-link",)
-
 #: Width (fraction of each initial range) of the ranges of a tuning pass restarted with twice the steps.
 RESTART_WIDTH = 0.25
-
-#: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
-MAX_TUNING_STEPS = 4096
-
-
-def propagator_steps(plant, tcfg):
-    """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
-
-    The response is evaluated at the centre of the initial ranges with ``n`` and
-    ``2n`` propagator steps.  For a :class:`~linearize.analysis.ModelPlant` the value is the
-    Richardson-extrapolated exponential midpoint (4th order: the error of ``n`` steps is
-    ``~ 16/15 |r_n - r_2n|`` asymptotically); the estimate used is ``4/3 |r_n - r_2n|``, which
-    bounds the error for any observed order ``p >= 2`` (the factor ``2^p / (2^p - 1)`` falls
-    with ``p``), i.e. also before the extrapolated value reaches its 4th order.  ``n`` is
-    doubled from ``plant.n_steps`` until that estimate is below a quarter of the tolerance,
-    or ``MAX_TUNING_STEPS``.
-    """
-    import dataclasses
-
-    centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
-    kp, kd = centre[0::2], centre[1::2]
-    n = plant.n_steps
-    r = plant.spectral_measure(kp, kd)
-    while 2 * n <= MAX_TUNING_STEPS:
-        r2 = dataclasses.replace(plant, n_steps=2 * n).spectral_measure(kp, kd)
-        if 4.0 / 3.0 * abs(r - r2) <= 0.25 * tcfg.effective_tolerance:
-            break
-        n, r = 2 * n, r2
-    return dataclasses.replace(plant, n_steps=n)
 
 
 _pairs = gain_pairs  # former private name
 
 
 def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
-    """Taguchi tuning of a model-file plant with the step-doubling check at the tuned gains.
+    """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
+    check at the tuned gains for a time-stepping plant.
 
-    ``plant`` (a :class:`~linearize.analysis.ModelPlant`, e.g. from :func:`propagator_steps`) is tuned
+    A :class:`~linearize.hill_plant.HillModelPlant` has no propagator steps to refine: one pass, and
+    ``passes`` is empty.  A ``plant`` with ``n_steps`` (a :class:`~linearize.analysis.ModelPlant`,
+    e.g. from :func:`propagator_steps`) is tuned
     with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
     compared (error estimate ``4/3 |r_n - r_2n|``: the Richardson-extrapolated 4th-order value has
     ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`propagator_steps`); above a quarter of
@@ -253,6 +226,10 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
 
     from taguchi.tuning import recentre, taguchi_tune
 
+    from linearize.hill_plant import HillModelPlant
+
+    if isinstance(plant, HillModelPlant):  # no propagator steps to refine: one pass
+        return taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress), plant, []
     n_drives = len(plant.drives)
     passes: list = []
     full_cfg = tcfg
@@ -283,35 +260,10 @@ def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
         tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
 
-#: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
-MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
-
-
-def whole_spectrum(orbit, omega: float, kp, kd) -> dict:
-    """The spectral radius of the whole linearisation at the tuned gains, beside the tuned response.
-
-    A model file's tuning response is the dominant multiplier of the drive modes and the first
-    bending mode (:data:`MODEL_RESPONSE`); the spectrum of a finite-element model also holds
-    high-frequency axial / bending modes of the mesh that the joint gains barely move (e.g. the
-    two-link at 2 elements per link and its tuned gains: an axial pair at 22 kHz with |rho| = 0.557,
-    0.860 at 4 elements -- not converged under mesh refinement).  Reported, never hidden: the
-    largest modulus of the whole spectrum (:func:`linearize.analysis.analyze` on the same orbit,
-    frozen-modal frame) with its mode label, frequency and estimate.
-    """
-    from linearize.analysis import analyze
-
-    r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
-    top = r.modes[0] if r.modes else {}
-    return {"response": MODEL_RESPONSE,
-            "spectral_radius_all": float(r.floquet.spectral_radius),
-            "spectral_radius_all_mode": top.get("mode"),
-            "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
-            "spectral_radius_all_error_estimate": float(r.floquet.error_estimate)}
-
-
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
+    from linearize.hill_plant import HillModelPlant
     from stability import floquet
     from taguchi.direct import direct_tune
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -335,20 +287,17 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
+    harmonics_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
-    hill = model_file and args.model in HILL_MODELS
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
-        if hill:  # no propagator steps to choose: Hill's harmonics, decided once at the range centre
-            from linearize.hill_plant import HillModelPlant, choose_harmonics
-
-            centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
-            plant = choose_harmonics(HillModelPlant(plant.linearization, plant.orbit), centre[0::2], centre[1::2],
-                                     tcfg.effective_tolerance)
-        else:
-            plant = propagator_steps(plant, tcfg)
+        # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
+        # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
+        choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        plant, harmonics_choice = choice.plant, choice.harmonics
+    hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
     kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
@@ -359,10 +308,10 @@ def tune_report(args: argparse.Namespace) -> dict:
         kind = "process" if hill and args.workers != 1 else "serial"
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         progress = not args.json and sys.stderr.isatty()
-        if model_file and not hill:
+        if model_file:  # Hill plants: one pass (no propagator steps to refine), passes == []
             res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
             objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
-        else:  # Hill plants have no propagator steps to refine: one pass
+        else:
             res, passes = taguchi_tune(objective, tcfg, executor=ex, progress=progress), []
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
     if hasattr(plant, "drives"):
@@ -383,8 +332,12 @@ def tune_report(args: argparse.Namespace) -> dict:
                                harmonics=plant.harmonics)
         out["response_method"] = "hill"
         out["harmonics"] = plant.harmonics
+        # whether the count met tolerance / 20 (H vs H/2 at the range centre), and that estimate (absolute)
+        out["harmonics_converged"] = harmonics_choice.converged
+        out["harmonics_error_estimate"] = harmonics_choice.error_estimate
         out["verified_spectral_radius"] = float(abs(chk.streamed[CHECK_STEPS[-1]]))
         out["verified_error_estimate"] = chk.magnus_error_estimate
+        out["hill_error_estimate"] = chk.hill_error_estimate  # relative, H vs H/2 at the tuned gains
         out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
         out["propagator_steps"] = plant.label_steps
         from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
@@ -455,6 +408,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"whole spectrum: max|rho| = {d['spectral_radius_all']:.6g} ({d['spectral_radius_all_mode']}"
               + (f", {freq:.4g} Hz" if freq else "") + ")")
     print(f"{d['evaluations']} Floquet evaluations in {len(d['iterations'])} iterations, {d['elapsed']:.2f} s")
+    for f in d.get("failed_runs") or []:
+        print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
+              + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+    if d.get("harmonics_converged") is False:
+        print(f"warning: Hill's harmonics ({d['harmonics']}) did not meet tolerance / 20 at the range centre "
+              f"(estimate {d['harmonics_error_estimate']:.2e})")
     if len(names) == 2:
         print("\n iter   kp range              kd range              best kp     best kd     max|rho|")
         for it in d["iterations"]:

@@ -1,0 +1,200 @@
+"""The tuning plant of a model file: one rule for ``tune --model``, ``study --model`` and ``chart --model``.
+
+A model file's response (:data:`MODEL_RESPONSE`) is the modulus of the dominant labelled
+multiplier (drive modes and the first bending mode).  How it is evaluated depends on the model:
+
+* the built-in models of :data:`HILL_MODELS` (the two-link arm, whose stiff undamped axial modes
+  make time-stepping products converge erratically in their step count): Hill's method,
+  :class:`linearize.hill_plant.HillModelPlant`, its harmonic count chosen once at the centre of the
+  tuning ranges (:func:`hill_plant`);
+* every other model: the Richardson-extrapolated exponential midpoint in the frozen-modal frame,
+  :class:`linearize.analysis.ModelPlant`, its step count chosen once at the centre of the tuning
+  ranges (:func:`propagator_steps`) unless given.
+
+:func:`plant_for` applies that rule; the three commands call it with the same tuning
+configuration, so at the same gains they evaluate the same quantity by the same method and
+discretisation.  ``tune``/``study`` may afterwards double a :class:`ModelPlant`'s steps when the
+step-doubling check at the tuned gains asks for it (:func:`flexstab.commands.tune.tune_model_plant`).
+
+:func:`whole_spectrum` reports, beside the tuned response, the spectral radius of the whole
+linearisation at the tuned gains (``tune --model`` and the study's two-link section).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
+
+from linearize.analysis import ModelPlant
+from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
+from linearize.periodic_orbit import PeriodicOrbit
+from linearize.system import LinearizedPeriodicSystem
+from taguchi.tuning import TuningConfig
+
+__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
+           "hill_plant", "hill_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
+
+logger = logging.getLogger(__name__)
+
+#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
+#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
+HILL_MODELS = ("two-link",)
+
+#: Hill harmonic counts tried (fewest first) for a model of :data:`HILL_MODELS`; see
+#: :func:`linearize.hill_plant.select_harmonics`.
+HILL_HARMONICS = (8, 12, 16, 24, 32)
+
+#: Upper bound of the propagator sub-intervals chosen by :func:`propagator_steps`.
+MAX_TUNING_STEPS = 4096
+
+#: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
+MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
+
+Plant = Union[HillModelPlant, ModelPlant]
+
+
+def is_hill_model(definition: Any) -> bool:
+    """Whether ``definition`` (a :class:`~mbs_models.model_file.ModelDefinition`) is a built-in model of
+    :data:`HILL_MODELS` -- by name *and* file, so a user's file that happens to be called ``two-link.py``
+    is not."""
+    from mbs_models.model_file import BUILTIN_MODELS
+
+    name = getattr(definition, "name", None)
+    source = getattr(definition, "source", None)
+    if name not in HILL_MODELS or name not in BUILTIN_MODELS or not source:
+        return False
+    import mbs_models.model_file as mf
+
+    builtin = Path(mf.__file__).with_name("builtin") / BUILTIN_MODELS[name]
+    return Path(source).resolve() == builtin.resolve()
+
+
+def _centre(config: TuningConfig) -> tuple[list, list]:
+    """``(kp, kd)`` per drive at the centre of the initial ranges of ``config``."""
+    centre = [0.5 * (lo + hi) for lo, hi in config.factor_ranges]
+    return centre[0::2], centre[1::2]
+
+
+def hill_choice(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:
+    """Hill's harmonic count decided once, at the centre of the tuning ranges
+    (:func:`linearize.hill_plant.select_harmonics` over :data:`HILL_HARMONICS`, H vs H/2 below
+    ``tolerance / 20``; warns and says ``converged=False`` when no count meets it)."""
+    kp, kd = _centre(config)
+    return select_harmonics(HillModelPlant(lin, orbit), kp, kd, config.effective_tolerance, HILL_HARMONICS)
+
+
+def hill_plant(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig, *,
+               harmonics: Optional[int] = None) -> HillModelPlant:
+    """:class:`HillModelPlant` with its harmonics from :func:`hill_choice`, or ``harmonics``."""
+    if harmonics is not None:
+        return HillModelPlant(lin, orbit).replace(harmonics=harmonics)
+    return hill_choice(lin, orbit, config).plant
+
+
+def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
+    """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
+
+    The response is evaluated at the centre of the initial ranges with ``n`` and
+    ``2n`` propagator steps.  For a :class:`~linearize.analysis.ModelPlant` the value is the
+    Richardson-extrapolated exponential midpoint (4th order: the error of ``n`` steps is
+    ``~ 16/15 |r_n - r_2n|`` asymptotically); the estimate used is ``4/3 |r_n - r_2n|``, which
+    bounds the error for any observed order ``p >= 2`` (the factor ``2^p / (2^p - 1)`` falls
+    with ``p``), i.e. also before the extrapolated value reaches its 4th order.  ``n`` is
+    doubled from ``plant.n_steps`` until that estimate is below a quarter of the tolerance,
+    or ``MAX_TUNING_STEPS``.
+    """
+    kp, kd = _centre(tcfg)
+    n = plant.n_steps
+    r = plant.spectral_measure(kp, kd)
+    while 2 * n <= MAX_TUNING_STEPS:
+        r2 = dataclasses.replace(plant, n_steps=2 * n).spectral_measure(kp, kd)
+        if 4.0 / 3.0 * abs(r - r2) <= 0.25 * tcfg.effective_tolerance:
+            break
+        n, r = 2 * n, r2
+    return dataclasses.replace(plant, n_steps=n)
+
+
+@dataclasses.dataclass(frozen=True)
+class PlantChoice:
+    """Outcome of :func:`plant_choice_for`: the plant, and for a Hill plant how its harmonics were chosen."""
+
+    plant: Any
+    harmonics: Optional[HarmonicsChoice] = None
+
+
+def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
+                     config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantChoice:
+    """:func:`plant_for` with the record of the harmonic choice (``tune --model`` reports it)."""
+    if lin.B is not None and lin.B.shape[-1] and is_hill_model(definition):
+        if steps is not None:
+            raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
+                             "chosen at the centre of the gain ranges): there are no propagator steps to set")
+        if config is None:
+            raise ValueError("plant_for: a Hill plant needs the tuning configuration (its ranges and tolerance)")
+        choice = hill_choice(lin, orbit, config)
+        return PlantChoice(choice.plant, choice)
+    plant = ModelPlant(lin, orbit)
+    if steps is not None:
+        return PlantChoice(dataclasses.replace(plant, n_steps=int(steps)))
+    if config is None or not orbit.drive_names:
+        return PlantChoice(plant)
+    return PlantChoice(propagator_steps(plant, config))
+
+
+def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
+              *, steps: Optional[int] = None) -> Plant:
+    """The tuning plant of a model at one Omega: the one rule of ``tune``, ``study`` and ``chart --model``.
+
+    Parameters
+    ----------
+    definition : ModelDefinition
+        The model (decides the method: :func:`is_hill_model`).
+    orbit, lin
+        Its periodic orbit and linearisation (gains 0) at the Omega.
+    config : TuningConfig or None
+        The tuning ranges and tolerance: the discretisation (Hill harmonics, propagator steps) is
+        chosen at the centre of the ranges to a fraction of the tolerance.  ``None`` (a model
+        without drives: nothing to tune): the :class:`ModelPlant` with ``steps`` or its default.
+    steps : int, optional
+        Fixed propagator steps of a :class:`ModelPlant` (``chart --steps``) instead of the rule.
+
+    Returns
+    -------
+    HillModelPlant or ModelPlant
+
+    Raises
+    ------
+    ValueError
+        ``steps`` given for a model evaluated by Hill's method (it has no propagator steps).
+    """
+    return plant_choice_for(definition, orbit, lin, config, steps=steps).plant
+
+
+def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: Sequence[float]) -> dict:
+    """The spectral radius of the whole linearisation at the tuned gains, beside the tuned response.
+
+    A model file's tuning response is the dominant multiplier of the drive modes and the first
+    bending mode (:data:`MODEL_RESPONSE`); the spectrum of a finite-element model also holds
+    high-frequency axial / bending modes of the mesh that the joint gains barely move (e.g. the
+    two-link at 2 elements per link and its tuned gains: an axial pair at 22 kHz with |rho| = 0.557,
+    0.860 at 4 elements -- not converged under mesh refinement).  Reported, never hidden: the
+    largest modulus of the whole spectrum (:func:`linearize.analysis.analyze` on the same orbit,
+    frozen-modal frame) with its mode label, frequency and estimate.
+
+    Returns
+    -------
+    dict
+        ``response``, ``spectral_radius_all``, ``spectral_radius_all_mode``,
+        ``spectral_radius_all_frequency_hz``, ``spectral_radius_all_error_estimate`` (a stable
+        JSON contract of ``tune --model`` and the study's two-link section).
+    """
+    from linearize.analysis import analyze
+
+    r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
+    top = r.modes[0] if r.modes else {}
+    return {"response": MODEL_RESPONSE,
+            "spectral_radius_all": float(r.floquet.spectral_radius),
+            "spectral_radius_all_mode": top.get("mode"),
+            "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
+            "spectral_radius_all_error_estimate": float(r.floquet.error_estimate)}
