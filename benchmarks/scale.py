@@ -127,7 +127,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
         rec["modal_condition"] = float(system.condition)
         frames, inner = [], system
         while hasattr(inner, "clusters"):  # innermost frame first
-            frames.append({"largest_cluster": max(inner.clusters), "clusters": len(inner.clusters),
+            frames.append({"largest_cluster": int(max(inner.clusters)), "clusters": len(inner.clusters),
                            "method": inner.method})
             inner = inner.original
         rec["modal_frames"] = frames[::-1]  # outermost (first) frame first

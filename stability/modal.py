@@ -740,7 +740,7 @@ class FrozenModalSystem:
                 logger.info("first-order basis refused (%s): full eigen-decompositions", exc)
         if V is None:
             V, bounds = _eig_basis(Pb, times, self.period)
-        self.clusters = tuple(b - a for a, b in bounds)
+        self.clusters = tuple(int(b - a) for a, b in bounds)
         cond = max(_condition(V[k]) for k in range(0, K, max(1, K // 4)))
         if not cond <= MAX_CONDITION:
             raise ModalBasisError(f"the frozen eigenvector basis is nearly singular (condition {cond:.1e})")
