@@ -762,6 +762,7 @@ class FrozenModalSystem:
         other.__dict__.update(self.__dict__)
         other.original = P
         other._trace = None
+        other._sample_cache = None  # the samples of *this* P: never a nested frame's input
         other._wrapped = PeriodicMatrixFunction(P, self.period)
         if other._wrapped.n != self.n or abs(other._wrapped.period - self.period) > 1e-12 * self.period:
             raise ValueError("with_system needs a periodic matrix of the same size and period")
@@ -920,6 +921,9 @@ def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = No
         except ModalBasisError as exc:
             logger.info("no deeper frozen-modal frame (%s)", exc)
             break
+    frame = system
+    while isinstance(frame, FrozenModalSystem):  # no deeper frame will read the samples: free them
+        frame._sample_cache, frame = None, frame.original
     return system
 
 
