@@ -216,3 +216,20 @@ def test_small_sylvester_solutions_satisfy_their_equation():
             assert res <= 1e-10 * (np.abs(A).max() + np.abs(B).max()) * np.abs(X).max(), (p, q, res)
     # a common eigenvalue has no solution: refused as non-finite, never a silent number
     assert not np.all(np.isfinite(_sylvester(np.eye(2)[None], np.eye(2)[None], np.ones((1, 2, 2)))))
+
+
+def test_nested_frame_reads_its_parent_samples_exactly():
+    """A nested frame takes ``P_hat`` at the shared sample times from its parent's samples (spectral
+    ``V'``) instead of evaluating it: equal to the parent's own ``evaluate`` at those times to rounding
+    (``|V^-1| |P| |V| eps`` with ``|P| ~ 640``: <= 1e-10 relative; measured ~1e-14); read once; a frame
+    re-based on another ``P`` (``with_system``) carries no samples, nor does another sample count."""
+    from stability.modal import FrozenModalSystem, _samples_of
+
+    frame = FrozenModalSystem(CLOSE, samples=16)
+    times = np.arange(16) * (frame.period / 16)
+    direct = frame.evaluate(times)
+    assert _samples_of(frame, 8) is None
+    assert _samples_of(frame.with_system(CROSSING.__class__(CLOSE.w, CLOSE.W, seed=4)), 16) is None
+    cached = _samples_of(frame, 16)
+    assert np.abs(cached - direct).max() <= 1e-10 * np.abs(direct).max()
+    assert _samples_of(frame, 16) is None
