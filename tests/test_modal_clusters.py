@@ -221,15 +221,20 @@ def test_small_sylvester_solutions_satisfy_their_equation():
 def test_nested_frame_reads_its_parent_samples_exactly():
     """A nested frame takes ``P_hat`` at the shared sample times from its parent's samples (spectral
     ``V'``) instead of evaluating it: equal to the parent's own ``evaluate`` at those times to rounding
-    (``|V^-1| |P| |V| eps`` with ``|P| ~ 640``: <= 1e-10 relative; measured ~1e-14); read once; a frame
-    re-based on another ``P`` (``with_system``) carries no samples, nor does another sample count."""
+    (``|V^-1| |P| |V| eps`` with ``|P| ~ 640``: <= 1e-10 relative; measured ~1e-14), also for a divisor
+    of the sample count; read once; a frame re-based on another ``P`` (``with_system``) carries no
+    samples, nor does a sample count that does not divide the parent's."""
     from stability.modal import FrozenModalSystem, _samples_of
 
     frame = FrozenModalSystem(CLOSE, samples=16)
     times = np.arange(16) * (frame.period / 16)
     direct = frame.evaluate(times)
-    assert _samples_of(frame, 8) is None
+    assert _samples_of(frame, 6) is None  # 6 does not divide 16
     assert _samples_of(frame.with_system(CROSSING.__class__(CLOSE.w, CLOSE.W, seed=4)), 16) is None
     cached = _samples_of(frame, 16)
     assert np.abs(cached - direct).max() <= 1e-10 * np.abs(direct).max()
     assert _samples_of(frame, 16) is None
+    # every second sample: the 8 times of a coarser nested frame
+    frame = FrozenModalSystem(CLOSE, samples=16)
+    sub = _samples_of(frame, 8)
+    assert np.abs(sub - direct[::2]).max() <= 1e-10 * np.abs(direct).max()
