@@ -269,6 +269,8 @@ def _left22(T: np.ndarray, R: np.ndarray) -> np.ndarray:
     """``blockdiag(T) @ R`` on the first ``2 m`` rows (``T``: (m, 2, 2)); the rest unchanged."""
     m = T.shape[0]
     out = R.copy()
+    if m == 0:
+        return out
     r = R[:2 * m].reshape(m, 2, -1)
     o = out[:2 * m].reshape(m, 2, -1)
     o[:, 0] = T[:, 0, 0, None] * r[:, 0] + T[:, 0, 1, None] * r[:, 1]
@@ -280,6 +282,8 @@ def _right22(R: np.ndarray, T: np.ndarray) -> np.ndarray:
     """``R @ blockdiag(T)`` on the first ``2 m`` columns; the rest unchanged."""
     m = T.shape[0]
     out = R.copy()
+    if m == 0:
+        return out
     r = R[:, :2 * m].reshape(-1, m, 2)
     o = out[:, :2 * m].reshape(-1, m, 2)
     o[:, :, 0] = r[:, :, 0] * T[None, :, 0, 0] + r[:, :, 1] * T[None, :, 1, 0]
