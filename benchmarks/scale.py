@@ -97,7 +97,7 @@ def _cplx(z) -> list:
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
            floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
-           implicit_limit: float | None = None, trace_memory: bool = False) -> dict:
+           implicit_limit: float | None = None, trace_memory: bool = False, rtol: float | None = None) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -109,7 +109,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     if trace_memory:
         tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)
     rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
-                 "extrapolate": bool(extrapolate and frame == "modal"), "stages": {}}
+                 "extrapolate": bool(extrapolate and frame == "modal"), "rtol": rtol, "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
         orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
@@ -139,7 +139,10 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                 from stability.modal import modal_floquet
 
                 # as linearize.analysis.analyze runs it: Richardson-extrapolated from N, N/2, N/4
-                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=n_steps, accuracy="moduli",
+                # --rtol: the step count chosen from the extrapolated estimate (72, 144/216/288, ...)
+                steps = None if (rtol is not None and extrapolate) else n_steps
+                opts = {"rtol": rtol} if steps is None else {}
+                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy="moduli", **opts,
                                     extrapolate=extrapolate)
             else:
                 res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
@@ -254,6 +257,9 @@ def main(argv=None) -> int:
     ap.add_argument("--no-extrapolate", action="store_true",
                     help="modal frame: plain N-step solve with its own estimate instead of analyze()'s "
                          "Richardson extrapolation from N, N/2, N/4")
+    ap.add_argument("--rtol", type=float, default=None,
+                    help="modal frame, extrapolated: choose the dense step count from the estimate (<= rtol) "
+                         "instead of --steps (stability.modal.modal_floquet with n_steps=None)")
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
@@ -271,7 +277,7 @@ def main(argv=None) -> int:
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
                      args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit,
-                     args.trace_memory)
+                     args.trace_memory, args.rtol)
         print(json.dumps(rec))
         return 0
     records = []
@@ -282,6 +288,8 @@ def main(argv=None) -> int:
                "--floquet-limit", str(args.floquet_limit), "--frame", args.frame]
         if args.no_extrapolate:
             cmd.append("--no-extrapolate")
+        if args.rtol is not None:
+            cmd += ["--rtol", repr(args.rtol)]
         if args.implicit_limit is not None:
             cmd += ["--implicit-limit", str(args.implicit_limit)]
         if args.trace_memory:

@@ -164,7 +164,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     from flexstab.commands.chart import model_charts
     from flexstab.commands.tune import factor_ranges, tune_model_plant
     from flexstab.options import ensure_out_dir, gain_pairs, resolve_model_definition
-    from flexstab.plants import MAX_TUNING_STEPS, plant_for
+    from flexstab.plants import MAX_TUNING_STEPS, plant_choice_for
     from flexstab.study import validation_blocks
     from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, analyze
     from linearize.hill_plant import HillModelPlant
@@ -256,7 +256,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
                             max_evaluations=QUICK_EVALUATIONS if opts.quick else EVALUATIONS)
         # the plant rule of tune --model and chart --model (Hill for the built-in two-link)
-        plant = plant_for(definition, base.orbit, base.linearization, tcfg)
+        sel = plant_choice_for(definition, base.orbit, base.linearization, tcfg)
+        plant = sel.plant
         res, plant, passes = tune_model_plant(plant, tcfg, progress=opts.progress)
         hill = isinstance(plant, HillModelPlant)
         kp, kd = (list(g) if isinstance(g, (list, tuple)) else [g] for g in gain_pairs(res.gains, nd))
@@ -273,6 +274,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                "kp": kp, "kd": kd, "tuning": res.to_dict(), "propagator_passes": passes,
                "response_method": "hill" if hill else "magnus2",
                "harmonics": plant.harmonics if hill else None,
+               "harmonics_converged": sel.harmonics.converged if sel.harmonics is not None else None,
+               "harmonics_error_estimate": sel.harmonics.error_estimate if sel.harmonics is not None else None,
                "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
                          "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
                          "modes": check.modes}}
@@ -366,7 +369,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                                                                   [0.0] * len(base.drives))
         else:
             gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
-        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).", check.steps, fig)
+        # the steps the measurement used (d["steps"]: chosen by its own rule, check.steps is empty for step=None)
+        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).",
+                                 d.get("steps") or check.steps, fig)
 
     run("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage)
     has_drives = "uncontrolled" in state and bool(state["uncontrolled"].drives)

@@ -38,7 +38,7 @@ import math
 import uuid
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence, Union
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from linearize.fourier import trig_interpolate
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.hill import TAIL_LIMIT
+
+if TYPE_CHECKING:
+    from stability.gains import GainParametrisedSystem
 
 __all__ = [
     "HillModelPlant",
@@ -62,6 +65,9 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+#: Gains of the drives: one value for every drive, or one per drive.
+Gains = Union[float, Sequence[float]]
 
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
@@ -86,7 +92,7 @@ def _log_distance(z: complex, spectrum: np.ndarray) -> float:
     return float(np.min(np.abs(np.log(complex(z) / spectrum))))
 
 
-def drive_gain_family(lin: LinearizedPeriodicSystem):
+def drive_gain_family(lin: LinearizedPeriodicSystem) -> "GainParametrisedSystem":
     """:class:`stability.gains.GainParametrisedSystem` of the drive gains ``(kp1, kd1, kp2, kd2, ...)``.
 
     With ``K += B kp B^T + B kd B_t^T`` and ``C += B kd B^T`` (see
@@ -257,13 +263,14 @@ class HillModelPlant:
     def n_steps(self) -> int:  # the tune command reports it
         return self.label_steps
 
-    def with_gains(self, kp, kd) -> LinearizedPeriodicSystem:
+    def with_gains(self, kp: Gains, kd: Gains) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
 
     def _workspace(self, steps: int) -> Any:
         return _labelling_workspace(self._key, int(steps))
 
-    def labelled(self, kp, kd, steps: Optional[int] = None):
+    def labelled(self, kp: Gains, kd: Gains,
+                 steps: Optional[int] = None) -> tuple[LinearizedPeriodicSystem, Any, list]:
         """``(lin, floquet_result, modes)`` of the labelling pass."""
         lin = self.with_gains(kp, kd)
         g = [v for pair in zip(lin.kp, lin.kd) for v in pair]
@@ -283,7 +290,7 @@ class HillModelPlant:
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
 
-    def measure(self, kp, kd, *, error_estimate: bool = False) -> HillMeasure:
+    def measure(self, kp: Gains, kd: Gains, *, error_estimate: bool = False) -> HillMeasure:
         """Dominant drive-mode / ``bending 1`` multiplier, measured and labelled by Hill.
 
         Candidates: every magnus2 multiplier labelled as a main mode, and every other
@@ -397,7 +404,7 @@ class HillModelPlant:
                            confirmed=False, method="modal-magnus2", tail=tail, residual=residual,
                            modal_error_estimate=_multiplier_estimate(res, mu))
 
-    def spectral_measure(self, kp, kd) -> float:
+    def spectral_measure(self, kp: Gains, kd: Gains) -> float:
         """``|rho|`` of the dominant labelled multiplier (Hill)."""
         return float(abs(self.measure(kp, kd).dominant))
 

@@ -149,14 +149,33 @@ class LinearizedPeriodicSystem:
         """Number of samples per period."""
         return int(self.M.shape[0])
 
+    def _trig_table(self) -> np.ndarray:
+        """Real Fourier table ``[Re c; Im c]`` of the stacked ``(M, C, K)`` samples, shape
+        ``(2 (N/2 + 1), 3 n^2)``, with the weights of :func:`linearize.fourier.trig_interpolate`
+        (1, 2, ..., 2, 1); formed once per system (a propagation evaluates ``P`` at hundreds of
+        times in chunks: one FFT of the samples instead of three per call)."""
+        table = self.__dict__.get("_table")
+        if table is None:
+            N = self.samples
+            c = np.fft.rfft(np.stack([self.M, self.C, self.K], axis=1), axis=0) / N
+            w = np.full(N // 2 + 1, 2.0)
+            w[0] = w[-1] = 1.0
+            c = (c * w[:, None, None, None]).reshape(N // 2 + 1, -1)
+            table = np.ascontiguousarray(np.concatenate([c.real, c.imag]))
+            object.__setattr__(self, "_table", table)  # a cache, not a field (replace() drops it)
+        return table
+
     def matrices(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Interpolated ``(M, C, K)`` at ``times``, each of shape ``(m, n, n)``."""
+        """Interpolated ``(M, C, K)`` at ``times``, each of shape ``(m, n, n)``.
+
+        :func:`linearize.fourier.trig_interpolate` of each, in real arithmetic
+        (``sum_k a_k cos(k w t) - b_k sin(k w t)``: one real product for the three)."""
         t = np.atleast_1d(np.asarray(times, dtype=float))
-        return (
-            trig_interpolate(self.M, self.period, t),
-            trig_interpolate(self.C, self.period, t),
-            trig_interpolate(self.K, self.period, t),
-        )
+        k = np.arange(self.samples // 2 + 1)
+        arg = (2.0 * np.pi / self.period) * np.outer(t, k)
+        rows = np.concatenate([np.cos(arg), -np.sin(arg)], axis=1)
+        out = (rows @ self._trig_table()).reshape(t.size, 3, self.size, self.size)
+        return out[:, 0], out[:, 1], out[:, 2]
 
     def evaluate(self, times: np.ndarray) -> np.ndarray:
         """First-order matrices ``P(t)`` at ``times``, shape ``(m, 2n, 2n)``."""

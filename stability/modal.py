@@ -211,15 +211,33 @@ def _trig_coefficients(samples: np.ndarray) -> np.ndarray:
     return c * w.reshape((-1,) + (1,) * (samples.ndim - 1))
 
 
-def _trig_eval(coef: np.ndarray, period: float, t: np.ndarray, derivative: bool = False) -> np.ndarray:
-    """The trigonometric interpolant (or its exact time derivative) at times ``t``."""
-    k = np.arange(coef.shape[0])
-    w = 2.0 * np.pi / period
-    phase = np.exp(1j * w * np.outer(t, k))  # (m, K)
-    if derivative:
-        phase = phase * (1j * w * k)
+def _trig_table(coef: np.ndarray) -> np.ndarray:
+    """``coef`` (complex ``a_k + i b_k``, shape ``(K, ...)``) as one real ``(2 K, prod(...))`` table
+    ``[a; b]`` for :func:`_trig_rows`."""
     flat = coef.reshape(coef.shape[0], -1)
-    return np.real(phase @ flat).reshape((t.size,) + coef.shape[1:])
+    return np.ascontiguousarray(np.concatenate([flat.real, flat.imag]))
+
+
+def _trig_rows(K: int, period: float, t: np.ndarray, derivative: bool) -> np.ndarray:
+    """Rows ``[cos(k w t), -sin(k w t)]`` (or their time derivatives ``[-k w sin, -k w cos]``),
+    shape ``(m, 2 K)``: the interpolant is ``rows @ [a; b]`` in real arithmetic."""
+    k = np.arange(K)
+    w = 2.0 * np.pi / period
+    arg = w * np.outer(t, k)
+    c, s = np.cos(arg), np.sin(arg)
+    if derivative:
+        return np.concatenate([-(w * k) * s, -(w * k) * c], axis=1)
+    return np.concatenate([c, -s], axis=1)
+
+
+def _trig_eval(coef: np.ndarray, period: float, t: np.ndarray, derivative: bool = False) -> np.ndarray:
+    """The trigonometric interpolant (or its exact time derivative) at times ``t``.
+
+    Real arithmetic: ``y(t) = sum_k a_k cos(k w t) - b_k sin(k w t)`` is one real product
+    ``(m, 2K) @ (2K, size)`` (a quarter of the flops of the complex phase product and no
+    complex temporaries; the same sums, so equal to rounding)."""
+    rows = _trig_rows(coef.shape[0], period, t, derivative)
+    return (rows @ _trig_table(coef)).reshape((t.size,) + coef.shape[1:])
 
 
 def _real_log(H: np.ndarray) -> np.ndarray:
@@ -777,17 +795,41 @@ class FrozenModalSystem:
             raise ValueError("with_system needs a periodic matrix of the same size and period")
         return other
 
+    def _table(self) -> np.ndarray:
+        """The real coefficient table of ``V`` (:func:`_trig_table`), formed once (shared by
+        :meth:`with_system` copies: same basis)."""
+        table = self.__dict__.get("_trig")
+        if table is None or table[0] is not self._coef:
+            table = (self._coef, _trig_table(self._coef))
+            self._trig = table
+        return table[1]
+
     def basis(self, times: np.ndarray, derivative: bool = False) -> np.ndarray:
         """``V(t)`` (or ``V'(t)``) in the balanced coordinates ``D^-1 x``, shape ``(m, n, n)``."""
-        return _trig_eval(self._coef, self.period, np.atleast_1d(np.asarray(times, dtype=float)), derivative)
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        rows = _trig_rows(self._coef.shape[0], self.period, t, derivative)
+        return (rows @ self._table()).reshape((t.size, self.n, self.n))
 
     def evaluate(self, times: np.ndarray) -> np.ndarray:
-        """``P_hat(t)`` at ``times``, shape ``(m, n, n)``."""
+        """``P_hat(t)`` at ``times``, shape ``(m, n, n)``.
+
+        ``P_hat = V^-1 (D^-1 P D V - V')`` as one product and one LU solve per time, with the
+        balancing ``D`` applied in place and ``V, V'`` from :meth:`basis` (real arithmetic).
+        (Reading the coefficient table once for both would save < 1 % of a propagation; going
+        through :meth:`basis` keeps the derivative replaceable, as the tests that drop it do.)"""
         t = np.atleast_1d(np.asarray(times, dtype=float))
-        P = self._wrapped.evaluate(t) * (self.scale[None, :] / self.scale[:, None])
-        V = self.basis(t)
-        Vt = self.basis(t, derivative=True)
-        return np.linalg.solve(V, P @ V - Vt)
+        P = self._wrapped.evaluate(t)
+        cached = self.__dict__.get("_ratio")
+        if cached is None or cached[0] is not self.scale:
+            cached = self._ratio = (self.scale, self.scale[None, :] / self.scale[:, None])
+        if isinstance(self.original, FrozenModalSystem):
+            P *= cached[1]  # a fresh array from the inner frame's solve: balanced in place
+        else:
+            P = P * cached[1]  # a user's P(t) may hand out its own arrays: never written to
+        V, Vt = self.basis(t), self.basis(t, derivative=True)
+        X = P @ V
+        X -= Vt
+        return np.linalg.solve(V, X)
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
@@ -838,6 +880,20 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     divisible by 8 the estimate is ``max(d1, |R_N - Phi_N|)`` (the 2nd-order
     change of the raw solve).  The ratio-3 path keeps ``d1`` (no third level from
     the companions; measured there estimate / error >= 70 on the same cases).
+
+    Limitation (measured, ``benchmarks/modal_estimate_check.py``, frames with the 5 %
+    cluster-gap rule): on the 8-element single link (2 pi, Table 3 gains, against the same frames at 2592 steps, whose
+    difference from 1296 steps is 1.8e-9) the estimate does *not* bound the error of
+    one pair of moduli (0.999875) at several step counts: 144 steps estimate 2.0e-7,
+    error 1.6e-6; also 72, 135, 153, 360 (ratio 3) and 160, 256 (ratio 2).  The raw
+    midpoint error of that pair is erratic in ``N`` (about 1.6e-6 at 72, 144 and 288
+    steps, 5e-9 at 576, 6e-10 at 864), the same on grids shifted by ``h`` and ``2 h``
+    (the ``N / 3`` rules from every third factor at the three offsets agree to 1e-11),
+    i.e. not an ``h^2`` expansion: consistent with a step-size resonance of the stiff
+    frozen frequencies (``Delta omega h`` near a multiple of ``2 pi``), which every
+    nested coarser level (``N / 2``, ``N / 3``, ``N / 9``) shares, so no estimate from
+    nested solves can see it.  At 16 elements the estimates bound the errors at 72-648
+    steps (against 1296 steps, whose own estimate is 4e-7).
     The frozen-modal frame is what makes the expansion hold at a few dozen
     steps: there the stiff blocks are nearly exact already and the error is the
     smooth ``h^2`` error of the slow modes (measured ratio 3.9-4.0 per doubling
@@ -896,6 +952,60 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
                    multiplier_liouville_residual=mult_liouville, error_estimate=est, reliable_digits=digits,
                    n_evaluations=fine.n_evaluations + extra_evaluations,
                    elapsed=fine.elapsed + extra_elapsed, phase_error_estimate=phase)
+
+
+#: First step count of the adaptive extrapolated solve (``modal_floquet(extrapolate=True,
+#: n_steps=None)``): divisible by 9 (ratio 3, ``N / 3`` and ``N / 9`` from the ``N`` factors, on
+#: systems larger than ``stability.floquet.SMALL_N``) and by 8 (ratio 2 with the premise check on
+#: small ones).
+ADAPTIVE_START_STEPS = 72
+#: Each refinement multiplies the step count by the smallest of these ratios that the order-4
+#: model of the estimate (``est ~ N^-4``) says reaches ``rtol`` with a margin of ``1.2`` in ``N``
+#: (the largest when none does): the counts stay divisible by 72, and a pass never grows the work
+#: more than 4-fold on an extrapolation of the model.
+ADAPTIVE_RATIOS = (2, 3, 4)
+ADAPTIVE_MARGIN = 1.2
+
+
+def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict) -> Any:
+    """:func:`_extrapolated` at ``N = ADAPTIVE_START_STEPS, ...`` until its estimate is ``<= rtol``.
+
+    The step count is chosen from the accuracy reached, not fixed: each pass is one fixed-``N``
+    extrapolated solve (its estimate as :func:`_extrapolated` certifies it); if the estimate
+    ``e`` misses ``rtol`` the next count is ``N r``, ``r`` the smallest of
+    :data:`ADAPTIVE_RATIOS` with ``r >= 1.2 (e / rtol)^(1/4)`` (the estimate falls like
+    ``N^-4`` in the asymptotic range; the largest if none).  Every pass
+    counts in ``n_evaluations`` and ``elapsed``.  Raises :class:`stability.FloquetError` when
+    the next count would exceed ``max_steps`` (the estimate reached is in the message).
+    The premise of any such choice is that the estimate bounds the error at the count where
+    it stops: see the limitation measured in :func:`_extrapolated`.
+    """
+    from stability.floquet import MAX_STEPS, SMALL_N, FloquetError, floquet
+
+    rtol = float(options.get("rtol", 1e-9))
+    if not (math.isfinite(rtol) and rtol > 0):
+        raise ValueError(f"rtol must be finite and > 0, got {rtol!r}")
+    max_steps = int(options.get("max_steps", MAX_STEPS))
+    N = ADAPTIVE_START_STEPS
+    evaluations, elapsed = 0, 0.0
+    while True:
+        opts = dict(options, n_steps=N)
+        if system.n > SMALL_N:
+            fine = floquet(system, **dict(opts, error_estimate=True))
+            res = _extrapolated(system, fine, opts)
+        else:
+            res = _extrapolated(system, floquet(system, **dict(opts, error_estimate=False)), opts)
+        evaluations, elapsed = evaluations + res.n_evaluations, elapsed + res.elapsed
+        est = float(res.error_estimate)
+        if est <= rtol:
+            logger.debug("adaptive extrapolated solve: %d steps, estimate %.2e <= rtol %.1e", N, est, rtol)
+            return replace(res, n_evaluations=evaluations, elapsed=elapsed)
+        need = ADAPTIVE_MARGIN * (est / rtol) ** 0.25 if math.isfinite(est) else math.inf
+        r = next((q for q in ADAPTIVE_RATIOS if need <= q), ADAPTIVE_RATIOS[-1])
+        if N * r > max_steps:
+            raise FloquetError(f"frozen-modal extrapolated solve: estimate {est:.1e} > rtol {rtol:.1e} at {N} "
+                               f"steps, and {N * r} steps exceed max_steps = {max_steps}")
+        N *= r
 
 
 #: Frozen-modal frames stacked by :func:`modal_system`: the second frame is the frozen-modal
@@ -977,6 +1087,10 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     ``(9 Phi_{N/3} - Phi_{N/9}) / 8``, and the coarser solves come from the
     ``N``-step factors (``FloquetResult.companion_monodromies``): ``N``
     exponentials in all instead of ``1.75 N``.
+    ``extrapolate=True`` with ``n_steps=None`` (``method="magnus2"``): the step count is
+    chosen from the accuracy reached (:func:`_adaptive_extrapolated`): 72, then 144 or
+    216, ... steps until the extrapolated estimate is ``<= rtol`` (``options["rtol"]``,
+    default that of :func:`stability.floquet`, 1e-9), at most ``max_steps``.
     Without a modal basis (the fallback) no extrapolation is done: in the
     model's coordinates the midpoint error is not in its asymptotic range.
     """
@@ -994,6 +1108,10 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
             res = floquet(P, method=FALLBACK_METHOD, n_steps=None, **fallback)
             return _with_frame(res, "model", 0, str(exc))
     steps = options.get("n_steps")
+    if (extrapolate and steps is None and options.get("method", "magnus6") == "magnus2"
+            and options.get("small_multipliers", "flag") != "qr"):
+        res = _adaptive_extrapolated(system, options)
+        return _with_frame(replace(res, monodromy=_to_base(system, res.monodromy)), "modal", _levels(system))
     can_extrapolate = (extrapolate and steps is not None and int(steps) >= 8
                        and options.get("method", "magnus6") == "magnus2"
                        and options.get("small_multipliers", "flag") != "qr")

@@ -67,6 +67,7 @@ def test_report_charts_and_validation(study):
                   "Nonlinear validation"):
         assert f"## {title}" in md
     assert "Stage failed" not in md
+    assert "at h = " in md and "at h =  s" not in md  # the measurement's own steps (step=None), not blank
     assert check_markdown_tables(md) >= 4 and check_html_tables((study / "report.html").read_text()) >= 4
     charts = json.loads((study / "charts.json").read_text())
     assert charts["charted_drive"] == "shoulder" and charts["fixed_kp"][1] == json.loads(
@@ -203,7 +204,7 @@ def test_failed_tuning_validates_at_zero_gains_and_says_so(tmp_path, monkeypatch
         asked.append((kp, kd))
         return Confirmed()
 
-    monkeypatch.setattr(plants, "plant_for", fails)
+    monkeypatch.setattr(plants, "plant_choice_for", fails)
     monkeypatch.setattr(chart, "model_charts", fails)
     monkeypatch.setattr(vm, "validate_model_multipliers", measure)
     monkeypatch.setattr(vp, "plot_multiplier_plane", lambda *a, **k: None)

@@ -5,12 +5,16 @@ import argparse
 import logging
 import math
 import sys
+from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
 from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
                              plant_for, propagator_steps, whole_spectrum)
+
+if TYPE_CHECKING:
+    from taguchi.tuning import TuningConfig
 
 logger = logging.getLogger(__name__)
 
@@ -203,7 +207,8 @@ RESTART_WIDTH = 0.25
 _pairs = gain_pairs  # former private name
 
 
-def tune_model_plant(plant, tcfg, *, executor=None, progress: bool = False):
+def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
+                     progress: bool = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
     check at the tuned gains for a time-stepping plant.
 
@@ -449,7 +454,7 @@ def run(args: argparse.Namespace) -> int:
     return rc
 
 
-def check_failure(d: dict):
+def check_failure(d: dict) -> Optional[str]:
     """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
 
     Not accepted: the tuning did not converge, or the independent re-check at the tuned gains
