@@ -265,30 +265,29 @@ def _inv22(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _left22(T: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """``blockdiag(T) @ R`` on the first ``2 m`` rows (``T``: (m, 2, 2)); the rest unchanged."""
+def _left_planar(T: np.ndarray, R: np.ndarray, o: int) -> None:
+    """``R <- blockdiag(T) R`` in place for the 2x2 blocks ``T`` (m, 2, 2) acting on the row
+    pairs ``(o + i, o + m + i)`` (planar layout: first components, then second components)."""
     m = T.shape[0]
-    out = R.copy()
     if m == 0:
-        return out
-    r = R[:2 * m].reshape(m, 2, -1)
-    o = out[:2 * m].reshape(m, 2, -1)
-    o[:, 0] = T[:, 0, 0, None] * r[:, 0] + T[:, 0, 1, None] * r[:, 1]
-    o[:, 1] = T[:, 1, 0, None] * r[:, 0] + T[:, 1, 1, None] * r[:, 1]
-    return out
+        return
+    a, b = R[o:o + m], R[o + m:o + 2 * m]
+    na = T[:, 0, 0, None] * a + T[:, 0, 1, None] * b
+    b *= T[:, 1, 1, None]
+    b += T[:, 1, 0, None] * a
+    a[...] = na
 
 
-def _right22(R: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """``R @ blockdiag(T)`` on the first ``2 m`` columns; the rest unchanged."""
+def _right_planar(R: np.ndarray, T: np.ndarray, o: int) -> None:
+    """``R <- R blockdiag(T)`` in place on the column pairs ``(o + i, o + m + i)``."""
     m = T.shape[0]
-    out = R.copy()
     if m == 0:
-        return out
-    r = R[:, :2 * m].reshape(-1, m, 2)
-    o = out[:, :2 * m].reshape(-1, m, 2)
-    o[:, :, 0] = r[:, :, 0] * T[None, :, 0, 0] + r[:, :, 1] * T[None, :, 1, 0]
-    o[:, :, 1] = r[:, :, 0] * T[None, :, 0, 1] + r[:, :, 1] * T[None, :, 1, 1]
-    return out
+        return
+    a, b = R[:, o:o + m], R[:, o + m:o + 2 * m]
+    na = a * T[None, :, 0, 0] + b * T[None, :, 1, 0]
+    b *= T[None, :, 1, 1]
+    b += a * T[None, :, 0, 1]
+    a[...] = na
 
 
 def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
@@ -376,20 +375,28 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
     wr, wi = w.real, w.imag
     phi = -0.5 * np.arctan2(2.0 * np.sum(wr * wi, axis=1), np.sum(wr**2 - wi**2, axis=1))
     w = w * np.exp(1j * phi)[:, None]
-    T = np.concatenate([np.stack([w.real, w.imag], axis=2), Wc[~rot].real], axis=0)
+    Trot = np.stack([w.real, w.imag], axis=2)
+    Tspl = Wc[~rot].real
+    T = np.concatenate([Trot, Tspl], axis=0)
     Tinv = _inv22(T)
     norms = np.abs(T).sum(axis=1).max(axis=1), np.abs(Tinv).sum(axis=1).max(axis=1)
     if T.shape[0] and not np.all(norms[0] * norms[1] <= BLOCK_EIG_COND_LIMIT):
         return _refuse("a 2x2 diagonal block is nearly defective")
     cond_t = float(norms[0].max() * norms[1].max()) if T.shape[0] else 1.0
-    mr = int(rot.sum())
-    q = np.concatenate([(s2[rot][:, None] + np.arange(2)).ravel(), (s2[~rot][:, None] + np.arange(2)).ravel(), s1])
-    mu = np.concatenate([lam[~rot].real.ravel(), A[s1, s1]])  # the scalar blocks' eigenvalues
-    At = _left22(Tinv, _right22(A[q][:, q], T))
-    norm_at = float(np.abs(At).sum(axis=0).max())
+    mr, ms = int(rot.sum()), int((~rot).sum())
     k = 2 * mr
+    # planar layout: rotation blocks' first rows, their second rows, the same for the blocks with
+    # real eigenvalues (two scalars each after diagonalisation), then the 1x1 blocks
+    q = np.concatenate([s2[rot], s2[rot] + 1, s2[~rot], s2[~rot] + 1, s1])
+    mu = np.concatenate([lam[~rot, 0].real, lam[~rot, 1].real, A[s1, s1]])  # the scalars' eigenvalues
+    At = A[q][:, q]
+    _right_planar(At, Trot, 0)
+    _right_planar(At, Tspl, k)
+    _left_planar(_inv22(Trot), At, 0)
+    _left_planar(_inv22(Tspl), At, k)
+    norm_at = float(np.abs(At).sum(axis=0).max())
     ns = n - k
-    ar, asc = np.arange(mr), np.arange(ns)
+    ar, asc = np.arange(mr), np.arange(k, n)
     with np.errstate(divide="ignore", invalid="ignore"):
         gp = -1.0 / ((alpha[:, None] - alpha[None, :]) + 1j * (beta[:, None] - beta[None, :]))
         gm = -1.0 / ((alpha[:, None] - alpha[None, :]) - 1j * (beta[:, None] + beta[None, :]))
@@ -397,24 +404,29 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
         grs = -1.0 / ((alpha + 1j * beta)[:, None] - mu[None, :])
         gsr = -1.0 / (mu[:, None] - (alpha + 1j * beta)[None, :])
         gss = -1.0 / (mu[:, None] - mu[None, :])
-        gss[asc, asc] = 0.0
+        gss[asc - k, asc - k] = 0.0
     if not all(np.isfinite(g).all() for g in (gp, gm, grs, gsr, gss)):
         return _refuse("two blocks share an eigenvalue")
+    gpr, gpi, gmr, gmi = gp.real.copy(), gp.imag.copy(), gm.real.copy(), gm.imag.copy()
+    grr, gri, gsrr, gsri = grs.real.copy(), grs.imag.copy(), gsr.real.copy(), gsr.imag.copy()
+    del gp, gm, grs, gsr
     Z = np.eye(n)
+    Y = np.zeros((n, n))
     residual = math.inf
     sweeps = 0
     while True:
-        AZ = At @ Z
+        R = At @ Z
         sweeps += 1
         # D' = diagonal blocks of A~ Z (Z's diagonal blocks are I): no in-block residual
-        Dr = AZ[:k, :k].reshape(mr, 2, mr, 2)[ar, :, ar, :]
-        ds = AZ[k:, k:][asc, asc].copy()
-        ZD = _right22(Z, Dr)
-        ZD[:, k:] *= ds[None, :]
-        R = AZ - ZD
-        del ZD
-        R[:k, :k].reshape(mr, 2, mr, 2)[ar, :, ar, :] = 0.0
-        R[k + asc, k + asc] = 0.0
+        d00, d01 = R[ar, ar], R[ar, mr + ar]
+        d10, d11 = R[mr + ar, ar], R[mr + ar, mr + ar]
+        ds = R[asc, asc]
+        za, zb = Z[:, :mr], Z[:, mr:k]
+        R[:, :mr] -= za * d00 + zb * d10
+        R[:, mr:k] -= za * d01 + zb * d11
+        R[:, k:] -= Z[:, k:] * ds
+        R[ar, ar] = R[ar, mr + ar] = R[mr + ar, ar] = R[mr + ar, mr + ar] = 0.0
+        R[asc, asc] = 0.0
         norm_z = float(np.abs(Z).sum(axis=0).max())
         last, residual = residual, float(np.abs(R).sum(axis=0).max()) / (norm_at * norm_z)
         if residual <= BLOCK_RESIDUAL_TOL:
@@ -422,45 +434,52 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
         if sweeps >= max_sweeps or not residual < 0.5 * last:
             why = "stalled" if sweeps < max_sweeps else f"not converged in {max_sweeps} sweeps"
             return _refuse(f"block diagonalisation {why} (relative residual {residual:.2e})", sweeps, residual)
-        Y = np.empty_like(R)
-        r = R[:k, :k].reshape(mr, 2, mr, 2)
-        y = Y[:k, :k].reshape(mr, 2, mr, 2)
-        cp = 0.5 * ((r[:, 0, :, 0] + r[:, 1, :, 1]) + 1j * (r[:, 0, :, 1] - r[:, 1, :, 0])) * gp
-        cm = 0.5 * ((r[:, 0, :, 0] - r[:, 1, :, 1]) + 1j * (r[:, 0, :, 1] + r[:, 1, :, 0])) * gm
-        y[:, 0, :, 0] = cp.real + cm.real
-        y[:, 1, :, 1] = cp.real - cm.real
-        y[:, 0, :, 1] = cp.imag + cm.imag
-        y[:, 1, :, 0] = cm.imag - cp.imag
-        r = R[:k, k:].reshape(mr, 2, ns)
-        c = (r[:, 0] - 1j * r[:, 1]) * grs
-        y = Y[:k, k:].reshape(mr, 2, ns)
-        y[:, 0], y[:, 1] = c.real, -c.imag
-        r = R[k:, :k].reshape(ns, mr, 2)
-        c = (r[:, :, 0] + 1j * r[:, :, 1]) * gsr
-        y = Y[k:, :k].reshape(ns, mr, 2)
-        y[:, :, 0], y[:, :, 1] = c.real, c.imag
+        # Sylvester solves, entrywise (see the notes): rotation-rotation
+        r00, r01, r10, r11 = R[:mr, :mr], R[:mr, mr:k], R[mr:k, :mr], R[mr:k, mr:k]
+        pr, pi = 0.5 * (r00 + r11), 0.5 * (r01 - r10)
+        cpr, cpi = pr * gpr - pi * gpi, pr * gpi + pi * gpr
+        pr, pi = 0.5 * (r00 - r11), 0.5 * (r01 + r10)
+        cmr, cmi = pr * gmr - pi * gmi, pr * gmi + pi * gmr
+        Y[:mr, :mr] = cpr + cmr
+        Y[mr:k, mr:k] = cpr - cmr
+        Y[:mr, mr:k] = cpi + cmi
+        Y[mr:k, :mr] = cmi - cpi
+        # rotation rows, scalar columns: y = (C0 - i C1) g, Y0 = Re y, Y1 = -Im y
+        c0, c1 = R[:mr, k:], R[mr:k, k:]
+        Y[:mr, k:] = c0 * grr + c1 * gri
+        Y[mr:k, k:] = c1 * grr - c0 * gri
+        # scalar rows, rotation columns: y = (C0 + i C1) g, Y0 = Re y, Y1 = Im y
+        c0, c1 = R[k:, :mr], R[k:, mr:k]
+        Y[k:, :mr] = c0 * gsrr - c1 * gsri
+        Y[k:, mr:k] = c0 * gsri + c1 * gsrr
         Y[k:, k:] = R[k:, k:] * gss
         step = float(np.abs(Y).sum(axis=0).max())
         if not step <= BLOCK_COUPLING_LIMIT:
             return _refuse(f"coupling too strong for the gaps (correction {step:.2e})", sweeps, residual)
         Z += Y
+    del Y, R
     # expm(A) = T Z expm(D') Z^-1 T^-1
+    Dr = np.stack([np.stack([d00, d01], -1), np.stack([d10, d11], -1)], 1)
     eDr = expm_stack(Dr) if mr else Dr
     eds = np.exp(ds)
-    M = _right22(Z, eDr)
+    M = Z.copy()
+    _right_planar(M, eDr, 0)
     M[:, k:] *= eds[None, :]
-    lu, piv = scipy.linalg.lu_factor(Z, check_finite=False)
+    lu, piv = scipy.linalg.lu_factor(Z, overwrite_a=True, check_finite=False)
     rcond, info = scipy.linalg.lapack.dgecon(lu, norm_z, norm="1")
     cond = math.inf if rcond <= 0 or info != 0 else 1.0 / rcond
     if cond > BLOCK_COND_LIMIT:
         return _refuse(f"cond(Z) = {cond:.2e} too large", sweeps, residual, cond)
-    Et = scipy.linalg.lu_solve((lu, piv), M.T, trans=1, check_finite=False).T
-    Ep = _left22(T, _right22(Et, Tinv))
+    Ep = scipy.linalg.lu_solve((lu, piv), M.T, trans=1, overwrite_b=True, check_finite=False).T
+    _left_planar(Trot, Ep, 0)
+    _left_planar(Tspl, Ep, k)
+    _right_planar(Ep, _inv22(Trot), 0)
+    _right_planar(Ep, _inv22(Tspl), k)
     norm_zinv = cond / norm_z
     m_s = max(1.0, float(np.abs(eDr).sum(axis=1).max()) if mr else 0.0,
               float(np.abs(eds).max()) if ns else 0.0)
     # the residual as computed misses the rounding of forming A~ and A~ Z (<= n u ||A~|| ||Z||)
     bound = cond_t * (cond**2 * m_s**2 * (residual + n * u) * norm_at * norm_z * norm_zinv + n * u * cond * m_s)
-    E = np.empty_like(Ep)
-    E[np.ix_(q, q)] = Ep
-    return BlockExpm(E, sweeps, residual, cond, bound, "")
+    inv = np.empty_like(q)
+    inv[q] = np.arange(n)
+    return BlockExpm(Ep[inv][:, inv], sweeps, residual, cond, bound, "")
