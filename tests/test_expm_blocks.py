@@ -127,10 +127,14 @@ def test_refuses_nearly_defective_close_or_strongly_coupled_blocks():
         expm_near_block_diagonal(np.eye(4), [2, 1])
 
 
-def test_floquet_falls_back_per_factor_and_says_so(caplog):
+def test_floquet_falls_back_per_factor_and_says_so(caplog, monkeypatch):
     """Blocks the method does not handle (a 3x3 block): every factor falls back to scipy, the
     count is logged, and the multipliers are those of the default path (the same factors)."""
+    import importlib
+
     from stability import floquet
+
+    monkeypatch.setattr(importlib.import_module("stability.floquet"), "BLOCK_EXPM_MIN_N", 0)
 
     n = 20
     rng = np.random.default_rng(11)
@@ -177,6 +181,7 @@ def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypat
     from stability.modal import modal_floquet, modal_system
 
     fl = importlib.import_module("stability.floquet")
+    monkeypatch.setattr(fl, "BLOCK_EXPM_MIN_N", 0)  # 68 states: below the size where it pays
     orbit = find_orbit("single-link", 2.0 * math.pi, samples=16, elements=8)
     lin = linearize_orbit(orbit, 37.1617, 29.2410)
     system = modal_system(lin)
