@@ -230,7 +230,8 @@ class BlockExpm:
     sweeps : int
         Refinement sweeps done (one ``n x n`` GEMM each).
     residual : float
-        Relative residual ``||A~ Z - Z D'||_1 / (||A~||_1 ||Z||_1)`` reached
+        Relative residual ``||A~ Z - Z D'||_1 / (||A~||_1 ||Z||_1)`` reached (computed, or its
+        GEMM-free bound when that stopped the refinement)
         (``A~ = T^-1 A T``, see :func:`expm_near_block_diagonal`).
     condition : float
         ``cond_1(Z)`` estimate (LAPACK ``dgecon``); NaN if not reached.
@@ -312,7 +313,12 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
     ``(alpha_a - alpha_b) - i (beta_a + beta_b)``; ``X += Y``.  The Jacobian is taken at
     ``Z = I``, ``D' = S``, so each sweep reduces the residual by a factor
     ``~ ||X|| + ||D' - S|| / gap`` (the coupling over the gaps: a linear rate, no GEMM for
-    the update).  Then ``expm(A) = T Z expm(D') Z^-1 T^-1``: the small blocks'
+    the update).  After each update the new residual is first bounded without a GEMM:
+    ``R + S Y - Y S = 0`` gives ``R' = F Y - Y (D'' - S) - Z (D'' - D')`` (``F = A~ - S``,
+    ``D''`` the diagonal blocks of ``A~ (Z + Y)``, ``O(n^2)``), so
+    ``||R'|| <= ||F|| ||Y|| + ||Y|| ||D'' - S|| + ||Z|| ||D'' - D'||``; the refinement stops
+    when that bound (or the residual of a GEMM sweep) is below :data:`BLOCK_RESIDUAL_TOL`
+    (the single link's frames at 64 elements: 2 GEMMs).  Then ``expm(A) = T Z expm(D') Z^-1 T^-1``: the small blocks'
     exponentials (:func:`expm_stack`), one LU of ``Z`` and one solve.
 
     Error: with the residual ``R``, ``A~ - R Z^-1 = Z D' Z^-1`` exactly, so the
