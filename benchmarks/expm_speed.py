@@ -13,6 +13,16 @@ balances them.  Per exponent, measured in the same run (CPU seconds, single-thre
 one ``n x n`` GEMM for the unit of work.  ``--floquet`` also times the dense Floquet stage
 (``modal_floquet``, 144 extrapolated magnus2 steps) both ways and compares the multipliers.
 
+Measured 2026-11-27 (2 shared cores, loaded; CPU ms per exponential, single-threaded BLAS)::
+
+    el  n    ||hP||_1  GEMM  scipy  block  ratio  sweeps  max ||E_b - E_s||_1
+    16  132  4.1e3     0.19    4.6    6.6  0.70   2-3     7.4e-11
+    32  260  1.3e4     1.16   25.1   15.0  1.67   2-3     1.5e-11
+    64  516  5.2e4     7.69  175.9   53.5  3.29   2       6.6e-11
+    dense Floquet stage at 64 el (144 extrapolated magnus2 steps): 41.4 s -> 24.3 s CPU
+
+(``stability.floquet.BLOCK_EXPM_MIN_N = 200``: below it the floquet path keeps scipy.)
+
 Usage::
 
     python3 benchmarks/expm_speed.py                      # 16 32 64 elements (130/260/516 states)
