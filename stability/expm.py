@@ -395,7 +395,7 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
     # real eigenvalues (two scalars each after diagonalisation), then the 1x1 blocks
     q = np.concatenate([s2[rot], s2[rot] + 1, s2[~rot], s2[~rot] + 1, s1])
     mu = np.concatenate([lam[~rot, 0].real, lam[~rot, 1].real, A[s1, s1]])  # the scalars' eigenvalues
-    At = A[q][:, q]
+    At = A.take(q, axis=0).take(q, axis=1)
     _right_planar(At, Trot, 0)
     _right_planar(At, Tspl, k)
     _left_planar(_inv22(Trot), At, 0)
@@ -404,19 +404,23 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
     norm_at = float(col_at.max())
     ns = n - k
     ar, asc = np.arange(mr), np.arange(k, n)
+    def neg_inv(x: np.ndarray, y: np.ndarray) -> tuple:
+        """Real and imaginary parts of ``-1 / (x + i y)``."""
+        d = x * x + y * y
+        return -x / d, y / d
+
     with np.errstate(divide="ignore", invalid="ignore"):
-        gp = -1.0 / ((alpha[:, None] - alpha[None, :]) + 1j * (beta[:, None] - beta[None, :]))
-        gm = -1.0 / ((alpha[:, None] - alpha[None, :]) - 1j * (beta[:, None] + beta[None, :]))
-        gp[ar, ar] = gm[ar, ar] = 0.0
-        grs = -1.0 / ((alpha + 1j * beta)[:, None] - mu[None, :])
-        gsr = -1.0 / (mu[:, None] - (alpha + 1j * beta)[None, :])
+        da = alpha[:, None] - alpha[None, :]
+        gpr, gpi = neg_inv(da, beta[:, None] - beta[None, :])
+        gmr, gmi = neg_inv(da, -(beta[:, None] + beta[None, :]))
+        del da
+        gpr[ar, ar] = gpi[ar, ar] = gmr[ar, ar] = gmi[ar, ar] = 0.0
+        grr, gri = neg_inv(alpha[:, None] - mu[None, :], np.broadcast_to(beta[:, None], (mr, ns)))
+        gsrr, gsri = neg_inv(mu[:, None] - alpha[None, :], np.broadcast_to(-beta[None, :], (ns, mr)))
         gss = -1.0 / (mu[:, None] - mu[None, :])
         gss[asc - k, asc - k] = 0.0
-    if not all(np.isfinite(g).all() for g in (gp, gm, grs, gsr, gss)):
+    if not all(np.isfinite(g).all() for g in (gpr, gpi, gmr, gmi, grr, gri, gsrr, gsri, gss)):
         return _refuse("two blocks share an eigenvalue")
-    gpr, gpi, gmr, gmi = gp.real.copy(), gp.imag.copy(), gm.real.copy(), gm.imag.copy()
-    grr, gri, gsrr, gsri = grs.real.copy(), grs.imag.copy(), gsr.real.copy(), gsr.imag.copy()
-    del gp, gm, grs, gsr
     # ||F||_1, F = A~ - S (S: the normal forms / eigenvalues the Sylvester solves use; F also
     # holds the rounding of the diagonal blocks of A~ away from them)
     col_f = col_at.copy()
@@ -515,4 +519,4 @@ def expm_near_block_diagonal(A: np.ndarray, blocks: Sequence[int], *,
     bound = cond_t * (cond**2 * m_s**2 * (residual + n * u) * norm_at * norm_z * norm_zinv + n * u * cond * m_s)
     inv = np.empty_like(q)
     inv[q] = np.arange(n)
-    return BlockExpm(Ep[inv][:, inv], sweeps, residual, cond, bound, "")
+    return BlockExpm(Ep.take(inv, axis=0).take(inv, axis=1), sweeps, residual, cond, bound, "")
