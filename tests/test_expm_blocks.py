@@ -168,11 +168,15 @@ def _matched(a: np.ndarray, b: np.ndarray) -> float:
     return float(max(d.min(axis=1).max(), d.min(axis=0).max()))
 
 
-def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypatch):
-    """8 elements, frozen-modal frame, 144 extrapolated magnus2 steps (as ``linearize.analysis``):
+@pytest.mark.parametrize("elements", [8, 16])
+def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypatch, elements):
+    """8 and 16 elements, frozen-modal frame, 144 extrapolated magnus2 steps (as ``linearize.analysis``):
     the multipliers with block-diagonalised factors agree within their Richardson estimate with
-    those of two independent exponentials: ``scipy.linalg.expm`` and LAPACK's ``eig``
-    (``V exp(Lambda) V^-1``, ``cond(V) ~ 2`` here); the wrong variant ``Z^T`` moves them beyond it."""
+    those of an independent exponential, LAPACK's ``eig`` (``V exp(Lambda) V^-1``, ``cond(V) ~ 2``
+    here), and at 8 elements with ``scipy.linalg.expm``'s; the wrong variant ``Z^T`` moves them
+    beyond it.  (At 16 elements, ``||h P||_1 = 4e3``, scipy's factors put the multipliers 7.5e-9
+    from both the block and the eig ones, ten times the estimate: the rounding of its 10
+    squarings, which no step-count estimate sees; measured, not asserted.)"""
     import importlib
     import math
 
@@ -181,8 +185,8 @@ def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypat
     from stability.modal import modal_floquet, modal_system
 
     fl = importlib.import_module("stability.floquet")
-    monkeypatch.setattr(fl, "BLOCK_EXPM_MIN_N", 0)  # 68 states: below the size where it pays
-    orbit = find_orbit("single-link", 2.0 * math.pi, samples=16, elements=8)
+    monkeypatch.setattr(fl, "BLOCK_EXPM_MIN_N", 0)  # 68 / 132 states: below the size where it pays
+    orbit = find_orbit("single-link", 2.0 * math.pi, samples=16, elements=elements)
     lin = linearize_orbit(orbit, 37.1617, 29.2410)
     system = modal_system(lin)
 
@@ -192,7 +196,8 @@ def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypat
     block = run()
     est = block.error_estimate
     assert 0 < est < 1e-8
-    assert _matched(block.multipliers, run(expm_blocks=None).multipliers) <= est
+    if elements == 8:
+        assert _matched(block.multipliers, run(expm_blocks=None).multipliers) <= est
 
     def eig_factors(Om, wrapped):
         lam, V = np.linalg.eig(Om)
