@@ -142,6 +142,10 @@ def _print_robust(d: dict) -> None:
           f"({d['worst_case_improvement_percent']:.2f} %); cost at nominal: |max|rho| - rho_d| "
           f"{'+' if d['nominal_cost'] >= 0 else ''}{d['nominal_cost']:.3g}")
     print(f"robust tuning: {rob['status']}, {rob['evaluations']} evaluations; total {d['elapsed']:.1f} s")
+    for f in rob.get("failed_runs") or []:
+        print(f"failed run (iteration {f['iteration']}, inner run {f['run']}, outer run {f['outer_run']}) at "
+              + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"]))
+              + ", noise " + ", ".join(f"{k} = {v:.6g}" for k, v in f["noise"].items()) + f": {f['error']}")
 
 
 class DrivesObjective:
