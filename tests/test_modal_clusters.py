@@ -185,6 +185,35 @@ def test_each_frame_needs_its_basis_derivative(frame):
     assert _error(bad.multipliers, exact) > est
 
 
+def test_collapsed_propagation_keeps_the_multipliers():
+    """``modal_floquet`` propagates nested frames in their composite basis (one solve per time): the same
+    ``P_hat`` up to ``e = cond(U) n eps |P_hat|`` per time, so after steps of total length ``T`` the
+    (well separated, near-normal) multipliers of modulus ~1 move by ``<~ T e`` (first-order perturbation
+    of the product of exponentials); 10x margin, far inside the extrapolation estimate.  Propagating with a
+    composite ``U'`` missing ``V1' D2 V2`` misses the closed-form multipliers by more than the estimate."""
+    from stability import floquet
+    from stability.modal import modal_floquet, modal_system
+
+    system = modal_system(CLOSE)
+    exact = CLOSE.exact()
+    kw = dict(method="magnus2", n_steps=32, accuracy="moduli", extrapolate=True)
+    one, nested = (modal_floquet(CLOSE, basis=system, collapse=c, **kw) for c in (True, False))
+    collapsed = system.collapsed()
+    t = np.linspace(0.0, CLOSE.period, 9)[:-1]
+    cond = max(np.linalg.cond(u) for u in collapsed.basis(t))
+    tol = 10 * CLOSE.period * cond * system.n * np.finfo(float).eps * np.abs(system.evaluate(t)).max()
+    assert np.abs(np.asarray(one.multipliers) - np.asarray(nested.multipliers)).max() <= tol
+    assert tol < one.error_estimate
+    _estimates_bound(one, exact)
+    basis = collapsed.basis
+    inner = system.original
+    D2 = np.diag(system.scale)
+    collapsed.basis = lambda t, derivative=False: (inner.basis(t) @ D2 @ system.basis(t, True) if derivative
+                                                   else basis(t))
+    bad = floquet(collapsed, method="magnus2", n_steps=128, error_estimate=False)
+    assert _error(bad.multipliers, exact) > one.error_estimate
+
+
 def test_eig_and_first_order_bases_agree_and_bad_methods_are_refused():
     """Both basis constructions (a full eig per sample, the Newton continuation + first-order nested frame)
     converge to the closed-form multipliers; an unknown method is one clear ValueError."""

@@ -140,6 +140,53 @@ def test_nested_levels_equal_the_composite_frame(nested):
     assert np.abs(got - wrong).max() > 1e3 * tol
 
 
+def _frames_by_hand(nested, t):
+    """``V1, V1', D2, V2, V2'`` of the two frames from their own tables (not the composite one)."""
+    inner = nested.original
+    return (inner.basis(t), inner.basis(t, derivative=True), np.diag(nested.scale), nested.basis(t),
+            nested.basis(t, derivative=True))
+
+
+def test_collapsed_table_is_the_product_of_the_frames(nested):
+    """The composite table (``N = K1 + K2`` samples of ``V1 D2 V2``) reproduces the product of the two
+    interpolants and its derivative ``V1' D2 V2 + V1 D2 V2'`` at times off its grid: a product of
+    trigonometric polynomials is one of the summed degree, so only rounding remains: each sample
+    ``<= n eps |V1| |D2| |V2|`` (a matrix product), the FFT and the sum over the ``K`` harmonics a
+    factor ``~ K`` (``K w`` more for the derivative); 10x margin.  Dropping ``V1' D2 V2`` from the
+    derivative (a wrong composite ``U'``) is far outside."""
+    collapsed = nested.collapsed()
+    t = np.array([0.013, 0.3717, 0.77, 0.9951])
+    V1, V1t, D2, V2, V2t = _frames_by_hand(nested, t)
+    K, w = collapsed._K, 2 * np.pi / nested.period
+    size = (np.abs(V1) @ np.abs(D2) @ np.abs(V2)).max()
+    tol = 10 * (nested.n + K) * EPS * size
+    assert np.abs(collapsed.basis(t) - V1 @ D2 @ V2).max() <= tol
+    exact_t = V1t @ D2 @ V2 + V1 @ D2 @ V2t
+    assert np.abs(collapsed.basis(t, derivative=True) - exact_t).max() <= tol * K * w
+    assert np.abs(collapsed.basis(t, derivative=True) - V1 @ D2 @ V2t).max() > 1e3 * tol * K * w
+
+
+def test_collapsed_evaluation_equals_the_nested_one(nested):
+    """One solve in the composite basis equals the frame-by-frame ``evaluate`` (two solves): both are
+    backward stable for the same exact ``P_hat``, so they differ by ``<~ cond(U) n eps |P_hat|`` (the
+    forward error of a solve, ``U`` the composite basis); 10x margin.  A composite ``U'`` without
+    ``V1' D2 V2`` is rejected."""
+    collapsed = nested.collapsed()
+    assert collapsed.clusters == nested.clusters and collapsed.trace_integral() == nested.trace_integral()
+    t = np.array([0.05, 0.4, 0.8])
+    got, ref = collapsed.evaluate(t), nested.evaluate(t)
+    U = collapsed.basis(t)
+    cond = max(np.linalg.cond(u) for u in U)
+    tol = 10 * cond * nested.n * EPS * np.abs(ref).max()
+    assert np.abs(got - ref).max() <= tol
+    V1, _, D2, _, V2t = _frames_by_hand(nested, t)
+    Pb = collapsed._wrapped.evaluate(t) * collapsed._ratio
+    wrong = np.linalg.solve(U, Pb @ U - V1 @ D2 @ V2t)
+    assert np.abs(wrong - ref).max() > 1e3 * tol
+    # a first frame has nothing to collapse
+    assert nested.original.collapsed() is nested.original
+
+
 def test_first_order_matrix_lu_path():
     """Mass matrices of ``LU_MIN_SIZE`` and more: ``M (M^-1 K) = K`` to the backward error of one LU
     solve (<= 3 f eps |M| |X| elementwise up to growth, Higham 2002 Thm 9.4; 10 f eps allowed)."""
