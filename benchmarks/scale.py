@@ -97,7 +97,8 @@ def _cplx(z) -> list:
 
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
            floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
-           implicit_limit: float | None = None, trace_memory: bool = False, rtol: float | None = None) -> dict:
+           implicit_limit: float | None = None, trace_memory: bool = False, rtol: float | None = None,
+           collapse: bool = True) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -108,7 +109,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
 
     if trace_memory:
         tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)
-    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
+    rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame, "collapse": collapse,
                  "extrapolate": bool(extrapolate and frame == "modal"), "rtol": rtol, "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
@@ -143,7 +144,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                 steps = None if (rtol is not None and extrapolate) else n_steps
                 opts = {"rtol": rtol} if steps is None else {}
                 res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy="moduli", **opts,
-                                    extrapolate=extrapolate)
+                                    extrapolate=extrapolate, collapse=collapse)
             else:
                 res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
     if dense and res is not None:
@@ -271,13 +272,16 @@ def main(argv=None) -> int:
     ap.add_argument("--implicit-limit", type=float, default=None,
                     help="CPU seconds for the implicit stage (default: --floquet-limit)")
     ap.add_argument("--out", default=str(ROOT / "results" / "scale.json"))
+    ap.add_argument("--no-collapse", action="store_true",
+                    help="modal frame: propagate the nested frames one by one (two solves per time) instead of "
+                         "in their composite basis")
     ap.add_argument("--worker", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--dense", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
                      args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit,
-                     args.trace_memory, args.rtol)
+                     args.trace_memory, args.rtol, not args.no_collapse)
         print(json.dumps(rec))
         return 0
     records = []
@@ -296,6 +300,8 @@ def main(argv=None) -> int:
             cmd.append("--trace-memory")
         if args.no_implicit:
             cmd.append("--no-implicit")
+        if args.no_collapse:
+            cmd.append("--no-collapse")
         try:
             p = subprocess.run(cmd, capture_output=True, text=True, timeout=args.timeout, env=env)
             if p.returncode != 0:
