@@ -92,6 +92,10 @@ DEFAULT_RTOL = 1e-3
 #: Per-run error budget as a fraction of the tuning tolerance: two responses each within ``tol / 4`` of the
 #: truth differ from the true difference by at most ``tol / 2``, so a comparison at the tolerance keeps its sign.
 RUN_BUDGET = 0.25
+#: Relative floor of the per-run budget: Hill's H vs H/2 change does not fall below its round-off (measured
+#: 9.3e-14 .. 9.7e-14 at H = 32 / 48 on the two-link arm, 1 element), so a budget below ``HILL_FLOOR |rho|``
+#: (a tolerance near machine precision) is raised to it rather than made unreachable.
+HILL_FLOOR = 1e-12
 #: Most Hill harmonics a run may escalate to (doubling from the plant's count) to meet its budget.
 MAX_HARMONICS = 64
 #: Most steps of the frozen-modal fallback (doubling from ``TUNING_PROPAGATOR_STEPS``); the value of
@@ -292,6 +296,10 @@ class HillModelPlant:
         # key of the per-process caches (workspaces per step count, frozen modes), shared by every copy
         # of this plant (replace, pickles) in one process
         self._key = _PlantKey(self._token, linearization, orbit)
+        #: One dict per :meth:`spectral_measure` call of this object whose response is not Hill's value
+        #: (``gains``, ``method``, ``error_estimate`` (absolute), ``modal_steps``); not pickled (a worker's copy
+        #: starts empty; ``flexstab tune`` collects the workers' records per run).
+        self.fallback_runs: list = []
 
     def __getstate__(self) -> dict:
         return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
@@ -317,9 +325,10 @@ class HillModelPlant:
         return self.linearization.with_gains(kp, kd)
 
     def budget(self, rho: float) -> float:
-        """Absolute error allowed in one run's response ``|rho|``: ``RUN_BUDGET`` times the tolerance."""
+        """Absolute error allowed in one run's response ``|rho|``: ``RUN_BUDGET`` times the tolerance, at least
+        ``HILL_FLOOR |rho|``."""
         tol = self.tolerance if self.tolerance is not None else DEFAULT_RTOL * abs(rho)
-        return RUN_BUDGET * tol
+        return max(RUN_BUDGET * tol, HILL_FLOOR * abs(rho))
 
     def _workspace(self, steps: int) -> Any:
         return _labelling_workspace(self._key, int(steps))
@@ -496,8 +505,15 @@ class HillModelPlant:
                            modal_steps=steps)
 
     def spectral_measure(self, kp: Gains, kd: Gains) -> float:
-        """``|rho|`` of the dominant labelled multiplier (Hill)."""
-        return float(abs(self.measure(kp, kd).dominant))
+        """``|rho|`` of the dominant labelled multiplier (Hill); a response from another method is recorded in
+        :attr:`fallback_runs`."""
+        m = self.measure(kp, kd)
+        if m.method != "hill":
+            g = [float(v) for pair in zip(np.broadcast_to(kp, len(self.drives)), np.broadcast_to(kd, len(self.drives)))
+                 for v in pair]
+            self.fallback_runs.append({"gains": g, "method": m.method, "error_estimate": m.run_error_estimate,
+                                       "modal_steps": m.modal_steps, "spectral_radius": float(abs(m.dominant))})
+        return float(abs(m.dominant))
 
 
 @dataclass(frozen=True)

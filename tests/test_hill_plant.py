@@ -374,6 +374,12 @@ def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
     m = plant.measure(g[0::2], g[1::2])
     assert m.method == "modal-magnus2" and not m.confirmed
     assert abs(m.dominant - genuine.dominant) <= (m.modal_error_estimate + genuine.hill_error_estimate) * abs(m.dominant)
+    # a tuning run (spectral_measure) that used the fallback is recorded (flexstab tune: ``fallback_runs``)
+    assert plant.fallback_runs == []
+    y = plant.spectral_measure(g[0::2], g[1::2])
+    assert len(plant.fallback_runs) == 1 and plant.fallback_runs[0]["method"] == "modal-magnus2"
+    assert plant.fallback_runs[0]["gains"] == list(g) and plant.fallback_runs[0]["spectral_radius"] == y
+    assert plant.fallback_runs[0]["error_estimate"] <= plant.budget(y)
 
 
 def test_gain_slices_hill_layout_against_the_modal_product(arm):
