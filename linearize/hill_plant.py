@@ -18,7 +18,7 @@ How an evaluation works (:meth:`HillModelPlant.measure`):
    Hill's method on the same linearisation (its samples with the gains: the system
    ``stability.floquet`` integrates);
 3. the response is the largest refined modulus that is a multiplier of the magnus2
-   spectrum to the product's own accuracy (:func:`_in_spectrum`: the nearest multiplier at N and 2N
+   spectrum to the product's own accuracy (:func:`_in_spectrum`: the nearest multiplier at N/2 and N
    steps, whatever its label) and has a backward error below :data:`stability.hill.RESIDUAL_LIMIT`;
 4. the response's own H vs H/2 change (:func:`stability.hill.pair_error_estimate`) must meet the run
    budget (:meth:`HillModelPlant.budget`, a quarter of the tuning tolerance), else the harmonics are
@@ -115,8 +115,8 @@ def _log_distance(z: complex, spectrum: np.ndarray) -> float:
 def _in_spectrum(z: complex, coarse: np.ndarray, fine: np.ndarray, budget: float) -> bool:
     """Whether ``z`` is a multiplier of the magnus2 spectrum to the product's own accuracy.
 
-    ``w_2N`` is the multiplier of ``fine`` (``2N`` steps) nearest ``z`` and ``w_N`` the one of ``coarse``
-    (``N`` steps) nearest ``w_2N``; accepted when ``|z - w_2N| <= 4/3 |w_N - w_2N| + budget``.  Derivation:
+    ``w_2N`` is the multiplier of ``fine`` (``2N`` steps: the labelling pass) nearest ``z`` and ``w_N`` the one of
+    ``coarse`` (``N`` steps, half the labelling pass's) nearest ``w_2N``; accepted when ``|z - w_2N| <= 4/3 |w_N - w_2N| + budget``.  Derivation:
     second order in the step, ``|w_2N - rho| ~ |w_N - w_2N| / 3``, so for ``z`` within ``budget`` of the true
     ``rho`` (Hill's own error, bounded by the per-run budget) ``|z - w_2N| <= |w_N - w_2N| / 3 + budget``;
     the factor 4/3 (instead of 1/3) leaves room for a pre-asymptotic ratio, the rule of
@@ -413,9 +413,9 @@ class HillModelPlant:
             main_off = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
                         if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
             ok = [j for j in main_off if h.residual[j] <= RESIDUAL_LIMIT]
-            coarse = np.asarray(res.multipliers)
-            fine = np.asarray(self._workspace(2 * steps).floquet([v for pair in zip(lin.kp, lin.kd) for v in pair])
-                              .multipliers)
+            fine = np.asarray(res.multipliers)
+            coarse = np.asarray(self._workspace(steps // 2).floquet([v for pair in zip(lin.kp, lin.kd) for v in pair])
+                                .multipliers)
             accepted = [j for j in ok if _in_spectrum(h.multipliers[j], coarse, fine,
                                                       self.budget(abs(h.multipliers[j])))]
             # a magnus2 main-mode estimate must be near its refined value (the refinement of another

@@ -219,6 +219,7 @@ class _HillOperator:
             a = b.transpose(0, 2, 1, 3).reshape(size, size)
             setattr(self, name, a if self.dense else scipy.sparse.csc_matrix(a))
         self.n, self.H, self.W, self.size = n, H, W, size
+        self._abs = None
         self.scale = float(max(np.abs(blocks[k]).max() for k in blocks)) or 1e-300
 
     def _factor(self, s: complex):
@@ -289,11 +290,10 @@ class _HillOperator:
         r = (self.A0 + lam * self.A1 + lam * lam * self.A2) @ p
         a = abs(lam)
         ap = np.abs(p)
-        if self.dense:
-            s = np.abs(self.A0) @ ap + a * (np.abs(self.A1) @ ap) + a * a * (np.abs(self.A2) @ ap)
-        else:
-            s = abs(self.A0) @ ap + a * (abs(self.A1) @ ap) + a * a * (abs(self.A2) @ ap)
-        s = np.asarray(s).ravel()
+        if self._abs is None:  # |A0|, |A1|, |A2|, formed once
+            self._abs = tuple(np.abs(m) if self.dense else abs(m) for m in (self.A0, self.A1, self.A2))
+        a0, a1, a2 = self._abs
+        s = np.asarray(a0 @ ap + a * (a1 @ ap) + a * a * (a2 @ ap)).ravel()
         den = float(np.linalg.norm(s))
         return float(np.linalg.norm(r) / den) if den > 0 else math.inf
 
