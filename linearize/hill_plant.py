@@ -61,6 +61,11 @@ __all__ = [
     "LABEL_STEPS",
     "TUNING_HARMONICS",
     "MATCH_TOLERANCE",
+    "DEFAULT_RTOL",
+    "RUN_BUDGET",
+    "HILL_FLOOR",
+    "MAX_HARMONICS",
+    "MAX_FALLBACK_STEPS",
     "choose_harmonics",
     "select_harmonics",
     "HarmonicsChoice",
@@ -115,8 +120,9 @@ def _log_distance(z: complex, spectrum: np.ndarray) -> float:
 def _in_spectrum(z: complex, coarse: np.ndarray, fine: np.ndarray, budget: float) -> bool:
     """Whether ``z`` is a multiplier of the magnus2 spectrum to the product's own accuracy.
 
-    ``w_2N`` is the multiplier of ``fine`` (``2N`` steps: the labelling pass) nearest ``z`` and ``w_N`` the one of
-    ``coarse`` (``N`` steps, half the labelling pass's) nearest ``w_2N``; accepted when ``|z - w_2N| <= 4/3 |w_N - w_2N| + budget``.  Derivation:
+    ``w_2N`` is the multiplier of ``fine`` (``2N`` steps: the labelling pass) nearest ``z`` and ``w_N`` the one
+    of ``coarse`` (``N`` steps, half the labelling pass's) nearest ``w_2N``; accepted when
+    ``|z - w_2N| <= 4/3 |w_N - w_2N| + budget``.  Derivation:
     second order in the step, ``|w_2N - rho| ~ |w_N - w_2N| / 3``, so for ``z`` within ``budget`` of the true
     ``rho`` (Hill's own error, bounded by the per-run budget) ``|z - w_2N| <= |w_N - w_2N| / 3 + budget``;
     the factor 4/3 (instead of 1/3) leaves room for a pre-asymptotic ratio, the rule of
@@ -414,8 +420,8 @@ class HillModelPlant:
                         if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
             ok = [j for j in main_off if h.residual[j] <= RESIDUAL_LIMIT]
             fine = np.asarray(res.multipliers)
-            coarse = np.asarray(self._workspace(steps // 2).floquet([v for pair in zip(lin.kp, lin.kd) for v in pair])
-                                .multipliers)
+            gains = [v for pair in zip(lin.kp, lin.kd) for v in pair]
+            coarse = np.asarray(self._workspace(max(2, steps // 2)).floquet(gains).multipliers)
             accepted = [j for j in ok if _in_spectrum(h.multipliers[j], coarse, fine,
                                                       self.budget(abs(h.multipliers[j])))]
             # a magnus2 main-mode estimate must be near its refined value (the refinement of another
