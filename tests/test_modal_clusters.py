@@ -192,12 +192,14 @@ def test_collapsed_propagation_keeps_the_multipliers():
     of the product of exponentials); 10x margin, far inside the extrapolation estimate.  Propagating with a
     composite ``U'`` missing ``V1' D2 V2`` misses the closed-form multipliers by more than the estimate."""
     from stability import floquet
-    from stability.modal import modal_floquet, modal_system
+    from stability.modal import _rebase, modal_floquet, modal_system
 
     system = modal_system(CLOSE)
     exact = CLOSE.exact()
     kw = dict(method="magnus2", n_steps=32, accuracy="moduli", extrapolate=True)
     one, nested = (modal_floquet(CLOSE, basis=system, collapse=c, **kw) for c in (True, False))
+    # the composite table is formed once on the given basis and shared by its rebased copies (tuning loops)
+    assert _rebase(system, CLOSE)._collapsed_table()[1] is system._collapsed[3]
     collapsed = system.collapsed()
     t = np.linspace(0.0, CLOSE.period, 9)[:-1]
     cond = max(np.linalg.cond(u) for u in collapsed.basis(t))
