@@ -125,6 +125,12 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
         with _Stage(st, "modal_basis"):
             system = modal_system(lin)  # the nested frozen-modal frames analyze() uses
         rec["modal_condition"] = float(system.condition)
+        frames, inner = [], system
+        while hasattr(inner, "clusters"):  # innermost frame first
+            frames.append({"largest_cluster": int(max(inner.clusters)), "clusters": len(inner.clusters),
+                           "method": inner.method})
+            inner = inner.original
+        rec["modal_frames"] = frames[::-1]  # outermost (first) frame first
     dense_mult = None
     res = None
     if dense:

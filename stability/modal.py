@@ -47,10 +47,12 @@ be a good basis, not exact eigenvectors.  Here ``V`` is the trigonometric
 interpolant of eigenvector samples and ``V'`` its *exact* derivative, so the
 transformation is an exact similarity whatever the sample count.  The frozen
 eigenvalues are grouped into clusters by modulus: a cut between two consecutive
-moduli (sorted) wherever they stay apart by :data:`CLUSTER_GAP` over the whole
-period, so that each cluster's invariant subspace is a smooth function of ``t``
-(a crossing, or the hub pair turning from complex to real and back at 6 pi,
-stays inside one cluster; conjugate pairs always do).  Each cluster's real basis
+moduli (sorted) wherever they stay apart over the whole period by many times
+their own variation (:data:`CLUSTER_MARGIN`) or by 5 % relative, and by more
+than the orbit frequency (:data:`CLUSTER_MIN_GAP`), so that each cluster's invariant subspace
+is a smooth function of ``t`` (a crossing, or the hub pair turning from complex
+to real and back at 6 pi, stays inside one cluster; conjugate pairs always do;
+see :func:`_cluster_bounds`).  Each cluster's real basis
 (real eigenvectors, real and imaginary parts of the complex ones) is continued
 from sample to sample with unit projection on the previous left basis (a
 discrete parallel transport); the holonomy after one lap (a small real block per
@@ -60,6 +62,21 @@ close (a block without a real logarithm, a subspace turning by ~90 degrees
 between samples, a nearly singular basis) raises :class:`ModalBasisError`;
 :func:`modal_system` retries with more samples, and :func:`modal_floquet` then
 propagates ``P`` itself.
+
+Cost of the basis
+-----------------
+A full ``eig`` per sample (:func:`_eig_basis`) is the reference construction
+and the fallback.  By default (:data:`BASIS_METHODS`) the first frame takes one
+``eig`` at ``t = 0`` and continues the basis by Newton steps ``V <- V (I + X)``,
+``X`` the first-order (Sylvester) correction of ``V^-1 P_k V`` between clusters
+(:func:`_continued_basis`, :func:`_first_order`: a solve and a few products per
+step instead of an ``eig``), and a nested frame, whose ``P_hat`` is already
+nearly block diagonal, is ``V = I + X`` at ``O(n^2)`` per sample
+(:func:`_perturbed_basis`).  Measured on the single link at Omega = 2 pi with the
+Table 3 gains (two frames, 32 samples, CPU s on the shared 2-core machine):
+64 elements (516 states) 29.7 s with an ``eig`` per sample and the former 5 %
+gap (a cluster of 423 modes), 8.5 s now (clusters of <= 2); the multipliers of
+both constructions agree to ~1e-10 (32 elements, 144 steps).
 
 References
 ----------
@@ -83,7 +100,8 @@ from stability.floquet import FloquetResult
 from stability.periodic import PeriodicMatrixFunction
 
 __all__ = ["FrozenModalSystem", "ModalBasisError", "ModalFloquetResult", "modal_floquet", "modal_system",
-           "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS"]
+           "DEFAULT_MODAL_SAMPLES", "FALLBACK_METHOD", "MODAL_LEVELS", "CLUSTER_MARGIN", "CLUSTER_MIN_GAP",
+           "CLUSTER_RELATIVE_GAP", "BASIS_METHODS"]
 
 logger = logging.getLogger(__name__)
 
@@ -94,12 +112,39 @@ logger = logging.getLogger(__name__)
 #: 16 samples leave 9e-4 at 128 steps where 32 leave 1.6e-5.
 DEFAULT_MODAL_SAMPLES = 32
 MAX_MODAL_SAMPLES = 64
-#: Largest condition number of a sampled basis ``V(t_k)`` (balanced) accepted; beyond it the
-#: eigenvectors are nearly dependent (a near-defective ``P``) and the similarity loses digits.
+#: Samples of a nested frame (:func:`modal_system`), when they divide the first frame's: its basis
+#: ``I + X`` follows the slow coupling of the first frame, not the model's mode shapes.  Measured
+#: with 16 against 32: single link 32 elements (144 steps) the same multipliers to 1e-10 of a
+#: 288-step reference; two-link arm (4 pi, kp = (20, 10), kd = (5, 2)) dominant 128-step error
+#: 9e-6 against 1.6e-5; the nested frame's cost halves (~1 s at 64 elements).
+NESTED_MODAL_SAMPLES = 16
+#: Largest condition number (1-norm estimate) of a sampled basis ``V(t_k)`` (balanced) accepted;
+#: beyond it the eigenvectors are nearly dependent (a near-defective ``P``) and the similarity
+#: loses digits.
 MAX_CONDITION = 1e8
-#: Relative gap in ``|lambda|`` that separates two clusters of frozen eigenvalues (over the
-#: whole period); eigenvalues closer than this (a crossing, a pair turning real) share a block.
-CLUSTER_GAP = 0.05
+#: Two consecutive frozen moduli (sorted) start separate clusters when the gap between them
+#: over the whole period, ``g = min_t |lambda_{i+1}| - max_t |lambda_i|``, exceeds
+#: ``CLUSTER_MIN_GAP`` times the orbit frequency ``2 pi / T`` and either ``CLUSTER_MARGIN`` times
+#: their own variation over the period (the larger spread ``max_t - min_t`` of the two) or
+#: ``CLUSTER_RELATIVE_GAP`` of the lower one (the former rule alone).  See :func:`_cluster_bounds`.
+#: Measured on the single link (Omega = 2 pi, Table 3 gains, two frames, 144 steps extrapolated),
+#: largest cluster / error estimate with the relative gap alone: 16 el 27 / 5.7e-5, 32 el
+#: 133 / 0.47, 64 el 423 / 0.7; with this rule 2 / 7.5e-10, 2 / 1.3e-7, 2 / 1.3e-5 (1.4e-9 at 288
+#: steps).  The spread rule alone merged the two-link arm's slow modes (|lambda| 3 ... 205, varying
+#: by up to 50 %) with its stiff ones (1442 ... 3025) into one cluster of 10 and moved its dominant
+#: multiplier (4 pi, kp = (20, 10), kd = (5, 2)) by 1.3e-3: hence the union.  ``CLUSTER_MIN_GAP =
+#: 4`` merged the two real hub eigenvalues of the 2-element link at 4 pi (gap 2.5 Omega) and made
+#: their midpoint error 3x larger: merging never helps a smooth pair.
+CLUSTER_MARGIN = 10.0
+CLUSTER_RELATIVE_GAP = 0.05
+CLUSTER_MIN_GAP = 1.0
+#: How :class:`FrozenModalSystem` builds its basis samples: ``"eig"`` a full eigen-decomposition per
+#: sample (:func:`_eig_basis`); ``"perturbation"`` first-order perturbation theory: for a frame
+#: nested in another (``P`` nearly block diagonal) ``V = I + X`` at ``O(n^2)`` per sample
+#: (:func:`_perturbed_basis`), for a first frame a Newton continuation from one ``eig``
+#: (:func:`_continued_basis`); ``"auto"`` (default) the latter, falling back to ``"eig"`` when it
+#: does not apply.  Measured on the single link, 64 elements (516 states): see the module notes.
+BASIS_METHODS = ("auto", "eig", "perturbation")
 
 
 class ModalBasisError(ArithmeticError):
@@ -209,6 +254,446 @@ def _real_log(H: np.ndarray) -> np.ndarray:
     return G
 
 
+def _cluster_bounds(mods: np.ndarray, omega: float) -> list:
+    """``[(start, stop), ...]``: clusters of the frozen moduli ``mods`` (``(K, n)``, sorted per sample).
+
+    A cut between ``i`` and ``i + 1`` where the gap over the whole period
+    ``g = min_t m_{i+1} - max_t m_i`` exceeds ``CLUSTER_MIN_GAP * omega`` and either
+    ``CLUSTER_MARGIN * max(s_i, s_{i+1})`` (``s`` the spread ``max_t m - min_t m`` of
+    each modulus over the period) or ``CLUSTER_RELATIVE_GAP * max_t m_i`` (a gap large
+    against the moduli themselves, the former rule).  Why the spread rule: the rate at which a cluster's
+    invariant subspace turns is ``~ |P'| / g`` (first-order perturbation), and
+    ``|P'|`` shows in the moduli's own spread; a gap many times the spread keeps
+    the subspaces of both sides smooth over the period, and a gap several times
+    the orbit frequency keeps the first-order coupling ``-V^-1 V'`` between them
+    (``~ omega x turn``) small against ``g``, so that the next frozen-modal frame
+    removes it (a gap of only a few ``omega`` still leaves the second frame a small
+    coupling ``~ omega x turn / g``).  A crossing (``g <= 0``) or a pair turning from complex to real
+    never cuts.  (A fixed relative gap, the former rule, merged the interleaving
+    bending ``~ k^2`` and axial ``~ k`` frequencies of fine meshes, whose moduli
+    lie < 5 % apart but vary by < 1e-5 relative, into clusters of 100+ modes; it
+    stays as the alternative because the spread rule alone merges slow modes that
+    vary by tens of % with stiff ones far above, see :data:`CLUSTER_MARGIN`.)
+    """
+    lo, hi = mods.min(axis=0), mods.max(axis=0)
+    cuts = [i + 1 for i in np.flatnonzero(_separated(lo, hi, omega))]
+    return list(zip([0] + cuts, cuts + [mods.shape[1]]))
+
+
+def _separated(lo: np.ndarray, hi: np.ndarray, omega: float) -> np.ndarray:
+    """``(n - 1,)`` booleans: may consecutive moduli ``i``, ``i + 1`` (ranges ``[lo, hi]`` over the
+    period, sorted) be cut apart (the rule of :func:`_cluster_bounds`)."""
+    spread = hi - lo
+    gap = lo[1:] - hi[:-1]
+    own = gap > CLUSTER_MARGIN * np.maximum(spread[1:], spread[:-1])
+    relative = lo[1:] > (1.0 + CLUSTER_RELATIVE_GAP) * hi[:-1]
+    return (own | relative) & (gap > CLUSTER_MIN_GAP * omega)
+
+
+class _PerturbationFailed(ArithmeticError):
+    """The first-order basis does not apply (a coupling not small against its gap, a defective block)."""
+
+
+#: Largest entry of the first-order correction ``X`` (:func:`_first_order`) accepted; its error
+#: is ``O(X^2)`` (relative), which only makes the basis less exact, never the similarity.
+MAX_FIRST_ORDER = 0.05
+
+
+def _block_right(A: np.ndarray, S: dict) -> np.ndarray:
+    """``A @ blockdiag(S)`` for a block diagonal given as ``S = {size: (idx, blocks)}`` (``idx`` the
+    ``(m, s)`` columns of each block, ``blocks`` ``(m, s, s)``): ``O(n^2 s)``, no dense product."""
+    out = np.empty(A.shape, dtype=np.result_type(A, *[b for _, b in S.values()]))
+    for idx, blocks in S.values():
+        out[:, idx] = np.matmul(A[:, idx].transpose(1, 0, 2), blocks).transpose(1, 0, 2)
+    return out
+
+
+def _inv2(A: np.ndarray) -> tuple:
+    """Inverses of a batch of 2x2 matrices (``(..., 2, 2)``) in closed form, and their determinants."""
+    det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
+    inv = np.empty_like(A)
+    inv[..., 0, 0], inv[..., 1, 1] = A[..., 1, 1], A[..., 0, 0]
+    inv[..., 0, 1], inv[..., 1, 0] = -A[..., 0, 1], -A[..., 1, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return inv / det[..., None, None], det
+
+
+def _mul2(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``A @ B`` for broadcast batches of 2x2 matrices, entry by entry (numpy's batched ``matmul`` of
+    2x2 matrices costs ~100x more per product)."""
+    a00, a01, a10, a11 = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
+    b00, b01, b10, b11 = B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1]
+    return np.stack([np.stack([a00 * b00 + a01 * b10, a00 * b01 + a01 * b11], axis=-1),
+                     np.stack([a10 * b00 + a11 * b10, a10 * b01 + a11 * b11], axis=-1)], axis=-2)
+
+
+def _sylvester22(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """:func:`_sylvester` for 2x2 blocks, written entry by entry (``p_B(A)`` from ``A``'s own square)."""
+    a00, a01, a10, a11 = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
+    b00, b01, b10, b11 = B[..., 0, 0], B[..., 0, 1], B[..., 1, 0], B[..., 1, 1]
+    c00, c01, c10, c11 = C[..., 0, 0], C[..., 0, 1], C[..., 1, 0], C[..., 1, 1]
+    tr, det = b00 + b11, b00 * b11 - b01 * b10
+    ta, cross = a00 + a11, a01 * a10
+    p00 = a00 * a00 + cross - tr * a00 + det
+    p11 = a11 * a11 + cross - tr * a11 + det
+    p01 = a01 * (ta - tr)
+    p10 = a10 * (ta - tr)
+    r00 = a00 * c00 + a01 * c10 + c00 * b00 + c01 * b10 - tr * c00
+    r01 = a00 * c01 + a01 * c11 + c00 * b01 + c01 * b11 - tr * c01
+    r10 = a10 * c00 + a11 * c10 + c10 * b00 + c11 * b10 - tr * c10
+    r11 = a10 * c01 + a11 * c11 + c10 * b01 + c11 * b11 - tr * c11
+    d = p00 * p11 - p01 * p10
+    X = np.empty(np.broadcast_shapes(A.shape, B.shape, C.shape))
+    X[..., 0, 0] = (p11 * r00 - p01 * r10) / d
+    X[..., 0, 1] = (p11 * r01 - p01 * r11) / d
+    X[..., 1, 0] = (p00 * r10 - p10 * r00) / d
+    X[..., 1, 1] = (p00 * r11 - p10 * r01) / d
+    return X
+
+
+def _sylvester(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """``X`` with ``A X - X B = C`` for batches (``A`` ``(..., p, p)``, ``B`` ``(..., q, q)``, ``C``
+    ``(..., p, q)``), in closed form for ``p, q <= 2`` (real arithmetic, elementwise over the batch):
+    ``(p, q) = (2, 2)``: ``X = p_B(A)^-1 (A C + C B - tr(B) C)`` with ``p_B(z) = z^2 - tr(B) z + det B``
+    (from ``A^2 X - X B^2 = A C + C B`` and Cayley-Hamilton for ``B``); else by the Kronecker form.
+    A common eigenvalue of ``A`` and ``B`` gives non-finite entries."""
+    p, q = A.shape[-1], B.shape[-1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if p == 1 and q == 1:
+            return C / (A - B)
+        if p == 2 and q == 1:
+            inv, _ = _inv2(A - B[..., 0, 0, None, None] * np.eye(2))
+            return _mul2(inv, np.concatenate([C, np.zeros_like(C)], axis=-1))[..., :1]
+        if p == 1 and q == 2:
+            inv, _ = _inv2(A[..., 0, 0, None, None] * np.eye(2) - B)
+            return _mul2(np.concatenate([C, np.zeros_like(C)], axis=-2), inv)[..., :1, :]
+        if p == 2 and q == 2:
+            return _sylvester22(A, B, C)
+        shape = np.broadcast_shapes(A.shape[:-2], B.shape[:-2], C.shape[:-2])
+        kron = (np.einsum("...ij,kl->...ikjl", A, np.eye(q)) - np.einsum("ij,...lk->...ikjl", np.eye(p), B))
+        kron = np.broadcast_to(kron.reshape(kron.shape[:-4] + (p * q, p * q)), shape + (p * q, p * q))
+        rhs = np.broadcast_to(C, shape + (p, q)).reshape(shape + (p * q,))
+        try:
+            return np.linalg.solve(kron, rhs[..., None])[..., 0].reshape(shape + (p, q))
+        except np.linalg.LinAlgError:
+            return np.full(shape + (p, q), np.inf)
+
+
+def _first_order(M: np.ndarray, index: dict, labels: np.ndarray) -> tuple:
+    """First-order invariant subspaces of ``M`` (real, nearly block diagonal over the clusters).
+
+    With ``D`` the cluster blocks of ``M`` and ``E = M - D``: ``X`` (zero on the cluster blocks)
+    solves ``D X - X D = -E``, so that ``(I + X)^-1 M (I + X) = D + O(E X)``: block diagonal to
+    first order (``I + X`` keeps unit projection on the current cluster bases, a parallel
+    transport).  One small Sylvester equation ``D_a X_ab - X_ab D_b = -E_ab`` per pair of clusters,
+    solved in closed form for blocks of size <= 2 (:func:`_sylvester`), batched over the pairs
+    (clusters of one size made contiguous by one permutation): ``O(n^2)`` real operations instead
+    of a full ``eig``.  Returns ``(X, mu)``, ``mu`` the block eigenvalues (``(n,)``, cluster order).
+    """
+    n = M.shape[0]
+    mu = np.empty(n, dtype=complex)
+    perm = np.concatenate([idx.ravel() for idx in index.values()])
+    Mp = M[np.ix_(perm, perm)]
+    Xp = np.empty_like(Mp)
+    offsets, start = {}, 0
+    for size, idx in index.items():
+        offsets[size] = (start, len(idx))
+        start += idx.size
+    blocks = {}
+    for size, (o, m) in offsets.items():
+        diag = Mp[o:o + m * size, o:o + m * size].reshape(m, size, m, size)
+        blocks[size] = diag[np.arange(m), :, np.arange(m), :]  # (m, size, size)
+        mu[index[size]] = np.linalg.eigvals(blocks[size])
+    for sa, (oa, ma) in offsets.items():
+        for sb, (ob, mb) in offsets.items():
+            E = Mp[oa:oa + ma * sa, ob:ob + mb * sb].reshape(ma, sa, mb, sb).transpose(0, 2, 1, 3)
+            Xab = _sylvester(blocks[sa][:, None], blocks[sb][None, :], -E)
+            if sa == sb:
+                Xab[np.arange(ma), np.arange(ma)] = 0.0  # a cluster with itself
+            Xp[oa:oa + ma * sa, ob:ob + mb * sb] = Xab.transpose(0, 2, 1, 3).reshape(ma * sa, mb * sb)
+    if not np.all(np.isfinite(Xp)):
+        raise _PerturbationFailed("a coupling between two clusters with a common eigenvalue")
+    X = np.empty_like(M)
+    X[np.ix_(perm, perm)] = Xp
+    return X, mu
+
+
+def _merge_cuts(mu: np.ndarray, bounds: list, omega: float) -> list:
+    """``bounds`` with the cuts that break the rule of :func:`_cluster_bounds` removed, judged on
+    the block eigenvalues ``mu`` (``(K, n)``, cluster order) over the period."""
+    mods = np.abs(mu)
+    for a, b in bounds:
+        mods[:, a:b] = np.sort(mods[:, a:b], axis=1)
+    lo, hi = mods.min(axis=0), mods.max(axis=0)
+    cuts = [a for a, _ in bounds[1:]]
+    ok = _separated(lo, hi, omega)
+    # a cut also needs the whole of both neighbouring clusters apart (they need not stay sorted)
+    keep = []
+    for i, c in enumerate(cuts):
+        a = bounds[i][0]
+        b = bounds[i + 2][0] if i + 2 < len(bounds) else mods.shape[1]
+        if ok[c - 1] and mods[:, c:b].min() > mods[:, a:c].max():
+            keep.append(c)
+    return list(zip([0] + keep, keep + [mods.shape[1]]))
+
+
+def _perturbed_basis(Pb: np.ndarray, parent: list, omega: float) -> tuple:
+    """Basis samples ``V_k = I + X_k`` and cluster bounds of a frame nested in another.
+
+    ``Pb`` (``(K, n, n)``) is expressed in a frozen-modal frame with cluster bounds ``parent``,
+    so it is nearly block diagonal; :func:`_first_order` gives ``X_k`` at each sample, and the
+    samples are periodic by construction (no continuation, no holonomy).  The clusters are the
+    parent's, merged (and the samples redone) where the block eigenvalues over the period break
+    the rule of :func:`_cluster_bounds`.  Raises :class:`_PerturbationFailed` when a correction is
+    not small (``> MAX_FIRST_ORDER``).  (A continuation of the *first* frame by the same step,
+    ``V_k = V_{k-1} (I + X_k)``, was tried: on the single link the stiff modes' eigenvectors turn
+    by ~0.25 between 32 samples, too far for one first-order step.)
+    """
+    K, n = Pb.shape[0], Pb.shape[1]
+    bounds = list(parent)
+    for _ in range(4):
+        index = _size_groups(bounds)
+        labels = np.repeat(np.arange(len(bounds)), [b - a for a, b in bounds])
+        mus = np.empty((K, n), dtype=complex)
+        V = np.empty((K, n, n))
+        for k in range(K):
+            X, mus[k] = _first_order(Pb[k], index, labels)
+            worst = float(np.abs(X).max())
+            if not worst <= MAX_FIRST_ORDER:
+                raise _PerturbationFailed(f"first-order correction {worst:.1e} > {MAX_FIRST_ORDER}")
+            V[k] = X
+            V[k].flat[:: n + 1] += 1.0
+        merged = _merge_cuts(mus, bounds, omega)
+        if merged == bounds:
+            return V, bounds
+        bounds = merged
+    raise _PerturbationFailed("the clusters did not settle")
+
+
+def _size_groups(bounds: list) -> dict:
+    """``{size: (clusters, size) index array}``: clusters grouped by size (batched small-block work)."""
+    groups: dict = {}
+    for a, b in bounds:
+        groups.setdefault(b - a, []).append(a)
+    return {size: (np.array(starts)[:, None] + np.arange(size)[None, :]) for size, starts in groups.items()}
+
+
+def _real_columns(lams: np.ndarray, Ws: np.ndarray, bounds: list) -> np.ndarray:
+    """Real basis of each cluster's invariant subspace from eigenvectors ``Ws`` (``(K, n, n)``,
+    columns sorted as ``lams``): Re and Im of the eigenvectors with Im lambda > 0, and the real
+    eigenvectors (conjugates share a modulus, hence a cluster)."""
+    K, n = lams.shape
+    pick = np.empty((K, n), dtype=int)
+    part = np.empty((K, n), dtype=bool)  # True: take Im, False: take Re
+    for k in range(K):
+        lam = lams[k]
+        cols, ims = [], []
+        for a, b in bounds:
+            upper = [j for j in range(a, b) if lam[j].imag > 0]
+            real = [j for j in range(a, b) if lam[j].imag == 0]
+            if 2 * len(upper) + len(real) != b - a:
+                raise ModalBasisError("a cluster of frozen eigenvalues is not closed under conjugation")
+            for j in upper:
+                cols += [j, j]
+                ims += [False, True]
+            cols += real
+            ims += [False] * len(real)
+        pick[k], part[k] = cols, ims
+    return np.where(part[:, None, :], np.take_along_axis(Ws.imag, pick[:, None, :], axis=2),
+                    np.take_along_axis(Ws.real, pick[:, None, :], axis=2))
+
+
+def _block_log(H: np.ndarray) -> tuple:
+    """Eigen-decompositions ``(h, S, S^-1)`` of a batch of holonomy blocks (``(m, s, s)``) with a real
+    logarithm (``log H = S diag(log h) S^-1`` real); falls back to :func:`_real_log` block by block
+    (returned as its own eigen-decomposition) where ``S`` is ill-conditioned."""
+    h, S = np.linalg.eig(H)
+    with np.errstate(all="ignore"):
+        try:
+            Sinv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            Sinv = np.full_like(S, np.inf)
+    growth = np.abs(Sinv).max(axis=(1, 2)) * np.abs(S).max(axis=(1, 2))
+    real = np.abs(h.imag) <= 1e-12 * np.abs(h)
+    if np.any(real & (h.real <= 0)):
+        raise ModalBasisError("a frozen invariant subspace has a holonomy without a real logarithm "
+                              "(a real eigenvector reverses over one period)")
+    bad = np.flatnonzero(~(growth <= 1e6))
+    for c in bad:
+        G = _real_log(H[c])
+        g, T = np.linalg.eig(G)
+        h[c], S[c], Sinv[c] = np.exp(g), T, np.linalg.inv(T)
+    return h, S, Sinv
+
+
+def _remove_holonomy(V: np.ndarray, index: dict, tau: np.ndarray) -> np.ndarray:
+    """``V[:K]`` made periodic: ``V[K] = V[0] H`` (``H`` block diagonal over the clusters of
+    ``index``, the holonomy of the continuation); each sample times ``expm(-G tau)``, ``G`` the
+    real logarithm of ``H``'s cluster block, ``tau = t / T`` (batched through the blocks'
+    eigen-decompositions: ``expm(-G tau) = S diag(h^-tau) S^-1``)."""
+    K = V.shape[0] - 1
+    H = np.linalg.solve(V[0], V[K])
+    decomp = {size: (idx, _block_log(H[idx[:, :, None], idx[:, None, :]])) for size, idx in index.items()}
+    for k in range(K):
+        blocks = {}
+        for size, (idx, (h, S, Sinv)) in decomp.items():
+            E = np.einsum("mij,mj,mjl->mil", S, np.exp(-tau[k] * np.log(h.astype(complex))), Sinv)
+            blocks[size] = (idx, E.real)
+        V[k] = _block_right(V[k], blocks)
+    return V[:K]
+
+
+def _eig_basis(Pb: np.ndarray, times: np.ndarray, period: float) -> tuple:
+    """Basis samples ``V`` (``(K, n, n)``) and cluster bounds from a full eigen-decomposition per sample.
+
+    Clusters by :func:`_cluster_bounds`; each cluster's real basis continued by discrete parallel
+    transport, the holonomy removed (see the module notes).
+    """
+    K, n = Pb.shape[0], Pb.shape[1]
+    lams = np.empty((K, n), dtype=complex)
+    Ws = np.empty((K, n, n), dtype=complex)
+    for k in range(K):
+        lam, W = np.linalg.eig(Pb[k])
+        order = np.lexsort((lam.imag, np.abs(lam)))  # by modulus, conjugates adjacent
+        lams[k], Ws[k] = lam[order], W[:, order]
+    # clusters: runs of the sorted moduli separated from the next by a gap over the whole
+    # period (then each cluster's invariant subspace is a smooth function of t)
+    bounds = _cluster_bounds(np.abs(lams), 2.0 * np.pi / period)
+    Rs = _real_columns(lams, Ws, bounds)
+    # clusters grouped by size: their small blocks are inverted / exponentiated in batches
+    index = _size_groups(bounds)
+    V = np.empty((K + 1, n, n))
+    V[0] = Rs[0]
+    for k in range(1, K + 1):
+        # discrete parallel transport: each cluster's new basis has unit projection on the
+        # previous left basis (rows of V_{k-1}^-1 belonging to the cluster)
+        Rk = Rs[k % K]
+        proj_all = np.linalg.solve(V[k - 1], Rk)
+        blockinv = np.zeros((n, n))
+        for size, idx in index.items():
+            proj = proj_all[idx[:, :, None], idx[:, None, :]]  # (clusters, size, size)
+            with np.errstate(all="ignore"):
+                try:
+                    inv = np.linalg.inv(proj)
+                except np.linalg.LinAlgError:
+                    inv = np.full_like(proj, np.inf)
+                growth = np.abs(inv).max(axis=(1, 2)) * np.abs(proj).max(axis=(1, 2))
+            if not np.all(growth <= MAX_CONDITION):
+                raise ModalBasisError("a frozen invariant subspace turns by ~90 degrees between two samples "
+                                      "(too few samples)")
+            blockinv[idx[:, :, None], idx[:, None, :]] = inv
+        V[k] = Rk @ blockinv
+    return _remove_holonomy(V, index, times / period), bounds
+
+
+#: Newton continuation of the first frame (:func:`_continued_basis`): at most this many first-order
+#: corrections per sample, until the largest is <= ``CONTINUATION_TOL`` (each squares the
+#: previous one: 1e-2 leaves ~1e-4, which the second frame's first-order step removes; measured on
+#: the 32-element link, 144 steps: multipliers within 1.2e-10 of those with 1e-4, 3.0 instead of
+#: 3.6 steps per sample); a first correction above ``MAX_CONTINUATION_STEP`` (the
+#: basis turned too far between two samples for the predictor) refuses.
+CONTINUATION_ITERATIONS = 6
+CONTINUATION_TOL = 1e-2
+MAX_CONTINUATION_STEP = 10.0
+
+
+def _continued_basis(Pb: np.ndarray, times: np.ndarray, period: float) -> tuple:
+    """Basis samples and cluster bounds of a first frame by Newton continuation from one ``eig``.
+
+    A full ``eig`` at ``t = 0`` (clusters: the finest the rule of :func:`_cluster_bounds` allows
+    there); at each next sample the previous basis is corrected by first-order steps ``V <- V (I + X)``, ``X`` from :func:`_first_order` of ``V^-1 P_k V``, until
+    ``max |X| <= CONTINUATION_TOL`` (quadratic convergence: the invariant subspaces of every
+    cluster to ~1e-4, the rest left to the next frame).  A solve and two products per step instead of an ``eig`` (measured at
+    516 states: 0.21 s per ``eig``, 7 ms per product, 17 ms per solve).  The cluster blocks of the
+    projection ``C = V_{k-1}^-1 V_k`` are then reset to the identity, a discrete parallel transport
+    as in :func:`_eig_basis` (without the reset, the second-order products of a large first
+    correction left a non-smooth in-cluster scaling that merged the hub clusters of the second
+    frame of the 2-element link at 4 pi; a linear predictor
+    ``2 V_{k-1} - V_{k-2}`` was tried: nothing corrects its in-cluster part, which then drifts
+    like a marginally stable recursion, and the second frame's coupling grew 100x); its
+    holonomy is removed as in :func:`_eig_basis`.  The clusters are then checked against the block
+    eigenvalues over the whole period and merged (the sweep redone) where the rule breaks.
+    Raises :class:`_PerturbationFailed` when a sample does not converge.
+    """
+    K, n = Pb.shape[0], Pb.shape[1]
+    omega = 2.0 * np.pi / period
+    lam, W = np.linalg.eig(Pb[0])
+    order = np.lexsort((lam.imag, np.abs(lam)))
+    lam, W = lam[order], W[:, order]
+    bounds = _cluster_bounds(np.abs(lam)[None, :], omega)
+    start = _real_columns(lam[None], W[None], bounds)[0]
+    for _ in range(4):
+        index = _size_groups(bounds)
+        labels = np.repeat(np.arange(len(bounds)), [b - a for a, b in bounds])
+        mus = np.empty((K, n), dtype=complex)
+        V = np.empty((K + 1, n, n))
+        V[0] = start
+        for k in range(1, K + 1):
+            Vk, C = V[k - 1], np.eye(n)  # Vk = V[k - 1] C
+            for it in range(CONTINUATION_ITERATIONS):
+                X, mu = _first_order(np.linalg.solve(Vk, Pb[k % K] @ Vk), index, labels)
+                step = float(np.abs(X).max())
+                if it == 0 and not step <= MAX_CONTINUATION_STEP:
+                    raise _PerturbationFailed(f"the basis turns by {step:.1e} between two samples")
+                Vk = Vk + Vk @ X
+                if step > CONTINUATION_TOL ** 2:  # C's cluster blocks change at second order only
+                    C = C + C @ X
+                if step <= CONTINUATION_TOL:
+                    break
+            else:
+                raise _PerturbationFailed(f"Newton continuation stalls at {step:.1e}")
+            # exact unit projection on the previous basis: the cluster blocks of C (I + second-order
+            # products of the corrections, not small after a large first step) back to the identity
+            blocks = {}
+            for size, idx in index.items():
+                try:
+                    blocks[size] = (idx, np.linalg.inv(C[idx[:, :, None], idx[:, None, :]]))
+                except np.linalg.LinAlgError:
+                    raise _PerturbationFailed("a cluster's projection on the previous basis is singular") from None
+            V[k], mus[k % K] = _block_right(Vk, blocks), mu
+        merged = _merge_cuts(mus, bounds, omega)
+        if merged == bounds:
+            return _remove_holonomy(V, index, times / period), bounds
+        bounds = merged
+    raise _PerturbationFailed("the clusters did not settle")
+
+
+def _condition(A: np.ndarray) -> float:
+    """1-norm condition number estimate of ``A`` (LAPACK ``gecon`` on its LU factors: ``O(n^3 / 3)``
+    instead of an SVD; within a factor ``n`` of the 2-norm condition number)."""
+    lu, _ = scipy.linalg.lu_factor(A, check_finite=False)
+    rcond, info = scipy.linalg.lapack.dgecon(lu, float(np.abs(A).sum(axis=0).max()), norm="1")
+    return float(1.0 / rcond) if info == 0 and rcond > 0 else math.inf
+
+
+def _samples_of(P: Any, K: int) -> Optional[np.ndarray]:
+    """``P_hat`` of a frozen-modal frame ``P`` at its own ``K`` sample times, from the samples it was
+    built from (no new evaluation of the model's ``P``, no trigonometric evaluation): at
+    ``t_k = k T / K`` the interpolant ``V`` is the sample itself and ``V'`` its spectral derivative
+    (the Nyquist term's derivative vanishes there), so this equals ``P.evaluate(t_k)``; ``K`` may
+    divide ``P``'s sample count (every ``N / K``-th sample).  None when ``P`` is no frame or was
+    sampled otherwise.  Used once (the cache is then dropped)."""
+    cache = getattr(P, "_sample_cache", None) if isinstance(P, FrozenModalSystem) else None
+    if cache is None or cache[1].shape[0] % K:
+        return None
+    Pb, V = cache
+    P._sample_cache = None
+    N = V.shape[0]
+    k = np.arange(N // 2 + 1) * (2.0 * np.pi / P.period)
+    k[-1] = 0.0
+    stride = N // K  # every stride-th of the parent's N samples: t_j = j T / K
+    Vt = np.fft.irfft(np.fft.rfft(V, axis=0) * (1j * k)[:, None, None], n=N, axis=0)[::stride]
+    return np.linalg.solve(V[::stride], Pb[::stride] @ V[::stride] - Vt)
+
+
+def _parent_bounds(P: Any) -> Optional[list]:
+    """Cluster bounds of ``P`` when it is itself a frozen-modal frame (nearly block diagonal), else None."""
+    if not isinstance(P, FrozenModalSystem):
+        return None
+    cuts = np.cumsum(P.clusters)[:-1].tolist()
+    return list(zip([0] + cuts, cuts + [P.n]))
+
+
 class FrozenModalSystem:
     """``P_hat(t) = V^-1 (P V - V')`` for a smooth periodic frozen-eigenvector basis ``V(t)``.
 
@@ -224,14 +709,30 @@ class FrozenModalSystem:
         Eigenvector samples per period (even, >= 4); default :data:`DEFAULT_MODAL_SAMPLES`.
     period : float, optional
         When ``P`` has no ``.period``.
+    method : {"auto", "eig", "perturbation"}
+        How the basis samples are built (:data:`BASIS_METHODS`).
+
+    Attributes
+    ----------
+    clusters : tuple of int
+        Sizes of the clusters of frozen eigenvalues (the diagonal blocks of ``P_hat``), in order.
+    method : str
+        The construction actually used: ``"eig"`` or ``"perturbation"``.
+    condition : float
+        Largest 1-norm condition number estimate of the sampled basis (balanced coordinates).
 
     Raises
     ------
     ModalBasisError
         If the eigenvector continuation does not close into a real periodic basis.
+    ValueError
+        For an unknown ``method`` or bad ``samples``.
     """
 
-    def __init__(self, P: Any, samples: Optional[int] = None, period: Optional[float] = None) -> None:
+    def __init__(self, P: Any, samples: Optional[int] = None, period: Optional[float] = None,
+                 method: str = "auto") -> None:
+        if method not in BASIS_METHODS:
+            raise ValueError(f"method must be one of {BASIS_METHODS}, got {method!r}")
         self.original = P
         self._trace: Optional[float] = None
         self._wrapped = PeriodicMatrixFunction(P, period)
@@ -242,90 +743,39 @@ class FrozenModalSystem:
             raise ValueError(f"samples must be an even integer >= 4, got {samples!r}")
         self.samples = K
         times = np.arange(K) * (self.period / K)
-        Ps = self._wrapped.evaluate(times)
+        Ps = _samples_of(P, K)
+        if Ps is None:
+            Ps = self._wrapped.evaluate(times)
         # one diagonal scaling for all samples (LAPACK's balancing of mean |P|): the eigenvector
         # matrices mix metres, radians and their rates; balanced they are well conditioned
         _, (scale, _) = scipy.linalg.matrix_balance(np.abs(Ps).mean(axis=0), permute=False, separate=True)
         scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
         Pb = Ps * (scale[None, :] / scale[:, None])
-        lams = np.empty((K, self.n), dtype=complex)
-        Ws = np.empty((K, self.n, self.n), dtype=complex)
-        for k in range(K):
-            lam, W = np.linalg.eig(Pb[k])
-            order = np.lexsort((lam.imag, np.abs(lam)))  # by modulus, conjugates adjacent
-            lams[k], Ws[k] = lam[order], W[:, order]
-        # clusters: runs of the sorted moduli separated from the next by a gap over the whole
-        # period (then each cluster's invariant subspace is a smooth function of t)
-        mods = np.abs(lams)
-        cuts = [i + 1 for i in range(self.n - 1) if mods[:, i + 1].min() > (1.0 + CLUSTER_GAP) * mods[:, i].max()]
-        bounds = list(zip([0] + cuts, cuts + [self.n]))
-        self.clusters = tuple(b - a for a, b in bounds)
-        # a real basis of each cluster's invariant subspace: Re and Im of the eigenvectors with
-        # Im lambda > 0, and the real eigenvectors (conjugates share a modulus, hence a cluster)
-        pick = np.empty((K, self.n), dtype=int)
-        part = np.empty((K, self.n), dtype=bool)  # True: take Im, False: take Re
-        for k in range(K):
-            lam = lams[k]
-            cols, ims = [], []
-            for a, b in bounds:
-                upper = [j for j in range(a, b) if lam[j].imag > 0]
-                real = [j for j in range(a, b) if lam[j].imag == 0]
-                if 2 * len(upper) + len(real) != b - a:
-                    raise ModalBasisError("a cluster of frozen eigenvalues is not closed under conjugation")
-                for j in upper:
-                    cols += [j, j]
-                    ims += [False, True]
-                cols += real
-                ims += [False] * len(real)
-            pick[k], part[k] = cols, ims
-        Rs = np.where(part[:, None, :], np.take_along_axis(Ws.imag, pick[:, None, :], axis=2),
-                      np.take_along_axis(Ws.real, pick[:, None, :], axis=2))
-        # clusters grouped by size: their small blocks are inverted / exponentiated in batches
-        groups: dict = {}
-        for a, b in bounds:
-            groups.setdefault(b - a, []).append(a)
-        index = {size: (np.array(starts)[:, None] + np.arange(size)[None, :]) for size, starts in groups.items()}
-        V = np.empty((K + 1, self.n, self.n))
-        V[0] = Rs[0]
-        for k in range(1, K + 1):
-            # discrete parallel transport: each cluster's new basis has unit projection on the
-            # previous left basis (rows of V_{k-1}^-1 belonging to the cluster)
-            Rk = Rs[k % K]
-            proj_all = np.linalg.solve(V[k - 1], Rk)
-            blockinv = np.zeros((self.n, self.n))
-            for size, idx in index.items():
-                proj = proj_all[idx[:, :, None], idx[:, None, :]]  # (clusters, size, size)
-                with np.errstate(all="ignore"):
-                    try:
-                        inv = np.linalg.inv(proj)
-                    except np.linalg.LinAlgError:
-                        inv = np.full_like(proj, np.inf)
-                    growth = np.abs(inv).max(axis=(1, 2)) * np.abs(proj).max(axis=(1, 2))
-                if not np.all(growth <= MAX_CONDITION):
-                    raise ModalBasisError("a frozen invariant subspace turns by ~90 degrees between two samples "
-                                          "(too few samples)")
-                blockinv[idx[:, :, None], idx[:, None, :]] = inv
-            V[k] = Rk @ blockinv
-        # holonomy: V_K = V_0 H with H block diagonal (the same invariant subspaces at t = 0 and T)
-        H = np.linalg.solve(V[0], V[K])
-        tau = times / self.period
-        for size, idx in index.items():
-            G = np.array([_real_log(H[np.ix_(i, i)]) for i in idx])  # (clusters, size, size)
-            if size == 1:
-                E = np.exp(-G[None, :, 0, 0] * tau[:, None])[:, :, None, None]
-            else:
-                E = scipy.linalg.expm(-G[None] * tau[:, None, None, None])  # (K, clusters, size, size)
-            corr = np.zeros((K, self.n, self.n))
-            corr[:, idx[:, :, None], idx[:, None, :]] = E
-            cols = idx.ravel()
-            V[:K, :, cols] = V[:K][:, :, cols] @ corr[:, cols][:, :, cols]
-        V = V[:K]
-        cond = max(float(np.linalg.cond(V[k])) for k in range(0, K, max(1, K // 4)))
+        self.method = "eig"
+        V = bounds = None
+        parent = _parent_bounds(P)
+        if method != "eig":
+            try:
+                if parent is not None:
+                    V, bounds = _perturbed_basis(Pb, parent, 2.0 * np.pi / self.period)
+                else:
+                    V, bounds = _continued_basis(Pb, times, self.period)
+                self.method = "perturbation"
+            except (_PerturbationFailed, ModalBasisError) as exc:
+                if method == "perturbation":
+                    raise ModalBasisError(f"no first-order frozen-modal basis ({exc})") from None
+                logger.info("first-order basis refused (%s): full eigen-decompositions", exc)
+        if V is None:
+            V, bounds = _eig_basis(Pb, times, self.period)
+        self.clusters = tuple(int(b - a) for a, b in bounds)
+        cond = max(_condition(V[k]) for k in range(0, K, max(1, K // 4)))
         if not cond <= MAX_CONDITION:
             raise ModalBasisError(f"the frozen eigenvector basis is nearly singular (condition {cond:.1e})")
         self.scale = scale
         self.condition = cond
         self._coef = _trig_coefficients(V)
+        # what a frame nested in this one needs at the same sample times (see _samples_of)
+        self._sample_cache = (Pb, V)
         self.basis_samples = V * scale[None, :, None]  # in the original (unbalanced) coordinates
 
     def with_system(self, P: Any) -> "FrozenModalSystem":
@@ -339,6 +789,7 @@ class FrozenModalSystem:
         other.__dict__.update(self.__dict__)
         other.original = P
         other._trace = None
+        other._sample_cache = None  # the samples of *this* P: never a nested frame's input
         other._wrapped = PeriodicMatrixFunction(P, self.period)
         if other._wrapped.n != self.n or abs(other._wrapped.period - self.period) > 1e-12 * self.period:
             raise ValueError("with_system needs a periodic matrix of the same size and period")
@@ -585,10 +1036,14 @@ def modal_system(P: Any, levels: int = MODAL_LEVELS, samples: Optional[int] = No
             K *= 2
     for _ in range(int(levels) - 1):
         try:
-            system = FrozenModalSystem(system, system.samples)
+            nested = NESTED_MODAL_SAMPLES if system.samples % NESTED_MODAL_SAMPLES == 0 else system.samples
+            system = FrozenModalSystem(system, nested)
         except ModalBasisError as exc:
             logger.info("no deeper frozen-modal frame (%s)", exc)
             break
+    frame = system
+    while isinstance(frame, FrozenModalSystem):  # no deeper frame will read the samples: free them
+        frame._sample_cache, frame = None, frame.original
     return system
 
 
