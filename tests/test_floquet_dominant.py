@@ -160,3 +160,45 @@ def test_modal_adaptive_dominant_raises_when_the_estimate_cannot_reach_rtol():
     with pytest.raises(FloquetError, match="estimate"):
         modal_floquet(CLOSE, method="magnus2", extrapolate=True, n_steps=None, accuracy="dominant",
                       rtol=1e-20, max_steps=150)
+
+
+class _Aliased:
+    """``P(t) = A0 + c cos(2 pi 144 t) I`` (``T = 1``): the identity term commutes with ``A0`` and
+    integrates to 0 over the period, so the multipliers are ``exp(-0.1 +- 5 i)`` in closed form.
+
+    Every midpoint grid of 72 steps' nested family (72, 36, 18, 9, and 24, 8) samples the 144th
+    harmonic at ``cos(2 pi k') = 1``: all of them integrate ``A0 + c I``, agree with each other and are
+    all wrong by the factor ``e^c`` - an error no nested Richardson estimate can see.  81 steps
+    (``9 N / 8``) sum the harmonic to 0 (144 / 81 is not an integer).
+    """
+
+    period = 1.0
+    A0 = np.array([[-0.1, 5.0], [-5.0, -0.1]])
+
+    def __init__(self, c=0.5, k=144):
+        self.c, self.k = c, k
+
+    def evaluate(self, times):
+        t = np.atleast_1d(times)
+        return self.A0[None] + (self.c * np.cos(2 * math.pi * self.k * t))[:, None, None] * np.eye(2)[None]
+
+    def __call__(self, t):
+        return self.evaluate(np.array([t]))[0]
+
+
+def test_non_nested_check_sees_an_error_the_nested_family_shares():
+    from stability.modal import modal_floquet
+
+    P, exact = _Aliased(), math.exp(-0.1)
+    plain = modal_floquet(P, method="magnus2", n_steps=72, extrapolate=True, accuracy="dominant")
+    checked = modal_floquet(P, method="magnus2", n_steps=72, extrapolate=True, accuracy="dominant", check=True)
+    err = abs(checked.spectral_radius - exact) / exact
+    assert err == pytest.approx(math.expm1(P.c), rel=1e-6)  # the aliased answer e^c off (independent of N)
+    assert plain.error_estimate < 1e-10 < err  # the nested estimate misses it
+    # the checked one bounds it (rounding: the estimate is a difference of two moduli, ~ n eps)
+    assert err <= checked.error_estimate + 1e-14
+    assert checked.n_evaluations > plain.n_evaluations  # the 81-step solve is counted
+    # the true system is stable (0.905): unchecked, the aliased 1.49 is called unstable; the checked
+    # verdict band covers the error, so it can only say critical
+    assert plain.verdict == "unstable"
+    assert checked.verdict == "critical"
