@@ -109,7 +109,7 @@ def _cplx(z) -> list:
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
            floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
            implicit_limit: float | None = None, trace_memory: bool = False, rtol: float | None = None,
-           accuracy: str = "moduli") -> dict:
+           accuracy: str = "moduli", check: bool = False) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -122,7 +122,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
         tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)
     rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame,
                  "extrapolate": bool(extrapolate and frame == "modal"), "rtol": rtol,
-                 "accuracy": accuracy, "stages": {}}
+                 "accuracy": accuracy, "check": bool(check), "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
         orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
@@ -155,7 +155,7 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                 # --rtol: the step count chosen from the extrapolated estimate (72, 144/216/288, ...)
                 steps = None if (rtol is not None and extrapolate) else n_steps
                 opts = {"rtol": rtol} if steps is None else {}
-                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy=accuracy, **opts,
+                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy=accuracy, check=check, **opts,
                                     extrapolate=extrapolate)
             else:
                 res = floquet(system, method="magnus2", n_steps=n_steps, accuracy=accuracy)
@@ -166,7 +166,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                         "dominant_damped": _cplx(damped[0]) if damped else None,
                         "error_estimate": float(res.error_estimate), "n_steps": int(res.n_steps),
                         # what error_estimate certifies (stability.floquet.ACCURACIES / dominant_mask)
-                        "estimate_covers": estimate_covers(res.accuracy),
+                        "estimate_covers": estimate_covers(res.accuracy)
+                        + ("; nested estimate and a non-nested check solve at 9N/8 steps" if check else ""),
                         "n_evaluations": int(res.n_evaluations),
                         "liouville_residual": float(res.liouville_residual),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
@@ -252,7 +253,8 @@ def markdown(records: list, exps: dict) -> str:
             f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'modal_basis') if 'modal_basis' in st else '—'} | "
             f"{_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
             f"{total} | {r['peak_rss_mb']:.0f} | "
-            + (f"{d['spectral_radius']:.9f} ({d['error_estimate']:.0e}{_ACC_MARK.get(r.get('accuracy'), '')})"
+            + (f"{d['spectral_radius']:.9f} ({d['error_estimate']:.0e}{_ACC_MARK.get(r.get('accuracy'), '')}"
+                f"{' +chk' if r.get('check') else ''})"
                if d else "—") + " | "
             + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
             + f" | {imp_cell} |")
@@ -284,6 +286,9 @@ def main(argv=None) -> int:
                     help="what the dense estimate (and --rtol's step choice) covers: every modulus >= 1e-6 of "
                          "the largest, or the spectral radius and the multipliers that could be it "
                          "(stability.floquet.dominant_mask)")
+    ap.add_argument("--check", action="store_true",
+                    help="modal frame, extrapolated: add the non-nested check solve (9N/8 steps) to the estimate "
+                         "(stability.modal.modal_floquet(check=True))")
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
@@ -301,7 +306,7 @@ def main(argv=None) -> int:
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
                      args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit,
-                     args.trace_memory, args.rtol, args.accuracy)
+                     args.trace_memory, args.rtol, args.accuracy, args.check)
         print(json.dumps(rec))
         return 0
     records = []
@@ -312,6 +317,8 @@ def main(argv=None) -> int:
                "--floquet-limit", str(args.floquet_limit), "--frame", args.frame, "--accuracy", args.accuracy]
         if args.no_extrapolate:
             cmd.append("--no-extrapolate")
+        if args.check:
+            cmd.append("--check")
         if args.rtol is not None:
             cmd += ["--rtol", repr(args.rtol)]
         if args.implicit_limit is not None:
@@ -341,7 +348,8 @@ def main(argv=None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"case": {"model": "single-link", "omega": OMEGA, "kp": KP, "kd": KD,
                                         "samples": args.samples, "n_steps": args.steps, "frame": args.frame,
-                                        "accuracy": args.accuracy, "rtol": args.rtol},
+                                        "accuracy": args.accuracy, "rtol": args.rtol,
+                                        "check": args.check},
                                "records": records, "growth_exponents": exps, "table": table}, indent=1))
     return 0
 
