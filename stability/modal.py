@@ -961,10 +961,11 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
                    elapsed=fine.elapsed + extra_elapsed, phase_error_estimate=phase)
 
 
-def _check_steps(N: int) -> int:
-    """Step count of the non-nested check solve of :func:`_checked`: ``9 N / 8`` when 72 divides ``N``
-    (divisible by 9 again: the ratio-3 path), else the multiple of 4 nearest above ``9 N / 8``."""
-    return 9 * N // 8 if N % 72 == 0 else 4 * math.ceil(9 * N / 32)
+def _check_steps(N: int, by_nine: bool) -> int:
+    """Step count ``M >= 9 N / 8`` of the non-nested check solve of :func:`_checked`: the next multiple
+    of 9 (``by_nine``: a system larger than ``SMALL_N``, ratio 3 from the ``M``-step factors) or of 8
+    (ratio 2 with ``M / 2``, ``M / 4``, ``M / 8``); ``9 N / 8`` itself when 72 divides ``N``."""
+    return 9 * math.ceil(N / 8) if by_nine else 8 * math.ceil(9 * N / 64)
 
 
 def _fixed_extrapolated(system: "FrozenModalSystem", N: int, options: dict) -> Any:
@@ -986,7 +987,7 @@ def _checked(system: "FrozenModalSystem", res: Any, options: dict) -> Any:
     error that repeats on every grid of the family (measured on the single link: the spectral
     radius of the extrapolated frozen-modal solve at 16 elements is 1 - 3.064e-7 at 72, 144 and
     1152 steps and 1 - 3.092e-7 at 216, with nested estimates of ~3e-12) is invisible to it.  The
-    check solves again, extrapolated, with ``M = 9 N / 8`` steps (:func:`_check_steps`: not in
+    check solves again, extrapolated, with ``M ~ 9 N / 8`` steps (:func:`_check_steps`: not in
     ``N``'s family), and the estimate of each multiplier becomes the larger of its nested estimate
     and its relative change to the ``M``-step solve (sorted moduli, or multipliers with
     ``accuracy="multipliers"``) plus the ``M`` solve's own nested estimate (``|e_N| <= |R_N - R_M|
@@ -996,9 +997,9 @@ def _checked(system: "FrozenModalSystem", res: Any, options: dict) -> Any:
     ``N``'s error); if both are off alike the difference can be small - a heuristic, measured in
     ``benchmarks/modal_estimate_check.py --check``.
     """
-    from stability.floquet import _estimate, _select_changes, _Spectrum, _verdict
+    from stability.floquet import SMALL_N, _estimate, _select_changes, _Spectrum, _verdict
 
-    M = _check_steps(int(res.n_steps))
+    M = _check_steps(int(res.n_steps), system.n > SMALL_N)
     other = _fixed_extrapolated(system, M, options)
     accuracy = options.get("accuracy", "moduli")
     a = _Spectrum(np.asarray(res.multipliers), np.asarray(res.log_moduli))

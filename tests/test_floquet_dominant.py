@@ -168,8 +168,8 @@ class _Aliased:
 
     Every midpoint grid of 72 steps' nested family (72, 36, 18, 9, and 24, 8) samples the 144th
     harmonic at ``cos(2 pi k') = 1``: all of them integrate ``A0 + c I``, agree with each other and are
-    all wrong by the factor ``e^c`` - an error no nested Richardson estimate can see.  81 steps
-    (``9 N / 8``) sum the harmonic to 0 (144 / 81 is not an integer).
+    all wrong by the factor ``e^c`` - an error no nested Richardson estimate can see.  The check's
+    88 steps (and 44, 22, 11) sum the harmonic to 0 (144 / 88 is not an integer).
     """
 
     period = 1.0
@@ -197,8 +197,20 @@ def test_non_nested_check_sees_an_error_the_nested_family_shares():
     assert plain.error_estimate < 1e-10 < err  # the nested estimate misses it
     # the checked one bounds it (rounding: the estimate is a difference of two moduli, ~ n eps)
     assert err <= checked.error_estimate + 1e-14
-    assert checked.n_evaluations > plain.n_evaluations  # the 81-step solve is counted
+    assert checked.n_evaluations > plain.n_evaluations  # the 88-step solve is counted
     # the true system is stable (0.905): unchecked, the aliased 1.49 is called unstable; the checked
     # verdict band covers the error, so it can only say critical
     assert plain.verdict == "unstable"
     assert checked.verdict == "critical"
+
+
+@pytest.mark.parametrize("N", [27, 54, 72, 144, 216, 288, 432])
+def test_check_steps_leave_the_nested_family(N):
+    from stability.modal import _check_steps
+
+    for by_nine, div in ((True, 9), (False, 8)):
+        M = _check_steps(N, by_nine)
+        assert M % div == 0  # the extrapolation path of that system size applies to M
+        assert 9 * N / 8 <= M < 9 * N / 8 + div
+        # M is neither a multiple nor a divisor of N (not on the grid family N, N / 2, N / 3, ...)
+        assert M % N != 0 and N % M != 0 and M != N
