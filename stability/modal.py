@@ -74,9 +74,11 @@ step instead of an ``eig``), and a nested frame, whose ``P_hat`` is already
 nearly block diagonal, is ``V = I + X`` at ``O(n^2)`` per sample
 (:func:`_perturbed_basis`).  Measured on the single link at Omega = 2 pi with the
 Table 3 gains (two frames, 32 samples, CPU s on the shared 2-core machine):
-64 elements (516 states) 29.7 s with an ``eig`` per sample and the former 5 %
-gap (a cluster of 423 modes), 8.5 s now (clusters of <= 2); the multipliers of
-both constructions agree to ~1e-10 (32 elements, 144 steps).
+64 elements (516 states) 23.1 s (29.7 s at load 5) with an ``eig`` per sample
+and the former 5 % gap alone (a cluster of 423 modes), 7.4 s now (clusters of
+<= 2, nested frame on 16 of the 32 samples; ``benchmarks/scale.py``); the
+multipliers of both constructions agree to 5e-10 (64 elements, 144 steps, and
+7e-10 with 288 steps).
 
 References
 ----------
