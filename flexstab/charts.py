@@ -125,13 +125,18 @@ class ModelPlants:
 
     def plant(self, omega: float, config: Any = None, steps: Optional[int] = None) -> Any:
         """:func:`flexstab.plants.plant_for` at ``omega`` with ``config`` (a TuningConfig, or ``None``) and ``steps``."""
-        from flexstab.plants import plant_for
+        return self.choice(omega, config, steps).plant
+
+    def choice(self, omega: float, config: Any = None, steps: Optional[int] = None) -> Any:
+        """:func:`flexstab.plants.plant_choice_for` at ``omega``: the plant and how its discretisation was chosen
+        (cached as :meth:`plant`)."""
+        from flexstab.plants import plant_choice_for
 
         key = (float(omega), repr(config), steps)
         hit = self._plants.get(key)
         if hit is None:
             orbit, lin = self.linearised(omega)
-            hit = plant_for(self.model, orbit, lin, config, steps=steps)
+            hit = plant_choice_for(self.model, orbit, lin, config, steps=steps)
             self._plants[key] = hit
         return hit
 

@@ -276,6 +276,8 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                "harmonics": plant.harmonics if hill else None,
                "harmonics_converged": sel.harmonics.converged if sel.harmonics is not None else None,
                "harmonics_error_estimate": sel.harmonics.error_estimate if sel.harmonics is not None else None,
+               # the step choice at the range centre (null for Hill): whether MAX_TUNING_STEPS stopped it short
+               "propagator_choice": sel.steps.to_dict() if sel.steps is not None else None,
                "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
                          "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
                          "modes": check.modes}}

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
+import warnings
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -33,7 +35,7 @@ from linearize.system import LinearizedPeriodicSystem
 from taguchi.tuning import TuningConfig
 
 __all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
-           "hill_plant", "hill_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
+           "hill_plant", "hill_choice", "StepsChoice", "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
 
 logger = logging.getLogger(__name__)
 
@@ -92,8 +94,40 @@ def hill_plant(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: Tuni
     return hill_choice(lin, orbit, config).plant
 
 
-def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
-    """``plant`` with enough propagator steps for the tuning tolerance (model-file plants).
+@dataclasses.dataclass(frozen=True)
+class StepsChoice:
+    """Outcome of :func:`propagator_choice`.
+
+    Attributes
+    ----------
+    plant : ModelPlant
+        The plant with the chosen steps (``MAX_TUNING_STEPS`` or the last count below it when
+        none met the criterion).
+    n_steps : int
+    converged : bool
+        Whether ``error_estimate <= tolerance / 4`` at ``n_steps``.
+    error_estimate : float
+        ``4/3 |r_m - r_2m|`` of the last pair compared: ``m = n_steps`` when converged; when the cap
+        stopped the doubling, ``m = n_steps / 2`` (it bounds the error of ``r_m``, so over-states
+        that of the returned, finer ``n_steps``); NaN when no pair fitted under the cap.
+    tolerance : float
+        The tuning tolerance it was chosen for.
+    """
+
+    plant: Any
+    n_steps: int
+    converged: bool
+    error_estimate: float
+    tolerance: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (without the plant)."""
+        return {"n_steps": self.n_steps, "converged": self.converged, "error_estimate": self.error_estimate,
+                "tolerance": self.tolerance}
+
+
+def propagator_choice(plant: Any, tcfg: TuningConfig) -> StepsChoice:
+    """Enough propagator steps for the tuning tolerance (model-file plants), and how well they meet it.
 
     The response is evaluated at the centre of the initial ranges with ``n`` and
     ``2n`` propagator steps.  For a :class:`~linearize.analysis.ModelPlant` the value is the
@@ -102,25 +136,45 @@ def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
     bounds the error for any observed order ``p >= 2`` (the factor ``2^p / (2^p - 1)`` falls
     with ``p``), i.e. also before the extrapolated value reaches its 4th order.  ``n`` is
     doubled from ``plant.n_steps`` until that estimate is below a quarter of the tolerance,
-    or ``MAX_TUNING_STEPS``.
+    or ``MAX_TUNING_STEPS``: then the choice says ``converged=False`` with the estimate reached,
+    and a ``RuntimeWarning`` is issued (as :func:`linearize.hill_plant.select_harmonics` does).
     """
     kp, kd = _centre(tcfg)
+    tol = tcfg.effective_tolerance
     n = plant.n_steps
     r = plant.spectral_measure(kp, kd)
+    estimate, converged = math.nan, False
     while 2 * n <= MAX_TUNING_STEPS:
         r2 = dataclasses.replace(plant, n_steps=2 * n).spectral_measure(kp, kd)
-        if 4.0 / 3.0 * abs(r - r2) <= 0.25 * tcfg.effective_tolerance:
+        estimate = 4.0 / 3.0 * abs(r - r2)
+        if estimate <= 0.25 * tol:
+            converged = True
             break
         n, r = 2 * n, r2
-    return dataclasses.replace(plant, n_steps=n)
+    if not converged:
+        msg = (f"propagator steps: the step-doubling estimate {estimate:.2e} at the centre of the gain ranges "
+               f"(kp={kp} kd={kd}) is above tolerance / 4 = {0.25 * tol:.2e} at MAX_TUNING_STEPS = "
+               f"{MAX_TUNING_STEPS}; using {n} steps")
+        logger.warning(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    return StepsChoice(plant=dataclasses.replace(plant, n_steps=n), n_steps=n, converged=converged,
+                       error_estimate=float(estimate), tolerance=tol)
+
+
+def propagator_steps(plant: Any, tcfg: TuningConfig) -> Any:
+    """``propagator_choice(plant, tcfg).plant``: ``plant`` with enough propagator steps for the tuning
+    tolerance (warns when ``MAX_TUNING_STEPS`` stopped the doubling first)."""
+    return propagator_choice(plant, tcfg).plant
 
 
 @dataclasses.dataclass(frozen=True)
 class PlantChoice:
-    """Outcome of :func:`plant_choice_for`: the plant, and for a Hill plant how its harmonics were chosen."""
+    """Outcome of :func:`plant_choice_for`: the plant, and how its discretisation was chosen -- a Hill
+    plant's harmonics, or a :class:`ModelPlant`'s propagator steps (``None`` when fixed by ``steps``)."""
 
     plant: Any
     harmonics: Optional[HarmonicsChoice] = None
+    steps: Optional[StepsChoice] = None
 
 
 def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
@@ -139,7 +193,8 @@ def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPerio
         return PlantChoice(dataclasses.replace(plant, n_steps=int(steps)))
     if config is None or not orbit.drive_names:
         return PlantChoice(plant)
-    return PlantChoice(propagator_steps(plant, config))
+    sc = propagator_choice(plant, config)
+    return PlantChoice(sc.plant, steps=sc)
 
 
 def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],

@@ -12,9 +12,9 @@ streamed-product check, the mesh study and the robust design) in the study's own
 folder (never relative to the working directory): copied into the study folder as
 ``two_link_cached.json`` with the SHA-256 of the source, so that every number in the
 section comes from a file beside the report.  Each part of that file carries the keys
-it was computed with (:func:`cache_keys`: the code hash of the packages, the mesh, the
-gain ranges, rho_d); a part whose keys differ from this study's is ignored, and the
-section says so.  Without a usable tuning the section uses
+it was computed with (:func:`cache_keys`: the code hash of the packages and of the
+script, the mesh, the gain ranges, rho_d, and the stage's own arguments); a part whose
+keys differ from this study's is ignored, and the section says so.  Without a usable tuning the section uses
 :data:`flexstab.two_link.TUNED_GAINS` and says so.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any, Optional
 
 from flexstab.report import figure, table, text
 
-__all__ = ["stage_two_link", "CACHE_NAME", "CACHE_PARTS", "find_cache", "cache_keys", "fresh_parts"]
+__all__ = ["stage_two_link", "CACHE_NAME", "CACHE_PARTS", "find_cache", "cache_keys", "fresh_parts", "script_hash"]
 
 #: File written by ``scripts/two_link_study.py`` into its output folder.
 CACHE_NAME = "two_link.json"
@@ -36,23 +36,39 @@ CACHE_NAME = "two_link.json"
 CACHE_PARTS = ("tune", "mesh", "robust", "direct", "figures")
 
 
-def cache_keys(target: float) -> dict:
+#: The script whose results the section reads (its constants -- the mesh levels, the direct stage's
+#: elements -- change the numbers, and it is not one of the hashed packages).
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_link_study.py"
+
+
+def script_hash() -> Optional[str]:
+    """SHA-256 of :data:`SCRIPT`, or ``None`` when the package is installed without it."""
+    return hashlib.sha256(SCRIPT.read_bytes()).hexdigest() if SCRIPT.exists() else None
+
+
+def cache_keys(target: float, args: Optional[dict] = None) -> dict:
     """What the script's numbers depend on besides Omega (each part is stored per Omega): the
     SHA-256 of the packages' source (:func:`flexstab.study._code_hash`, as ``chart --model`` keys its
-    stores), the default mesh, the four-gain ranges and rho_d.  JSON-normalised (comparable with a
-    file's)."""
+    stores) and of the script (:func:`script_hash`), the default mesh, the four-gain ranges and rho_d;
+    with ``args``, the stage's own command-line arguments (e.g. the robust stage's ``grid``,
+    ``robust_iterations``) under ``args``.  JSON-normalised (comparable with a file's)."""
     from flexstab.study import _code_hash
     from flexstab.two_link import TUNING_RANGES
     from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
 
-    keys = {"code": _code_hash(), "elements": DEFAULT_ELEMENTS, "ranges": [list(r) for r in TUNING_RANGES],
-            "target": float(target)}
+    keys = {"code": _code_hash(), "script": script_hash(), "elements": DEFAULT_ELEMENTS,
+            "ranges": [list(r) for r in TUNING_RANGES], "target": float(target)}
+    if args is not None:
+        keys["args"] = dict(args)
     return json.loads(json.dumps(keys))
 
 
 def fresh_parts(cache: dict, expected: dict) -> tuple[dict, list]:
     """The parts of ``cache`` (the script's merged JSON) computed with the ``expected`` keys, and one
-    note per part ignored (keys missing or different, naming the keys that differ)."""
+    note per part ignored (keys missing or different, naming the keys that differ).
+
+    Only the keys in ``expected`` are compared: a part's stage arguments (``args``, e.g. the robust
+    grid) are the script run's choice, recorded with it, not something the study can expect."""
     keys = cache.get("keys") or {}
     fresh: dict = {}
     notes = []
@@ -60,10 +76,10 @@ def fresh_parts(cache: dict, expected: dict) -> tuple[dict, list]:
         if part not in cache:
             continue
         k = keys.get(part)
-        if k == expected:
+        if k and all(n in k and k[n] == v for n, v in expected.items()):
             fresh[part] = cache[part]
             continue
-        diff = sorted(n for n in set(expected) | set(k or {}) if (k or {}).get(n) != expected.get(n))
+        diff = sorted(n for n in expected if (k or {}).get(n, ...) != expected[n])
         notes.append(f"`{part}` ignored: " + ("computed without keys (an older script)" if not k else
                                                "computed with other " + ", ".join(diff)))
     if fresh and "target" in cache:

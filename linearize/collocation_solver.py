@@ -61,6 +61,7 @@ __all__ = [
     "NewtonAssembly",
     "PatternError",
     "StructuredBlocks",
+    "directional_mismatch",
     "colour_columns",
     "compressed_blocks",
     "coupling_pattern",
@@ -82,14 +83,81 @@ STRUCTURED_THRESHOLD = 2000
 COLUMN_ORDERING = "COLAMD"
 
 #: The random directional derivative of the forces and the compressed Jacobian
-#: times the same direction must agree to this, relative to ``|J| |e|`` (the
-#: size of the terms summed).  Both are the same finite-difference rule applied
-#: to the same function, so with a correct pattern they differ only by the rule's
-#: error, which for the Richardson / central rules with ``eps^(1/4)`` /
-#: ``eps^(1/3)`` steps is <= ~1e-9 relative (measured ~1e-10 on the single link);
-#: a coupling the pattern misses contributes its whole entry, O(1) relative.
-#: 1e-6 separates the two by three decades on either side.
+#: times the same direction must agree to this, *row by row*, relative to
+#: ``(|J| |e|)_i`` (the size of the terms summed in row ``i``; see
+#: :func:`directional_mismatch`).  A correct pattern: ``J e`` differs from the exact
+#: derivative by the column rule's error, for the Richardson / central rules with
+#: ``eps^(1/4)`` / ``eps^(1/3)`` steps <= ~1e-9 of the row (measured <= 7e-10 per
+#: row on the single link at 32 elements), and the refined reference by at most a
+#: tenth of the tolerance; a coupling ``J_ij`` the pattern misses contributes
+#: ``~|J_ij e_j|``, i.e. its weight in *its own row* (a normalisation by the largest
+#: row would hide a coupling in a soft row behind the axial stiffness, 2.4e9 N/m at
+#: 32 elements).  1e-6 separates the two by three decades on either side.
 PATTERN_CHECK_TOLERANCE = 1e-6
+
+#: The directional reference of :func:`directional_mismatch` is refined by halving
+#: its step until, in every row, its estimated error is below this fraction of the
+#: row's allowance (a correct Jacobian then passes with a margin of ~10) ...
+CHECK_REFERENCE_FRACTION = 0.1
+#: ... at most this often (a Richardson rule's truncation falls 16-fold per
+#: halving, its round-off grows 2-fold; at 32 elements one halving suffices at a
+#: generic state, 4 at strains of a few per cent).
+CHECK_HALVINGS = 6
+#: Round-off allowance of a difference rule in row ``i`` at step ``s``:
+#: ``ROUNDOFF_FACTOR * eps / s * (|J| max(1, |x|))_i``.  The force terms summed
+#: in row ``i`` are of size ``(|J| |x|)_i`` (coordinates O(1) in absolute
+#: coordinates), so each evaluation is rounded by ~``eps`` times that; the
+#: Richardson rule combines four evaluations with weights summing to ``3 / s``;
+#: a factor 10 for the terms' own assembly round-off.  Relative to the row's
+#: ``(|J| |e|)_i`` this is ~``30 eps / (s |e|) ~ 6e-11`` at the base step.
+ROUNDOFF_FACTOR = 30.0
+
+
+def directional_mismatch(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray, e: np.ndarray,
+                         J: np.ndarray, derivative: Derivative, *, tol: float, order: int,
+                         step: float = 1.0, halvings: int = CHECK_HALVINGS,
+                         fraction: float = CHECK_REFERENCE_FRACTION,
+                         terms: Optional[np.ndarray] = None) -> Optional[float]:
+    """Row-wise relative mismatch of ``J e`` against ``d/ds fun(x + s e)`` at 0, or ``None``.
+
+    The reference is ``derivative(fun, x, e, s)`` at ``s = step/2, step/4, ...``, its
+    error in row ``i`` estimated by ``|D(s) - D(2 s)|_i / (2^order - 1)`` (includes the
+    round-off of both), refined until every row's estimate is below ``fraction`` of the
+    row's allowance ``tol (|J| |e|)_i + r_i`` (``r_i``: the rule's round-off,
+    :data:`ROUNDOFF_FACTOR`, on terms of size ``(|J| max(1, |x|))_i + max |f_i|`` over
+    the evaluations, plus ``terms`` when the caller knows that ``f_i`` sums larger ones,
+    e.g. ``|C_q|^T |lambda|`` for constraint reactions); ``None`` when ``halvings`` do not
+    reach it (the caller must not accept).  Returns ``max_i |J e - ref|_i / ((|J| |e|)_i + r_i / tol)``:
+    ``<= tol`` means every row agrees within its own scale.  A row that ``J`` claims
+    to be independent of ``x`` (``(|J| |e|)_i = r_i = 0``) must then have an exactly
+    zero reference (any change of ``f_i`` gives an infinite mismatch).
+    """
+    size = np.abs(J) @ np.abs(e)
+    base = np.abs(J) @ np.maximum(1.0, np.abs(x)) + (0.0 if terms is None else terms)
+    values = np.zeros(size.shape)
+
+    def recorded(y: np.ndarray) -> np.ndarray:
+        f = fun(y)
+        np.maximum(values, np.abs(f), out=values)
+        return f
+
+    eps = float(np.finfo(float).eps)
+    richardson_denominator = 2.0 ** order - 1.0
+    s = float(step)
+    prev = derivative(recorded, x, e, s)
+    for _ in range(halvings):
+        s *= 0.5
+        cur = derivative(recorded, x, e, s)
+        roundoff = ROUNDOFF_FACTOR * eps / s * (base + values)
+        allowed = np.multiply(tol, size, out=np.zeros_like(size), where=size > 0.0) + roundoff
+        if np.all(np.abs(cur - prev) / richardson_denominator <= fraction * allowed):
+            r = np.abs(J @ e - cur)
+            scale = size + roundoff / tol  # the row's allowance / tol
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rel = np.where(scale > 0.0, r / scale, np.where(r > 0.0, np.inf, 0.0))
+            return float(np.max(rel, initial=0.0))
+        prev = cur
+    return None
 
 
 class PatternError(RuntimeError):
@@ -223,8 +291,8 @@ class StructuredBlocks:
     M, K_force, K_reaction, C : ndarray, shape (K, n, n)
     Cq : ndarray, shape (K, m, n)
     pattern_mismatch : float
-        Largest relative mismatch of the directional check (see
-        :data:`PATTERN_CHECK_TOLERANCE`).
+        Largest row-wise relative mismatch of the directional check
+        (:func:`directional_mismatch`, :data:`PATTERN_CHECK_TOLERANCE`).
     evaluations : int
         Exudyn function evaluations spent on the differences.
     """
@@ -276,6 +344,7 @@ def compressed_blocks(
     steps: Callable[[np.ndarray], np.ndarray],
     check: bool = True,
     seed: int = 20261127,
+    order: int = 4,
 ) -> StructuredBlocks:
     """Per-sample linearisation by column-compressed finite differences.
 
@@ -293,13 +362,19 @@ def compressed_blocks(
         ``steps(x)``: per-coordinate steps of the rule.
     check : bool
         Run the directional pattern check at every sample (default).
+    seed : int
+        Seed of the random check directions.
+    order : int
+        Order of ``derivative``'s truncation error (4: Richardson-extrapolated central
+        differences), for the error estimate of the check's reference.
 
     Raises
     ------
     PatternError
-        If a directional derivative disagrees with the compressed Jacobian by more
-        than :data:`PATTERN_CHECK_TOLERANCE` (the forces depend on coordinates
-        outside the pattern).
+        If a directional derivative disagrees with the compressed Jacobian in some row
+        by more than :data:`PATTERN_CHECK_TOLERANCE` of that row's scale
+        (:func:`directional_mismatch`: the forces depend on coordinates outside the
+        pattern), or the check's reference cannot be made accurate enough to decide.
     """
     Kn, n, m = times.size, system.n, system.m
     Ms = np.empty((Kn, n, n))
@@ -339,16 +414,18 @@ def compressed_blocks(
         if check:
             for fun, x, h, J in ((force, q, hq, Kf[k]), (damping, v, hv, Cd[k])):
                 e = h * rng.uniform(-1.0, 1.0, n)
-                direct = derivative(fun, x, e, 1.0)
-                size = float(np.max(np.abs(J) @ np.abs(e)))
-                if size > 0.0:
-                    mismatch = float(np.max(np.abs(J @ e - direct))) / size
-                    worst = max(worst, mismatch)
-                    if not mismatch <= PATTERN_CHECK_TOLERANCE:
-                        raise PatternError(
-                            f"the forces at t = {t:.6g} depend on coordinates outside the structural pattern "
-                            f"(directional check: relative mismatch {mismatch:.1e} > "
-                            f"{PATTERN_CHECK_TOLERANCE:.0e}); use the dense collocation")
+                mismatch = directional_mismatch(fun, x, e, J, derivative, tol=PATTERN_CHECK_TOLERANCE, order=order)
+                if mismatch is None:
+                    raise PatternError(
+                        f"the directional check of the force pattern at t = {t:.6g} could not be resolved "
+                        f"(its reference does not reach {CHECK_REFERENCE_FRACTION:g} of the tolerance in "
+                        f"{CHECK_HALVINGS} halvings); use the dense collocation")
+                worst = max(worst, mismatch)
+                if not mismatch <= PATTERN_CHECK_TOLERANCE:
+                    raise PatternError(
+                        f"the forces at t = {t:.6g} depend on coordinates outside the structural pattern "
+                        f"(directional check: row-wise relative mismatch {mismatch:.1e} > "
+                        f"{PATTERN_CHECK_TOLERANCE:.0e}); use the dense collocation")
         calls += force.calls + damping.calls
     return StructuredBlocks(M=Ms, K_force=Kf, K_reaction=Kr, C=Cd, Cq=Cqs, pattern_mismatch=worst,
                             evaluations=calls)

@@ -331,16 +331,26 @@ def _richardson(fun, x: np.ndarray, e: np.ndarray, h: float) -> np.ndarray:
     return (4.0 * d2 - d1) / 3.0
 
 
-#: Exudyn's force Jacobians are accepted when Richardson differences along
-#: random directions agree to this, relative to ``||K|| ||d||`` (a forward-difference
-#: Jacobian with Exudyn's default step 1e-7 would be off by ~1e-7; an exact one only by
-#: the reference's own error, which :func:`_directional_reference` keeps below
-#: :data:`JACOBIAN_REFERENCE_FRACTION` of this).
+#: Exudyn's force Jacobians are accepted when Richardson differences along random
+#: directions ``e`` agree with ``J e`` to this *in every row*, relative to that row's
+#: ``(|J| |e|)_i`` plus the differences' round-off
+#: (:func:`~linearize.collocation_solver.directional_mismatch`).  Per row, because the
+#: rows differ by eight decades (32 elements: axial rows 2.4e9 N/m, the hub's row 0,
+#: the softest nonzero rows ~1e5 with entries down to 10 N/m): normalised by the largest
+#: row, a wrong entry of 24 N/m in the hub's row passed, where 1e-3 N/m in the soft
+#: directions moves the hub multiplier by 1.4e-5 (:data:`RICHARDSON_STEP`).  Derivation:
+#: an exact Jacobian differs from the refined reference by the reference's error only,
+#: kept below :data:`JACOBIAN_REFERENCE_FRACTION` of this (measured <= 7e-10 of the row at
+#: the first accepted halving, 32 elements); a forward-difference Jacobian with Exudyn's
+#: default step 1e-7 is off by ~1e-7 of the row.  So a wrong entry is seen when it exceeds
+#: 1e-8 of its row's summed magnitude: below that, no difference check at double
+#: precision can tell it from the reference's own error (the per-column differences that
+#: replace a rejected Jacobian carry errors of the same order).
 JACOBIAN_CHECK_TOLERANCE = 1e-8
 JACOBIAN_CHECK_DIRECTIONS = 2
 #: The reference directional derivative must have an estimated error below this
-#: fraction of :data:`JACOBIAN_CHECK_TOLERANCE` (so that a correct Jacobian passes with
-#: a margin of 10 and one off by more than 1.1x the tolerance fails) ...
+#: fraction of each row's allowance (so that a correct Jacobian passes with a margin of
+#: 10 and one off by more than 1.1x the tolerance fails) ...
 JACOBIAN_REFERENCE_FRACTION = 0.1
 #: ... reached by halving the step at most this often (the truncation error of the
 #: Richardson rule falls 16-fold per halving, its round-off grows 2-fold).  Measured on
@@ -351,10 +361,9 @@ JACOBIAN_REFERENCE_FRACTION = 0.1
 JACOBIAN_REFERENCE_HALVINGS = 6
 
 
-def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
-    n = system.n
-    hq = fd_steps(q, step)
-    hv = fd_steps(v, step)
+def _force_functions(system: ExudynSystem, q, v, a, t, const_mass):
+    """``(force, damping)``: ``x -> M(x) a - f(x, v, t)`` (``-f`` when ``M`` is constant)
+    and ``y -> -f(q, y, t)``, whose Jacobians are ``K`` and ``C``."""
 
     def force(x):
         r = -system.rhs(x, v, t)
@@ -363,6 +372,14 @@ def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
     def damping(y):
         return -system.rhs(q, y, t)
 
+    return force, damping
+
+
+def _force_fd(system: ExudynSystem, q, v, a, t, step, const_mass):
+    n = system.n
+    hq = fd_steps(q, step)
+    hv = fd_steps(v, step)
+    force, damping = _force_functions(system, q, v, a, t, const_mass)
     K = np.empty((n, n))
     C = np.empty((n, n))
     for j in range(n):
@@ -384,84 +401,55 @@ def _force_compressed(system: ExudynSystem, q, v, a, t, step, const_mass, patter
     Same rule (:func:`_richardson`) and steps as :func:`_force_fd`; a row depends on at most
     one column of a colour, so every entry is the same difference of the same function values
     (only the division by the step is ordered differently: round-off).  Check: a random
-    directional derivative (:func:`_directional_reference`, refined to a tenth of the
-    tolerance) against ``J e``; a coupling the pattern misses contributes its whole entry
-    (O(1) relative), the rule's own error <= 1e-9 (see
-    :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE`).
+    directional derivative, refined to a tenth of each row's tolerance, against ``J e``
+    row by row (:func:`~linearize.collocation_solver.directional_mismatch`); a coupling the
+    pattern misses contributes its weight in its own row, the rule's own error <= 1e-9 of
+    the row (see :data:`~linearize.collocation_solver.PATTERN_CHECK_TOLERANCE`).
     """
     n = system.n
     hq, hv = fd_steps(q, step), fd_steps(v, step)
-
-    def force(x):
-        r = -system.rhs(x, v, t)
-        return r if const_mass else r + system.mass(x, t) @ a
-
-    def damping(y):
-        return -system.rhs(q, y, t)
-
+    force, damping = _force_functions(system, q, v, a, t, const_mass)
     K = np.zeros((n, n))
     C = np.zeros((n, n))
     tol = structured.PATTERN_CHECK_TOLERANCE
     for J, fun, x, h in ((K, force, q, hq), (C, damping, v, hv)):
         structured._compressed(fun, x, h, pattern.force_colours, pattern.force, _richardson, J)
         e = h * rng.uniform(-1.0, 1.0, n)
-        size = float(np.max(np.abs(J) @ np.abs(e)))
-        if size == 0.0:
-            continue
-        ref = _directional_reference(fun, x, e, 1.0, JACOBIAN_REFERENCE_FRACTION * tol * size)
-        if ref is None or not float(np.max(np.abs(J @ e - ref))) <= tol * size:
+        mismatch = structured.directional_mismatch(fun, x, e, J, _richardson, tol=tol, order=4,
+                                                   halvings=JACOBIAN_REFERENCE_HALVINGS,
+                                                   fraction=JACOBIAN_REFERENCE_FRACTION)
+        if mismatch is None or not mismatch <= tol:
             return None
     return K, C
 
 
-def _directional_reference(fun, x: np.ndarray, e: np.ndarray, h: float, bound: float) -> Optional[np.ndarray]:
-    """``d/ds fun(x + s e)`` at 0 with its error below ``bound`` (max norm), or ``None``.
-
-    Richardson differences at ``h, h/2, h/4, ...``: the rule is ``O(h^4)``, so the error of
-    ``D(h/2)`` is estimated by ``|D(h/2) - D(h)| / 15`` (``(2^4 - 1)`` in the denominator;
-    the estimate includes the round-off of both).  Along a random direction every
-    coordinate moves at once, so the fourth-order term (the stiff beams' cubic strains
-    summed over a whole element) is far larger than for one column: measured on the single
-    link's orbit with the base step :data:`RICHARDSON_STEP`, 1.6e-8 of ``||K|| ||d||`` at
-    32 elements, 1e-9 at 16; one halving takes it to 1e-9 at 32 elements.
-    """
-    prev = _richardson(fun, x, e, h)
-    for _ in range(JACOBIAN_REFERENCE_HALVINGS):
-        h *= 0.5
-        cur = _richardson(fun, x, e, h)
-        if float(np.max(np.abs(cur - prev))) / 15.0 <= bound:
-            return cur
-        prev = cur
-    return None
-
-
 def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> bool:
-    """Check Exudyn's K, C against Richardson differences along random directions.
+    """Check Exudyn's K, C against Richardson differences along random directions, row by
+    row (:data:`JACOBIAN_CHECK_TOLERANCE`).
 
-    The reference (:func:`_directional_reference`) is refined until its estimated error is
-    below :data:`JACOBIAN_REFERENCE_FRACTION` of the tolerance; if it cannot be, Exudyn's
-    Jacobians are not accepted (differences everywhere, the safe side).
+    The reference is refined until its estimated error is below
+    :data:`JACOBIAN_REFERENCE_FRACTION` of every row's allowance; if it cannot be,
+    Exudyn's Jacobians are not accepted (differences everywhere, the safe side).
     """
     if not const_mass:
         return False  # the M(q) q'' term is not in Exudyn's Jacobian: differentiate everything
     K, C = system.force_jacobians(q, v, t)
+    force, damping = _force_functions(system, q, v, a, t, const_mass)
     rng = np.random.default_rng(11)
     hq = fd_steps(q, step)
     hv = fd_steps(v, step)
     for _ in range(JACOBIAN_CHECK_DIRECTIONS):
         d = rng.standard_normal(system.n)
-        for J, fun, x, h in ((K, lambda y: -system.rhs(y, v, t), q, hq), (C, lambda y: -system.rhs(q, y, t), v, hv)):
-            e = d * h / step
-            scale = max(float(np.max(np.abs(J))) * float(np.max(np.abs(e))), 1e-300)
-            ref = _directional_reference(fun, x, e, step, JACOBIAN_REFERENCE_FRACTION * JACOBIAN_CHECK_TOLERANCE
-                                         * scale)
-            if ref is None:
+        for J, fun, x, h in ((K, force, q, hq), (C, damping, v, hv)):
+            mismatch = structured.directional_mismatch(
+                fun, x, d * h / step, J, _richardson, tol=JACOBIAN_CHECK_TOLERANCE, order=4, step=step,
+                halvings=JACOBIAN_REFERENCE_HALVINGS, fraction=JACOBIAN_REFERENCE_FRACTION)
+            if mismatch is None:
                 logger.info("Exudyn's force Jacobian not checked (the differences do not reach %.0e of the "
                             "tolerance): using Richardson differences", JACOBIAN_REFERENCE_FRACTION)
                 return False
-            mismatch = float(np.max(np.abs(J @ e - ref))) / scale
             if not mismatch <= JACOBIAN_CHECK_TOLERANCE:
-                logger.info("Exudyn's force Jacobian disagrees with differences (%.1e relative): "
+                logger.info("Exudyn's force Jacobian disagrees with differences (%.1e of a row): "
                             "using Richardson differences", mismatch)
                 return False
     return True
@@ -487,10 +475,13 @@ def _reaction_stiffness(system: ExudynSystem, q: np.ndarray, lam: np.ndarray, t:
     def reaction(x):
         return system.constraint_jacobian(x, t).T @ lam
 
-    def derivative(e):  # d/ds reaction(q + s e) at 0
+    def rule(fun, x, e, s):  # d/ds fun(x + s e) at 0
         if accurate:
-            return _richardson(reaction, q, e, 1.0)
-        return 0.5 * (reaction(q + e) - reaction(q - e))
+            return _richardson(fun, x, e, s)
+        return 0.5 * (fun(x + s * e) - fun(x - s * e)) / s
+
+    def derivative(e):
+        return rule(reaction, q, e, 1.0)
 
     Kr = np.zeros((n, n))
     for cols in pattern.reaction_colours:
@@ -502,12 +493,16 @@ def _reaction_stiffness(system: ExudynSystem, q: np.ndarray, lam: np.ndarray, t:
             Kr[rows, j] = dcol[rows] / hq[j]
     rng = np.random.default_rng(_REACTION_CHECK_SEED)
     e = hq * rng.uniform(-1.0, 1.0, n)
-    size = float(np.max(np.abs(Kr) @ np.abs(e)))
-    if size > 0.0:
-        mismatch = float(np.max(np.abs(Kr @ e - derivative(e)))) / size
-        if not mismatch <= structured.PATTERN_CHECK_TOLERANCE:
+    if np.any(Kr != 0.0):
+        # round-off of C_q^T lambda: an entry of constraint k's row of C_q is computed from
+        # quantities of that row's size (an analytic zero comes out as eps x that), times |lambda_k|
+        Cq = system.constraint_jacobian(q, t)
+        terms = np.full(n, float(np.max(np.abs(Cq), axis=1, initial=0.0) @ np.abs(lam)))
+        mismatch = structured.directional_mismatch(reaction, q, e, Kr, rule, tol=structured.PATTERN_CHECK_TOLERANCE,
+                                                   order=4 if accurate else 2, terms=terms)
+        if mismatch is None or not mismatch <= structured.PATTERN_CHECK_TOLERANCE:
             logger.info("constraint reactions depend on coordinates outside their objects (directional check "
-                        "%.1e): one difference per column", mismatch)
+                        "%s): one difference per column", "unresolved" if mismatch is None else f"{mismatch:.1e}")
             Kr[:] = 0.0
             for j in system.reaction_columns():
                 e = np.zeros(n)

@@ -54,6 +54,30 @@ def merge(out: Path) -> dict:
     return doc
 
 
+#: The command-line arguments each stage's numbers depend on (stored in its keys: a stage file computed with
+#: other arguments is started again, not extended -- its Omegas' rows would mix two settings).
+STAGE_ARGS = {
+    "tune": ("workers", "compare", "direct_from"),
+    "mesh": (),
+    "robust": ("grid", "robust_iterations", "robust_workers"),
+    "direct": (),
+    "figures": (),
+}
+
+
+def stage_keys(target: float, stage: str, args: argparse.Namespace) -> dict:
+    """:func:`flexstab.two_link_report.cache_keys` (code and script SHA-256, mesh, ranges, rho_d) with the
+    stage's arguments (:data:`STAGE_ARGS`)."""
+    from flexstab.two_link_report import cache_keys
+
+    return cache_keys(target, {a: getattr(args, a) for a in STAGE_ARGS[stage]})
+
+
+def _same_run(stored, keys: dict) -> bool:
+    """Whether ``stored`` keys (a stage file's) have every entry of ``keys``."""
+    return bool(stored) and all(n in stored and stored[n] == v for n, v in keys.items())
+
+
 def _resume(path: Path, keys: dict, empty: dict) -> dict:
     """A stage file to add rows to: the existing one if it was computed with ``keys``, else ``empty``."""
     if path.exists():
@@ -92,7 +116,8 @@ def main(argv=None) -> int:
     from taguchi.tuning import TuningConfig
 
     arms: dict = {}
-    keys = cache_keys(args.target)  # code hash, mesh, ranges, rho_d: stored with every stage's results
+    base = cache_keys(args.target)  # code and script hash, mesh, ranges, rho_d: in every stage's keys
+    keys = {stage: stage_keys(args.target, stage, args) for stage in STAGE_ARGS}  # + the stage's arguments
 
     def arm(k, N=None):
         if (k, N) not in arms:
@@ -104,14 +129,14 @@ def main(argv=None) -> int:
         p = out / "two_link_tune.json"
         if p.exists():
             d = json.loads(p.read_text())
-            t = d["tune"].get(f"{k}pi") if d.get("keys") == keys else None
+            t = d["tune"].get(f"{k}pi") if _same_run(d.get("keys"), base) else None
             if t:
                 return t["gains"]
         return list(TUNED_GAINS[k])
 
     if "tune" in stages:
         p = out / "two_link_tune.json"
-        doc = _resume(p, keys, {"target": args.target, "tune": {}})
+        doc = _resume(p, keys["tune"], {"target": args.target, "tune": {}})
         for k in omegas:
             o, lin = arm(k)
             with make_executor("process", max_workers=args.workers) as ex:
@@ -144,7 +169,7 @@ def main(argv=None) -> int:
         merge(out)
 
     if "mesh" in stages:
-        doc = {"mesh": {}, "keys": keys}
+        doc = {"mesh": {}, "keys": keys["mesh"]}
         for k in omegas:
             rows = []
             for N in MESH:
@@ -171,7 +196,7 @@ def main(argv=None) -> int:
         from taguchi.robust import RobustConfig
 
         p = out / "two_link_robust.json"
-        doc = _resume(p, keys, {"robust": {}})
+        doc = _resume(p, keys["robust"], {"robust": {}})
         rs = RobustSettings()
         for k in omegas:
             tcfg = TuningConfig(target=args.target, ranges=TUNING_RANGES, max_evaluations=2000)
@@ -195,7 +220,7 @@ def main(argv=None) -> int:
         from mbs_models.builtin.two_link import build
         from validation.direct_monodromy import direct_monodromy
 
-        doc = {"direct": {}, "keys": keys}
+        doc = {"direct": {}, "keys": keys["direct"]}
         for k in omegas:
             o, lin = arm(k)
             rows = []
@@ -215,7 +240,7 @@ def main(argv=None) -> int:
     if "figures" in stages:
         from flexstab.two_link import gain_slices_hill, plot_gain_slices
 
-        doc = {"figures": {}, "keys": keys}
+        doc = {"figures": {}, "keys": keys["figures"]}
         for k in omegas:
             o, lin = arm(k)
             g = tuned_gains(k)

@@ -23,6 +23,19 @@ as in the nominal tuning (paper Eq. 34).  ``"smaller"`` (smaller-the-better,
 larger gains (``max|rho|`` falls with ``kd`` over most of the range), so it
 tunes to the edge of the gain ranges rather than to a design target.
 
+Failed runs
+-----------
+The contract of :func:`taguchi.tuning.taguchi_tune` ("Failed runs"): an
+(inner, outer) run whose objective raises one of
+:data:`taguchi.tuning.RUN_FAILURES` is recorded (``failures`` of its
+iteration, ``failed_runs`` of the result: iteration, inner ``run`` index or
+``"confirmation"``, ``outer_run`` index, gains, noise, error), its response is
+NaN (``null`` in JSON), and its inner run scores the worst S/N of the
+experiment's inner runs without a failure; it never becomes the incumbent
+(a failed confirmation has S/N NaN).  When every inner run of an experiment
+has a failure the tuning stops: with ``ArithmeticError`` if there is no
+incumbent yet, else with status ``"runs failed"``.
+
 Everything here is model-free: the objective is any callable
 ``(gains, noise) -> y`` with ``noise`` a mapping from noise-factor names to
 values.
@@ -49,7 +62,7 @@ import numpy as np
 from taguchi.analysis import TaguchiAnalysis, analyze
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_ratio
-from taguchi.tuning import TuningConfig, recentre
+from taguchi.tuning import STATUS_FAILED, TuningConfig, _Guarded, recentre
 
 __all__ = [
     "NoiseFactor",
@@ -202,6 +215,7 @@ class RobustIteration:
     confirmation_sn: float
     incumbent_gains: tuple[float, ...]
     incumbent_sn: float
+    failures: tuple[dict, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -213,6 +227,7 @@ class RobustIteration:
             "confirmation": {"gains": list(self.confirmation_gains),
                              "responses": list(self.confirmation_responses), "sn": self.confirmation_sn},
             "incumbent": {"gains": list(self.incumbent_gains), "sn": self.incumbent_sn},
+            "failures": [dict(f) for f in self.failures],
         }
 
 
@@ -234,10 +249,14 @@ class RobustResult:
         Objective evaluations (inner x outer runs + confirmations).
     iterations : tuple of RobustIteration
     status, message : str
-        ``"converged"`` (ranges below ``xtol``), ``"iteration limit"`` or
-        ``"budget exhausted"``.
+        ``"converged"`` (ranges below ``xtol``), ``"iteration limit"``,
+        ``"budget exhausted"`` or ``"runs failed"`` (every inner run of an experiment had a failed run).
     inner_array, outer_array : str
     elapsed : float
+    failed_runs : tuple of dict
+        Every (inner, outer) run whose objective raised one of :data:`taguchi.tuning.RUN_FAILURES`:
+        ``iteration``, ``run`` (inner index or ``"confirmation"``), ``outer_run``, ``gains``, ``noise``,
+        ``error`` (module docstring, "Failed runs").
     """
 
     gains: tuple[float, ...]
@@ -254,6 +273,7 @@ class RobustResult:
     elapsed: float
     config: RobustConfig = field(repr=False, default_factory=lambda: RobustConfig(
         noise=(NoiseFactor("z", -1.0, 1.0, 0.0),)))
+    failed_runs: tuple[dict, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {s: float(v) for s, v in zip(self.names, self.gains)}
@@ -265,6 +285,7 @@ class RobustResult:
             "sn_kind": self.config.sn, "target": self.config.tuning.target,
             "noise": [{"name": n.name, "low": n.low, "high": n.high, "nominal": n.nominal, "levels": n.levels}
                       for n in self.config.noise],
+            "failed_runs": [dict(f) for f in self.failed_runs],
             "iterations": [it.to_dict() for it in self.iterations],
         })
         return out
@@ -280,24 +301,44 @@ class _Crossed:
         return float(self.objective(tuple(gains), self.noise))
 
 
-def _evaluate_crossed(objective, points, outer, executor) -> np.ndarray:
-    """Responses of every inner point at every outer run, shape ``(len(points), len(outer))``."""
+def _evaluate_crossed(objective, points, outer, executor, *, guarded: bool = False):
+    """Responses of every inner point at every outer run, shape ``(len(points), len(outer))``.
+
+    With ``guarded`` returns ``(y, errors)``: a run raising one of :data:`taguchi.tuning.RUN_FAILURES`
+    has response NaN and ``errors[(i, j)] = "ErrorType: message"``; without it any error propagates.
+    """
     tasks = [(p, o) for p in points for o in outer]
-    if executor is None:
-        ys = [float(objective(p, o)) for p, o in tasks]
-    else:
-        ys = [float(v) for v in executor.map(_call_pair, [objective] * len(tasks), tasks)]
-    y = np.array(ys).reshape(len(points), len(outer))
-    bad = ~np.isfinite(y) | (y < 0)
+    fn = _Guarded(_Pair(objective)) if guarded else _Unguarded(_Pair(objective))
+    runs = [fn(t) for t in tasks] if executor is None else list(executor.map(fn, tasks))
+    y = np.array([v for v, _ in runs]).reshape(len(points), len(outer))
+    errors = {divmod(k, len(outer)): err for k, (_, err) in enumerate(runs) if err is not None}
+    failed = np.array([err is not None for _, err in runs], dtype=bool).reshape(y.shape)
+    bad = (~np.isfinite(y) | (y < 0)) & ~failed
     if np.any(bad):
         i, j = np.argwhere(bad)[0]
         raise ValueError(f"objective returned {y[i, j]!r} at gains {points[i]} and noise {outer[j]}")
-    return y
+    return (y, errors) if guarded else y
 
 
-def _call_pair(objective, task) -> float:
-    gains, noise = task
-    return float(objective(gains, noise))
+class _Pair:
+    """``(gains, noise) -> objective(gains, noise)`` on one task tuple (picklable)."""
+
+    def __init__(self, objective: Callable) -> None:
+        self.objective = objective
+
+    def __call__(self, task: tuple) -> float:
+        gains, noise = task
+        return float(self.objective(gains, noise))
+
+
+class _Unguarded:
+    """``task -> (response, None)``: :class:`taguchi.tuning._Guarded`'s shape, every error propagating."""
+
+    def __init__(self, fn: Callable) -> None:
+        self.fn = fn
+
+    def __call__(self, task: tuple) -> tuple[float, None]:
+        return float(self.fn(task)), None
 
 
 def robust_tune(
@@ -327,6 +368,10 @@ def robust_tune(
     ValueError
         If the objective returns NaN/inf or a negative value, or the budget
         is smaller than one experiment.
+    ArithmeticError
+        If every inner run of the first experiment has a failed run (one of
+        :data:`taguchi.tuning.RUN_FAILURES`); single failed runs are recorded
+        instead (module docstring, "Failed runs").
     """
     t0 = time.perf_counter()
     tcfg = config.tuning
@@ -346,21 +391,49 @@ def robust_tune(
     history: list[RobustIteration] = []
     best_gains: Optional[tuple[float, ...]] = None
     best_sn, best_ys = -math.inf, ()
+    failed_runs: list[dict] = []
     status, message = "iteration limit", f"stopped after {config.max_iterations} experiments"
+
+    def record(run, point, errors) -> list[dict]:
+        return [{"iteration": len(history), "run": run(i), "outer_run": j, "gains": list(point(i)),
+                 "noise": dict(outer[j]), "error": err} for (i, j), err in sorted(errors.items())]
+
     while True:
         if evaluations + cost > tcfg.max_evaluations:
             status, message = "budget exhausted", f"budget of {tcfg.max_evaluations} evaluations spent"
             break
         lv_values = [np.linspace(r[0], r[1], s) for r, s in zip(rngs, inner.levels)]
         points = [tuple(float(x) for x in row) for row in to_design(inner, [v.tolist() for v in lv_values])]
-        y = _evaluate_crossed(objective, points, outer, executor)
-        sn = np.array([config.score(row) for row in y])
+        y, errors = _evaluate_crossed(objective, points, outer, executor, guarded=True)
+        fails = record(lambda i: i, lambda i: points[i], errors)
+        good = [i for i in range(len(points)) if not any((i, j) in errors for j in range(len(outer)))]
+        if not good:
+            evaluations += inner.n_runs * len(outer)
+            failed_runs.extend(fails)
+            if best_gains is None:
+                f = fails[0]
+                raise ArithmeticError(
+                    f"every inner run of the first robust experiment failed ({inner.n_runs} inner x "
+                    f"{len(outer)} outer runs); the first at gains {f['gains']}, noise {f['noise']}: {f['error']}")
+            logger.warning("every inner run of robust experiment %d failed: stopping with the best point so far",
+                           len(history))
+            status = STATUS_FAILED
+            message = f"every inner run of experiment {len(history)} had a failed run (see failed_runs)"
+            break
+        sn_good = {i: config.score(y[i]) for i in good}
+        worst = min(sn_good.values())  # an inner run with a failed run scores as the worst of its experiment
+        sn = np.array([sn_good.get(i, worst) for i in range(len(points))])
         result = analyze(inner, sn, factor_names=names)
         conf = tuple(float(v[k]) for v, k in zip(lv_values, result.best_levels))
-        y_conf = _evaluate_crossed(objective, [conf], outer, None)[0]
-        sn_conf = config.score(y_conf)
+        y_conf, conf_errors = _evaluate_crossed(objective, [conf], outer, None, guarded=True)
+        y_conf = y_conf[0]
+        fails += record(lambda i: "confirmation", lambda i: conf, conf_errors)
+        sn_conf = math.nan if conf_errors else config.score(y_conf)
+        failed_runs.extend(fails)
         evaluations += cost
-        for p, s, row in list(zip(points, sn, y)) + [(conf, sn_conf, y_conf)]:
+        for i, (p, s, row) in enumerate(list(zip(points, sn, y)) + [(conf, sn_conf, y_conf)]):
+            if (i < len(points) and i not in sn_good) or not math.isfinite(s):  # a failed run
+                continue
             if s > best_sn:
                 best_sn, best_gains, best_ys = float(s), p, tuple(float(v) for v in row)
         assert best_gains is not None
@@ -369,7 +442,7 @@ def robust_tune(
             design=tuple(points), responses=tuple(tuple(r.tolist()) for r in y), sn_ratios=tuple(sn.tolist()),
             analysis=result, best_levels=tuple(int(k) for k in result.best_levels),
             confirmation_gains=conf, confirmation_responses=tuple(y_conf.tolist()), confirmation_sn=float(sn_conf),
-            incumbent_gains=best_gains, incumbent_sn=best_sn,
+            incumbent_gains=best_gains, incumbent_sn=best_sn, failures=tuple(fails),
         ))
         logger.debug("robust iteration %d: best %s S/N %.3f dB", len(history), best_gains, best_sn)
         rngs = tuple(recentre(c, (r[1] - r[0]) * tcfg.shrink, b) for c, r, b in zip(best_gains, rngs, bounds))
@@ -379,10 +452,13 @@ def robust_tune(
             break
         if len(history) >= config.max_iterations:
             break
+    if failed_runs:
+        message += f"; {len(failed_runs)} run(s) failed with a numerical error (failed_runs)"
     return RobustResult(
         gains=best_gains, names=names, sn=best_sn, responses=best_ys, outer_runs=outer,
         evaluations=evaluations, iterations=tuple(history), status=status, message=message,
         inner_array=inner.name, outer_array=outer_oa.name, elapsed=time.perf_counter() - t0, config=config,
+        failed_runs=tuple(failed_runs),
     )
 
 

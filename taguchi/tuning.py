@@ -35,12 +35,16 @@ drives: ``(kp1, kd1, kp2, kd2)``, :attr:`TuningConfig.ranges`).  One
    the best point reached.
 
 **Failed runs.** A run whose objective raises a numerical error
-(:data:`RUN_FAILURES`: ``ArithmeticError`` -- e.g. ``FloquetError``,
-``HillError`` -- or ``numpy.linalg.LinAlgError``) does not abort the tuning,
+(:data:`RUN_FAILURES`: the engines' ``FloquetError``, ``HillError``,
+``ModalBasisError``, ``numpy.linalg.LinAlgError`` or ``FloatingPointError``)
+does not abort the tuning,
 as a diverging simulation does not abort a physical experiment: the run is
 recorded (``failures`` of its iteration, ``failed_runs`` of the result, with
 the error), its response is NaN (``null`` in JSON), it is scored with the
-worst S/N of the experiment's other runs and never becomes the incumbent.
+worst S/N of the experiment's other runs and never becomes the incumbent; a
+failed confirmation run has S/N NaN (``null`` in JSON).  Any other
+exception -- a plain ``ZeroDivisionError`` or ``OverflowError`` is a
+programming error, not a failed experiment -- propagates.
 When every run of an experiment fails, the tuning stops: with
 ``ArithmeticError`` naming the first failure if no run has succeeded yet,
 else with status ``"runs failed"`` and the best point reached.
@@ -70,6 +74,9 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from stability.floquet import FloquetError
+from stability.hill import HillError
+from stability.modal import ModalBasisError
 from taguchi.analysis import TaguchiAnalysis, analyze
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_target
@@ -95,8 +102,10 @@ logger = logging.getLogger(__name__)
 STATUS_CONVERGED = "converged"
 STATUS_BUDGET = "budget exhausted"
 STATUS_FAILED = "runs failed"
-#: Exceptions of one run that are recorded as a failed run instead of aborting :func:`taguchi_tune`.
-RUN_FAILURES = (ArithmeticError, np.linalg.LinAlgError)
+#: Exceptions of one run that are recorded as a failed run instead of aborting :func:`taguchi_tune`:
+#: the numerical failures the engines raise.  Not the ``ArithmeticError`` base, whose built-in
+#: ``ZeroDivisionError``/``OverflowError`` are programming errors and must propagate.
+RUN_FAILURES = (FloquetError, HillError, ModalBasisError, np.linalg.LinAlgError, FloatingPointError)
 
 
 class GainObjective:
@@ -317,7 +326,8 @@ class TaguchiIteration:
 
     ``ranges[j]``, ``factor_levels[j]`` belong to factor ``names[j]``; the
     ``kp_*``/``kd_*`` properties are those of the first two factors (the
-    single-drive case).
+    single-drive case).  A failed run (``failures``) has response NaN; a
+    failed confirmation run also has ``confirmation_sn`` NaN (``null`` in JSON).
     """
 
     index: int
@@ -650,7 +660,7 @@ def taguchi_tune(
                     predicted_sn=float(result.predicted_sn),
                     confirmation_gains=conf,
                     confirmation_response=y_conf,
-                    confirmation_sn=float(sn_target(y_conf, target)),
+                    confirmation_sn=float(sn_target(y_conf, target)) if err is None else math.nan,
                     incumbent_gains=best_gains,
                     incumbent_response=best_y,
                     failures=tuple(fails),

@@ -8,24 +8,13 @@ still rejects a forward-difference Jacobian, off by ~1e-7).
 """
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "tangent_speed.py"
-
-
 @pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("tangent_speed_benchmark", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    yield mod
-    del sys.modules[spec.name]
+def bench(load_benchmark):
+    return load_benchmark("tangent_speed")
 
 
 def test_fast_mode_compares_equal_jacobians(bench):

@@ -201,3 +201,46 @@ def test_single_link_structured_equals_dense():
     # solutions differ by <= cond * residual, far below 1e-9 of the 1 m link
     assert np.max(np.abs(struct.q - dense.q)) <= 1e-9
     assert np.max(np.abs(struct.torques - dense.torques)) <= 1e-7 * float(np.max(np.abs(dense.torques)))
+
+
+# --------------------------------------------------------------------------- row-wise directional check
+def _two_scale_function():
+    """``f(x) = A x + x^3 / 3`` (elementwise cube) with rows eight decades apart: analytic
+    Jacobian ``A + diag(x^2)``, the stand-in for an axial row (1e9) next to a soft one (1)."""
+    A = np.array([[2e9, -1e9, 0.0], [0.5, 1.0, 0.25], [0.0, 0.0, 0.0]])
+    x = np.array([0.3, -0.7, 1.1])
+
+    def f(y):
+        out = A @ y + y ** 3 / 3.0
+        out[2] = 5.0  # independent of y (a constant load)
+        return out
+
+    J = A + np.diag(x ** 2)
+    J[2, 2] = 0.0
+    return f, x, J
+
+
+def test_directional_mismatch_is_row_wise():
+    """Against the analytic Jacobian: accepted (mismatch at the rule's error, << tol); a defect
+    of 1e-6 of the soft row (1e-15 of the largest row: invisible to a global normalisation)
+    rejected; an entry of 1e-6 in the constant row (whose only floor is the round-off of
+    f_2 = 5: 30 eps 5 / (s |e|) ~ 1e-9 per unit coordinate) rejected, as is one of 1e-300
+    where f is exactly 0; no halvings -> None."""
+    f, x, J = _two_scale_function()
+    e = po.fd_steps(x, po.RICHARDSON_STEP) * np.array([0.9, -0.4, 0.7])
+    kw = dict(tol=cs.PATTERN_CHECK_TOLERANCE, order=4)
+    assert cs.directional_mismatch(f, x, e, J, po._richardson, **kw) <= 1e-3 * cs.PATTERN_CHECK_TOLERANCE
+    soft = J.copy()
+    soft[1, 0] += 1e-6 * np.max(np.abs(J[1]))
+    assert cs.directional_mismatch(f, x, e, soft, po._richardson, **kw) > cs.PATTERN_CHECK_TOLERANCE
+    const = J.copy()
+    const[2, 1] = 1e-6
+    assert cs.directional_mismatch(f, x, e, const, po._richardson, **kw) > 100 * cs.PATTERN_CHECK_TOLERANCE
+    zero = J.copy()
+    zero[2, 1] = 1e-300
+    assert cs.directional_mismatch(lambda y: f(y) * np.array([1.0, 1.0, 0.0]), x, e, zero, po._richardson,
+                                   **kw) > 0.5
+    weak = cs.directional_mismatch(lambda y: f(y) * np.array([1.0, 1.0, 0.0]) + np.array([0.0, 0.0, 1e-12 * y[1]]),
+                                   x, e, J, po._richardson, **kw)
+    assert weak > 1.0
+    assert cs.directional_mismatch(f, x, e, J, po._richardson, halvings=0, **kw) is None

@@ -95,6 +95,31 @@ def test_check_rejects_a_wrong_jacobian(monkeypatch, defect):
     assert not po._exudyn_jacobians_ok(system, q, v, np.zeros(system.n), t, po.RICHARDSON_STEP, True)
 
 
+@pytest.mark.parametrize("row", ["hub", "softest"])
+def test_check_rejects_a_small_defect_in_a_soft_row(monkeypatch, row):
+    """A wrong entry far below the largest stiffness (review4 M1): 1e-3 N/m, the level that
+    RICHARDSON_STEP's derivation calls significant, in a row whose true stiffness is zero
+    (the hub's rows); and 1e-6 of the row in the softest nonzero row (100x the row-wise
+    tolerance).  Both are below the former global threshold (1e-8 x max|K| = 3 N/m at 4
+    elements, asserted), which accepted them; the row-wise check must not."""
+    system, q, v, t = _state(4)
+    K, C = system.force_jacobians(q, v, t)
+    rows = np.max(np.abs(K), axis=1)
+    if row == "hub":
+        i = int(np.flatnonzero(rows == 0.0)[0])
+        j = int(np.argmax(rows))
+        defect = 1e-3
+    else:
+        i = int(np.argmin(np.where(rows > 0.0, rows, np.inf)))
+        j = int(np.argmax(np.abs(K[i])))
+        defect = 1e-6 * rows[i]
+    assert defect < po.JACOBIAN_CHECK_TOLERANCE * np.max(np.abs(K)) / 10  # invisible to a global norm
+    wrong = K.copy()
+    wrong[i, j] += defect
+    monkeypatch.setattr(system, "force_jacobians", lambda *args: (wrong, C))
+    assert not po._exudyn_jacobians_ok(system, q, v, np.zeros(system.n), t, po.RICHARDSON_STEP, True)
+
+
 def test_check_refuses_when_the_reference_cannot_be_made_accurate(monkeypatch):
     """No halvings allowed at 32 elements: the reference cannot reach its accuracy, so the
     check must not accept (differences everywhere, the safe side), rather than compare
@@ -121,6 +146,49 @@ def test_coloured_force_differences_equal_one_column_at_a_time():
         assert np.max(np.abs(R)) > 0
         assert np.max(np.abs(J - R)) <= 10.0 * EPS / h * float(np.max(np.abs(R)))
     assert len(pattern.force_colours) < system.n
+
+
+def _pattern_without(pattern, i, j):
+    """``pattern`` missing the force coupling ``(i, j)``, recoloured."""
+    from linearize import collocation_solver as cs
+
+    force = pattern.force.copy()
+    force[i, j] = False
+    return cs.CouplingPattern(force=force, reaction=pattern.reaction, force_colours=cs.colour_columns(force),
+                              reaction_colours=pattern.reaction_colours)
+
+
+def test_pattern_missing_one_weak_coupling_is_rejected():
+    """A pattern missing one weak coupling (review4 M1): the weakest off-diagonal entry that is
+    still >= 1e-4 of its own row (not the row's largest).  Its difference contributes
+    ~|K_ij h_j| to row i, below a tenth of 1e-6 of the largest row's |K| |e| (the former
+    global normalisation, asserted: it accepted this), but >= ~1e-4 of row i, 100 x the
+    row-wise PATTERN_CHECK_TOLERANCE; the coloured differences must refuse, in
+    tangent_blocks' route (_force_compressed) and in the structured collocation's
+    (compressed_blocks)."""
+    from linearize import collocation_solver as cs
+
+    system, q, v, t = _state(4)
+    pattern = system.coupling_pattern()
+    K, _ = system.force_jacobians(q, v, t)
+    rows = np.max(np.abs(K), axis=1, keepdims=True)
+    off = pattern.force & ~np.eye(system.n, dtype=bool) & (np.abs(K) >= 1e-4 * rows) & (np.abs(K) < rows)
+    weak = np.where(off, np.abs(K), np.inf)
+    i, j = np.unravel_index(np.argmin(weak), K.shape)
+    h = po.fd_steps(q, po.RICHARDSON_STEP)
+    assert np.abs(K[i, j]) * 2 * h[j] < 0.1 * cs.PATTERN_CHECK_TOLERANCE * np.max(np.abs(K) @ h)
+    wrong = _pattern_without(pattern, i, j)
+    a = np.zeros(system.n)
+    assert po._force_compressed(system, q, v, a, t, po.RICHARDSON_STEP, True, pattern,
+                                np.random.default_rng(0)) is not None
+    assert po._force_compressed(system, q, v, a, t, po.RICHARDSON_STEP, True, wrong,
+                                np.random.default_rng(0)) is None
+    args = (system, np.array([t]), q[None], v[None], a[None], np.zeros((1, system.m)))
+    rule, steps = po._richardson, (lambda x: po.fd_steps(x, po.RICHARDSON_STEP))
+    assert cs.compressed_blocks(*args, pattern, derivative=rule, steps=steps).pattern_mismatch \
+        <= cs.PATTERN_CHECK_TOLERANCE
+    with pytest.raises(cs.PatternError, match="outside the structural pattern"):
+        cs.compressed_blocks(*args, wrong, derivative=rule, steps=steps)
 
 
 def _merged_colouring(pattern):

@@ -81,6 +81,18 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
     assert c["response_method"] == s["response_method"]
     assert c["omega_chart"]["omega"][0] == w
     assert c["omega_chart"]["spectral_radius_controlled"][0] == pytest.approx(t["spectral_radius"], rel=REL, abs=0)
+    # the discretisation choice is recorded alike (review4 L2/L3): the step choice at the range centre for a
+    # time-stepping plant; for Hill the chart's stable propagator_* fields hold the labelling steps and the
+    # absolute H vs H/2 estimate, beside tune's names (label_steps, relative hill_error_estimate)
+    if model == "two-link":
+        assert "propagator_choice" not in t and s["propagator_choice"] is None and c["propagator_choice"] is None
+        assert c["propagator_steps"] == c["label_steps"] == t["propagator_steps"]
+        rho = c["omega_chart"]["spectral_radius_controlled"][0]
+        assert c["propagator_error_estimate"] == pytest.approx(c["hill_error_estimate"] * rho, rel=1e-12)
+    else:
+        assert t["propagator_choice"] == s["propagator_choice"] == c["propagator_choice"]
+        assert c["propagator_choice"]["n_steps"] == c["propagator_steps"] and c["propagator_choice"]["converged"]
+        assert c["label_steps"] is None and c["hill_error_estimate"] is None
 
     if model == "two-link":  # the comparison can fail: the time-stepping plant is another number
         from flexstab.two_link import two_link_orbit

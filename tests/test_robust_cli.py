@@ -95,3 +95,45 @@ def test_cli_tune_robust_rejects_exudyn(capsys):
     assert cli_main(["tune", "--robust", "--model", "exudyn"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--robust" in err[0]
+
+
+def test_tune_robust_output_carries_the_failed_runs(monkeypatch, capsys):
+    """Review4 M4: a ``FloquetError`` of one (inner, outer) run used to abort ``tune --robust``; now the run
+    is in the JSON (``robust.failed_runs``) and the text output names it.  Model-free plant (a bowl in the
+    gains, shifted by the noise) so the whole chain runs in well under a second."""
+    import argparse
+    import io
+
+    import flexstab.commands.tune as tune_cmd
+    from flexstab.options import dump_json
+    from flexstab.robust import compare_nominal_robust
+    from stability.floquet import FloquetError
+    from taguchi.robust import NoiseFactor, RobustConfig
+    from taguchi.tuning import TuningConfig
+
+    class Plant:
+        def __init__(self, m):
+            self.m = m
+
+        def spectral_measure(self, kp, kd):
+            if kd == 0.0 and self.m > 1.0:
+                raise FloquetError("monodromy overflow")
+            return 0.3 + 0.01 * (kp - 3) ** 2 + 0.01 * (kd - 1) ** 2 + 0.001 * self.m
+
+    ranges = ((0.0, 10.0), (0.0, 4.0))
+    tcfg = TuningConfig(target=0.3, ranges=ranges, max_evaluations=400)
+    rcfg = RobustConfig(tuning=TuningConfig(target=0.3, ranges=ranges, max_evaluations=10**5),
+                        noise=(NoiseFactor("m", 0.9, 1.1, 1.0),), max_iterations=2)
+    cmp = compare_nominal_robust(lambda n: Plant(n["m"]), tcfg, rcfg, grid_points=3)
+    d = {"omega": 2 * math.pi, **cmp.to_dict(), "converged": cmp.nominal.converged}
+    buf = io.StringIO()
+    dump_json(d, buf)
+    rob = json.loads(buf.getvalue())["robust"]
+    assert rob["failed_runs"] and all(f["gains"][1] == 0.0 and f["noise"]["m"] > 1.0 for f in rob["failed_runs"])
+    assert any(None in row for row in rob["iterations"][0]["responses"])
+    monkeypatch.setattr(tune_cmd, "robust_report", lambda args: d)
+    assert tune_cmd.run(argparse.Namespace(robust=True, json=False)) == (0 if d["converged"] else 1)
+    out = capsys.readouterr().out
+    f = rob["failed_runs"][0]
+    assert (f"failed run (iteration 0, inner run {f['run']}, outer run {f['outer_run']}) at kp = {f['gains'][0]:.6g}, "
+            f"kd = 0, noise m = 1.1: FloquetError: monodromy overflow") in out

@@ -99,3 +99,81 @@ def test_budget_smaller_than_one_crossed_experiment():
     cfg = RobustConfig(tuning=TuningConfig(ranges=RANGES, max_evaluations=50), noise=NOISE)
     with pytest.raises(ValueError, match="crossed experiment"):
         robust_tune(objective, cfg)
+
+
+# --- failed runs (review4 M4): the contract of taguchi_tune, for the crossed arrays -----------------
+
+def _failing(fail):
+    """``objective`` raising ``FloquetError`` where ``fail(g, n)``."""
+    from stability.floquet import FloquetError
+
+    def obj(g, n):
+        if fail(g, n):
+            raise FloquetError("monodromy overflow")
+        return objective(g, n)
+
+    return obj
+
+
+def test_failed_crossed_runs_are_recorded_and_the_robust_tuning_goes_on():
+    """A ``FloquetError`` at g2 = 0 for the outer runs with z1 = 1 (3 inner rows x 3 outer runs of the
+    first experiment) used to abort ``robust_tune`` (review4 M4)."""
+    import io
+    import json
+
+    from flexstab.options import dump_json
+
+    cfg = RobustConfig(tuning=TuningConfig(ranges=RANGES, max_evaluations=5000), noise=NOISE)
+    res = robust_tune(_failing(lambda g, n: g[1] == 0.0 and n["z1"] == 1.0), cfg)
+    assert res.status == "converged"
+    bound = 2 * cfg.xtol * 4.0  # as in test_robust_optimum_known_analytically
+    assert abs(res.gains[0] - C1) <= bound and abs(res.gains[1] - C2) <= bound
+    it0 = res.iterations[0]
+    bad_rows = [i for i, p in enumerate(it0.design) if p[1] == 0.0]
+    bad_outer = [j for j, o in enumerate(res.outer_runs) if o["z1"] == 1.0]
+    assert len(bad_rows) == 3 and len(bad_outer) == 3
+    assert len(res.failed_runs) == 9 and it0.failures == res.failed_runs
+    assert {(f["run"], f["outer_run"]) for f in res.failed_runs} == {(i, j) for i in bad_rows for j in bad_outer}
+    f = res.failed_runs[0]
+    assert f["iteration"] == 0 and f["gains"][1] == 0.0 and f["noise"]["z1"] == 1.0
+    assert f["error"] == "FloquetError: monodromy overflow"
+    assert all(math.isnan(it0.responses[i][j]) for i in bad_rows for j in bad_outer)
+    # a row with a failed pair scores as the worst row of its experiment
+    worst = min(s for i, s in enumerate(it0.sn_ratios) if i not in bad_rows)
+    assert all(it0.sn_ratios[i] == worst for i in bad_rows)
+    assert "9 run(s) failed" in res.message
+    buf = io.StringIO()
+    dump_json(res.to_dict(), buf)
+    d = json.loads(buf.getvalue())
+    assert len(d["failed_runs"]) == 9 and d["iterations"][0]["responses"][bad_rows[0]][bad_outer[0]] is None
+
+
+def test_a_failed_robust_confirmation_is_recorded():
+    calls = {"n": 0}
+    cfg = RobustConfig(tuning=TuningConfig(ranges=RANGES, max_evaluations=5000), noise=NOISE)
+
+    def fail(g, n):  # serial: calls 82..90 are the first experiment's confirmation (9 x 9 runs before it)
+        calls["n"] += 1
+        return calls["n"] == 85
+
+    res = robust_tune(_failing(fail), cfg)
+    assert res.status == "converged"
+    assert [f["run"] for f in res.failed_runs] == ["confirmation"] and res.failed_runs[0]["outer_run"] == 3
+    it0 = res.iterations[0]
+    assert math.isnan(it0.confirmation_sn) and math.isnan(it0.confirmation_responses[3])
+
+
+def test_every_crossed_run_failing_is_one_clear_error():
+    cfg = RobustConfig(tuning=TuningConfig(ranges=RANGES, max_evaluations=5000), noise=NOISE)
+    with pytest.raises(ArithmeticError, match=r"every inner run of the first robust experiment failed") as e:
+        robust_tune(_failing(lambda g, n: True), cfg)
+    assert "\n" not in str(e.value) and "FloquetError: monodromy overflow" in str(e.value)
+
+
+def test_a_programming_error_in_the_robust_objective_propagates():
+    def obj(g, n):
+        return objective(g, n) + 0.0 / g[1]  # ZeroDivisionError at g2 = 0: a bug, not a failed run
+
+    cfg = RobustConfig(tuning=TuningConfig(ranges=RANGES, max_evaluations=5000), noise=NOISE)
+    with pytest.raises(ZeroDivisionError):
+        robust_tune(obj, cfg)

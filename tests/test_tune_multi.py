@@ -166,7 +166,36 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
     cfg = TuningConfig(target=0.3, ranges=((0, 1),) * 4)  # tolerance 3e-4
     for c, n in ((1.0, 256), (100.0, 2048)):  # c / n^2 <= 7.5e-5: 1 / 256^2 = 1.5e-5; 100 / 1024^2 = 9.5e-5 > 7.5e-5
         assert propagator_steps(Fake(c), cfg).n_steps == n
-    assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
+    with pytest.warns(RuntimeWarning, match="MAX_TUNING_STEPS"):
+        assert propagator_steps(Fake(1e9), cfg).n_steps == MAX_TUNING_STEPS  # capped, never a hang
+
+
+def test_propagator_choice_at_the_cap_warns_and_records_the_estimate_reached():
+    """Review4 L3: at MAX_TUNING_STEPS the doubling stopped silently and returned a count whose estimate never
+    met tolerance / 4.  Second-order fake r_n = r + c / n^2: the last pair compared is (2048, 4096), whose
+    4/3 |r_2048 - r_4096| = 4/3 * c * 3/4 / 2048^2 = c / 2048^2 exactly (the fake's own closed form)."""
+    from dataclasses import dataclass
+
+    from flexstab.plants import MAX_TUNING_STEPS, propagator_choice
+    from taguchi.tuning import TuningConfig
+
+    @dataclass(frozen=True)
+    class Fake:
+        c: float
+        n_steps: int = 256
+
+        def spectral_measure(self, kp, kd):
+            return 0.3 + self.c / self.n_steps**2
+
+    cfg = TuningConfig(target=0.3, ranges=((0, 1),) * 4)  # tolerance 3e-4
+    with pytest.warns(RuntimeWarning, match=r"estimate 2\.38e-01 .* above tolerance / 4 = 7\.50e-05"):
+        ch = propagator_choice(Fake(1e6), cfg)
+    assert ch.n_steps == ch.plant.n_steps == MAX_TUNING_STEPS and not ch.converged
+    assert ch.error_estimate == pytest.approx(1e6 / 2048**2, rel=1e-9) and ch.tolerance == pytest.approx(3e-4)
+    ok = propagator_choice(Fake(1.0), cfg)  # met at the first pair: 4/3 |r_256 - r_512| = 1 / 256^2
+    assert ok.converged and ok.n_steps == 256 and ok.error_estimate == pytest.approx(1 / 256**2, rel=1e-9)
+    assert ok.to_dict() == {"n_steps": 256, "converged": True, "error_estimate": ok.error_estimate,
+                            "tolerance": ok.tolerance}
 
 
 def _use_plant(monkeypatch, tune, plant) -> None:
@@ -306,3 +335,41 @@ def test_check_failure_names_the_recheck_method():
     assert check_failure(dict(d, verified_spectral_radius=0.3002)) is None
     assert "not converged" in check_failure(dict(d, converged=False, message="budget"))
     assert "gave no value" in check_failure(dict(d, verified_spectral_radius=float("nan")))
+
+
+def test_tune_records_a_step_choice_stopped_at_the_cap(monkeypatch, capsys):
+    """Review4 L3: ``tune --model`` carries the range-centre step choice (``propagator_choice``) and says when
+    MAX_TUNING_STEPS stopped it short.  Fake r_n = exact + c / n^2 with c = 320: the last pair at the cap,
+    (2048, 4096), estimates 4/3 |r_2048 - r_4096| = c / 2048^2 = 7.63e-5 > tol / 4 = 7.5e-5 (not met); at the
+    tuned gains 4096 steps pass the check (c / 4096^2 = 1.9e-5), so the tuning itself succeeds."""
+    from dataclasses import dataclass
+    from types import SimpleNamespace
+
+    import flexstab.commands.tune as tune
+    from flexstab.plants import PlantChoice, propagator_choice
+
+    @dataclass(frozen=True)
+    class Fake:
+        n_steps: int = 256
+        drives: tuple = ("a", "b")
+
+        def spectral_measure(self, kp, kd):
+            return 1.0 / (1.0 + 0.1 * (sum(kp) + sum(kd))) + 320.0 / self.n_steps**2
+
+    def choice(definition, orbit, lin, cfg):
+        sc = propagator_choice(Fake(), cfg)
+        return PlantChoice(sc.plant, steps=sc)
+
+    base = SimpleNamespace(drives=Fake.drives, orbit=SimpleNamespace(model=None), linearization=None)
+    monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
+    monkeypatch.setattr(tune, "plant_choice_for", choice)
+    argv = ["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10"]
+    with pytest.warns(RuntimeWarning, match="MAX_TUNING_STEPS"):
+        assert cli_main(argv + ["--json"]) == 0
+    pc = json.loads(capsys.readouterr().out)["propagator_choice"]
+    assert pc["n_steps"] == 4096 and pc["converged"] is False
+    assert pc["error_estimate"] == pytest.approx(320.0 / 2048**2, rel=1e-6) and pc["tolerance"] == pytest.approx(3e-4)
+    with pytest.warns(RuntimeWarning):
+        assert cli_main(argv) == 0
+    assert ("warning: 4096 propagator steps (the cap) did not meet tolerance / 4 at the range centre "
+            "(estimate 7.63e-05)") in capsys.readouterr().out

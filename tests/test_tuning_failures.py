@@ -127,3 +127,67 @@ def test_tune_text_output_lists_the_failed_run(monkeypatch, capsys):
     k = res.iterations[0].design.index(BAD)
     assert (f"failed run (iteration 0, run {k}) at kp1 = 20, kd1 = 5, kp2 = 10, kd2 = 0: HillError: "
             in out)
+
+
+class FailAt:
+    """The bowl, except ``FloquetError`` at the calls numbered in ``calls`` (1-based)."""
+
+    def __init__(self, *calls: int) -> None:
+        self.fail, self.calls = set(calls), 0
+
+    def __call__(self, g) -> float:
+        self.calls += 1
+        if self.calls in self.fail:
+            raise FloquetError("monodromy overflow")
+        return bowl(g)
+
+
+def test_a_failed_confirmation_run_is_recorded_and_the_tuning_goes_on():
+    """Review4 H1: the confirmation run failing (call n_runs + 1 = 10 with L9) used to end the tuning
+    with ``ValueError: sn_target: observations must be finite``."""
+    cfg = TuningConfig(target=RHO_D, ranges=RANGES, max_evaluations=400)
+    res = taguchi_tune(FailAt(10), cfg)  # serial: call 10 is the first experiment's confirmation
+    assert res.converged, res.message
+    assert _within(res.gains, cfg.effective_tolerance)
+    assert len(res.failed_runs) == 1
+    f = res.failed_runs[0]
+    assert f["iteration"] == 0 and f["run"] == "confirmation" and f["error"].startswith("FloquetError")
+    it0 = res.iterations[0]
+    assert list(it0.confirmation_gains) == f["gains"] and it0.failures == (f,)
+    assert math.isnan(it0.confirmation_response) and math.isnan(it0.confirmation_sn)
+    buf = io.StringIO()
+    dump_json(res.to_dict(), buf)
+    d = json.loads(buf.getvalue())
+    conf = d["iterations"][0]["confirmation"]
+    assert conf["sn"] is None and conf["spectral_radius"] is None
+
+
+@pytest.mark.parametrize("error", [ZeroDivisionError, OverflowError])
+def test_a_programming_error_in_the_objective_propagates(error):
+    """Review4 L1: ``RUN_FAILURES`` caught the ``ArithmeticError`` base, so a ``ZeroDivisionError`` bug
+    became a "failed run" and the tuning reported ``converged``."""
+
+    def obj(g):
+        if g[3] == 0.0:
+            raise error("float division by zero")
+        return bowl(g)
+
+    with pytest.raises(error):
+        taguchi_tune(obj, TuningConfig(target=RHO_D, ranges=RANGES, max_evaluations=400))
+
+
+@pytest.mark.parametrize("error", ["FloquetError", "HillError", "ModalBasisError", "LinAlgError",
+                                   "FloatingPointError"])
+def test_each_numerical_failure_of_the_engines_is_a_failed_run(error):
+    from stability.modal import ModalBasisError
+
+    exc = {"FloquetError": FloquetError, "HillError": HillError, "ModalBasisError": ModalBasisError,
+           "LinAlgError": np.linalg.LinAlgError, "FloatingPointError": FloatingPointError}[error]
+
+    def obj(g):
+        if np.allclose(g, BAD):
+            raise exc("engine failed")
+        return bowl(g)
+
+    res = taguchi_tune(obj, TuningConfig(target=RHO_D, ranges=RANGES, max_evaluations=400))
+    assert res.converged and len(res.failed_runs) == 1 and res.failed_runs[0]["error"].startswith(error)

@@ -133,3 +133,44 @@ def test_mode_title_shows_the_measured_modulus_and_its_method():
     t = mode_title(orbit, 0.3023 + 0.0j, "elbow", (0.300027 + 0.0j, "Hill's method, 16 harmonics"))
     assert "|rho| = 0.300027 (elbow; Hill's method, 16 harmonics)" in t and "0.3023" not in t
     assert "|rho| = 0.3023 (elbow)" in mode_title(orbit, 0.3023 + 0.0j, "elbow")
+
+
+def test_cache_keys_cover_the_stage_arguments_and_the_script(tmp_path):
+    """Review4 L4: the keys were the package hash, mesh, ranges and rho_d only, so the robust stage resumed a
+    file whose other Omegas' rows used another ``--grid`` / ``--robust-iterations``, and a change of the
+    script's own constants (MESH, the direct stage's 2 elements; ``scripts/`` is not a hashed package) kept
+    old parts in use.  Now each stage's keys carry its arguments and the script's SHA-256."""
+    import argparse
+    import hashlib
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from flexstab.two_link_report import cache_keys, fresh_parts
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "two_link_study.py"
+    spec = importlib.util.spec_from_file_location("two_link_study_script", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    base = cache_keys(0.3)
+    assert base["script"] == hashlib.sha256(path.read_bytes()).hexdigest()  # the file itself, hashed here
+
+    def args(**kw):
+        d = dict(workers=2, compare=False, direct_from=None, grid=4, robust_iterations=4, robust_workers=1)
+        return argparse.Namespace(**dict(d, **kw))
+
+    k4 = script.stage_keys(0.3, "robust", args())
+    k7 = script.stage_keys(0.3, "robust", args(grid=7))
+    assert k4["args"] == {"grid": 4, "robust_iterations": 4, "robust_workers": 1} and k4 != k7
+    assert script.stage_keys(0.3, "robust", args(robust_iterations=2)) != k4
+    assert script.stage_keys(0.3, "robust", args(workers=1)) == k4  # the tune stage's argument: not the robust's
+    # the robust stage computed with grid 4 at 2 pi is started again by a grid-7 run (was: resumed, rows mixed)
+    p = tmp_path / "two_link_robust.json"
+    p.write_text(json.dumps({"robust": {"2pi": {"grid_size": 64}}, "keys": k4}))
+    assert script._resume(p, k7, {"robust": {}}) == {"robust": {}, "keys": k7}
+    assert script._resume(p, k4, {"robust": {}})["robust"] == {"2pi": {"grid_size": 64}}
+    # the study uses a part whatever the script run's own arguments, but not one of another script version
+    doc = {"robust": {"2pi": {}}, "mesh": {"2pi": []},
+           "keys": {"robust": k4, "mesh": dict(script.stage_keys(0.3, "mesh", args()), script="0" * 64)}}
+    fresh, notes = fresh_parts(doc, base)
+    assert set(fresh) == {"robust"} and notes == ["`mesh` ignored: computed with other script"]

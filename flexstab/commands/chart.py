@@ -237,7 +237,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
          repr(tcfg) if steps is None else None, _code_hash()]
     ).encode()).hexdigest()[:8]
     tag = f"{definition.name}_w{omega:.6g}_{fingerprint}"
-    plant = task.plant(omega)
+    choice = task.plants.choice(omega, task.config, task.steps)
+    plant, steps_choice = choice.plant, choice.steps
     hill = isinstance(plant, HillModelPlant)
     method = (f"Hill's method, {plant.harmonics} harmonics" if hill else f"{plant.n_steps} magnus2 steps")
     label = f"model {definition.name} (dominant labelled multiplier, {method})"
@@ -267,9 +268,11 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     # 4/3 |r_n - r_2n| bounds the error for any observed order >= 2 (2^p / (2^p - 1) falls with p).
     # Hill: the relative H vs H/2 change (spectral convergence: it bounds the error of H/2, so over-states
     # that of H) times the modulus
+    hill_estimate = None
     if hill:
         m = plant.measure(gkp, gkd, error_estimate=True)
-        estimate = float(m.hill_error_estimate) * abs(m.dominant)
+        hill_estimate = float(m.hill_error_estimate)
+        estimate = hill_estimate * abs(m.dominant)
     else:
         r_n = plant.spectral_measure(gkp, gkd)
         r_2n = dataclasses.replace(plant, n_steps=2 * plant.n_steps).spectral_measure(gkp, gkd)
@@ -291,8 +294,13 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
                "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
                "response_method": "hill" if hill else "magnus2",
                "harmonics": plant.harmonics if hill else None,
+               # stable fields; for Hill (no propagator) they hold the magnus2 labelling steps and the absolute
+               # H vs H/2 estimate (README "Charts of a model file"), so tune's names are added beside them
                "propagator_steps": plant.label_steps if hill else plant.n_steps,
                "propagator_error_estimate": estimate,
+               "label_steps": plant.label_steps if hill else None,
+               "hill_error_estimate": hill_estimate,  # relative, H vs H/2 at the chart's gains (as tune's)
+               "propagator_choice": steps_choice.to_dict() if steps_choice is not None else None,
                "inputs": {"model": args.model, "source": source, "options": {k: repr(v) for k, v in options.items()},
                           "omega": omega, "grid": [kp.size, kd.size], "kp_range": list(kp_rng),
                           "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],

@@ -142,6 +142,10 @@ def _print_robust(d: dict) -> None:
           f"({d['worst_case_improvement_percent']:.2f} %); cost at nominal: |max|rho| - rho_d| "
           f"{'+' if d['nominal_cost'] >= 0 else ''}{d['nominal_cost']:.3g}")
     print(f"robust tuning: {rob['status']}, {rob['evaluations']} evaluations; total {d['elapsed']:.1f} s")
+    for f in rob.get("failed_runs") or []:
+        print(f"failed run (iteration {f['iteration']}, inner run {f['run']}, outer run {f['outer_run']}) at "
+              + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"]))
+              + ", noise " + ", ".join(f"{k} = {v:.6g}" for k, v in f["noise"].items()) + f": {f['error']}")
 
 
 class DrivesObjective:
@@ -292,7 +296,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
-    harmonics_choice = None
+    harmonics_choice = steps_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
     if model_file:
@@ -301,7 +305,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
         choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
-        plant, harmonics_choice = choice.plant, choice.harmonics
+        plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
@@ -329,6 +333,8 @@ def tune_report(args: argparse.Namespace) -> dict:
     out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
     if model_file and getattr(plant, "orbit", None) is not None:
         out.update(whole_spectrum(plant.orbit, omega, kp, kd))
+    if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap
+        out["propagator_choice"] = steps_choice.to_dict()
     if hill:
         # independent check: the streamed exponential-midpoint product at many steps (no Hill code)
         from flexstab.two_link import CHECK_STEPS, check_multiplier
@@ -416,6 +422,10 @@ def run(args: argparse.Namespace) -> int:
     for f in d.get("failed_runs") or []:
         print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
               + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+    pc = d.get("propagator_choice")
+    if pc and not pc["converged"]:
+        print(f"warning: {pc['n_steps']} propagator steps (the cap) did not meet tolerance / 4 at the range centre "
+              f"(estimate {pc['error_estimate']:.2e})")
     if d.get("harmonics_converged") is False:
         print(f"warning: Hill's harmonics ({d['harmonics']}) did not meet tolerance / 20 at the range centre "
               f"(estimate {d['harmonics_error_estimate']:.2e})")
