@@ -90,7 +90,7 @@ def hill_plant(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: Tuni
                harmonics: Optional[int] = None) -> HillModelPlant:
     """:class:`HillModelPlant` with its harmonics from :func:`hill_choice`, or ``harmonics``."""
     if harmonics is not None:
-        return HillModelPlant(lin, orbit).replace(harmonics=harmonics)
+        return HillModelPlant(lin, orbit).replace(harmonics=harmonics, tolerance=config.effective_tolerance)
     return hill_choice(lin, orbit, config).plant
 
 

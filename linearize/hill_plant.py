@@ -18,17 +18,20 @@ How an evaluation works (:meth:`HillModelPlant.measure`):
    Hill's method on the same linearisation (its samples with the gains: the system
    ``stability.floquet`` integrates);
 3. the response is the largest refined modulus that is a multiplier of the magnus2
-   spectrum (within :data:`MATCH_TOLERANCE` in ``log rho`` of one, whatever its label), has a
-   backward error below :data:`stability.hill.RESIDUAL_LIMIT` and is not truncated
-   (:data:`stability.hill.TAIL_LIMIT`).
+   spectrum to the product's own accuracy (:func:`_in_spectrum`: the nearest multiplier at N/2 and N
+   steps, whatever its label) and has a backward error below :data:`stability.hill.RESIDUAL_LIMIT`;
+4. the response's own H vs H/2 change (:func:`stability.hill.pair_error_estimate`) must meet the run
+   budget (:meth:`HillModelPlant.budget`, a quarter of the tuning tolerance), else the harmonics are
+   doubled (up to :data:`MAX_HARMONICS`).
 
 The step count of (1) only has to put each estimate nearer its own exponent than any
 other (checked: the refined value must lie within :data:`MATCH_TOLERANCE` in
 ``log rho`` of its estimate, else the estimate is recomputed with twice the steps).
-When Hill's value cannot be used (not confirmed at 4x the steps, truncated, or a
-:class:`stability.hill.HillError`), the response is the labelled dominant of the
-frozen-modal magnus2 product (:meth:`HillModelPlant.modal_measure`); :attr:`HillMeasure.method`
-says which.
+When Hill's value cannot be used (not confirmed at 4x the steps, not resolved at
+:data:`MAX_HARMONICS`, or a :class:`stability.hill.HillError`), the response is the labelled dominant
+of the frozen-modal magnus2 product (:meth:`HillModelPlant.modal_measure`), refined in its steps to
+the run budget -- or a :class:`stability.hill.HillError` is raised, which the tuning records as a
+failed run; :attr:`HillMeasure.method` says which.
 """
 from __future__ import annotations
 
@@ -46,7 +49,7 @@ from linearize.analysis import UNDAMPED_TOLERANCE, label_multipliers
 from linearize.fourier import trig_interpolate
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
-from stability.hill import TAIL_LIMIT
+from stability.hill import TAIL_LIMIT, HillError, pair_error_estimate
 
 if TYPE_CHECKING:
     from stability.gains import GainParametrisedSystem
@@ -58,6 +61,11 @@ __all__ = [
     "LABEL_STEPS",
     "TUNING_HARMONICS",
     "MATCH_TOLERANCE",
+    "DEFAULT_RTOL",
+    "RUN_BUDGET",
+    "HILL_FLOOR",
+    "MAX_HARMONICS",
+    "MAX_FALLBACK_STEPS",
     "choose_harmonics",
     "select_harmonics",
     "HarmonicsChoice",
@@ -79,8 +87,25 @@ NOISE_FACTOR = 1e3
 RELATIVE_CUTOFF = 1e-2
 #: At most this many candidates are refined per evaluation.
 MAX_REFINED = 4
-#: A refined multiplier must satisfy ``|log(refined / estimate)| <= MATCH_TOLERANCE``.
+#: Pairing of a main-mode estimate with its own refinement: ``|log(refined / estimate)| <= MATCH_TOLERANCE``
+#: (a coarse test that the estimate was nearer its own exponent than any other; it does NOT decide whether a
+#: refined value is a multiplier of the spectrum: :func:`_in_spectrum` does).
 MATCH_TOLERANCE = 0.25
+#: Response tolerance (relative to ``|rho|``) of a plant built without one (``tolerance=None``): the default
+#: tuning tolerance ``1e-3 rho_d`` of :mod:`taguchi.tuning` at ``rho = rho_d``.
+DEFAULT_RTOL = 1e-3
+#: Per-run error budget as a fraction of the tuning tolerance: two responses each within ``tol / 4`` of the
+#: truth differ from the true difference by at most ``tol / 2``, so a comparison at the tolerance keeps its sign.
+RUN_BUDGET = 0.25
+#: Relative floor of the per-run budget: Hill's H vs H/2 change does not fall below its round-off (measured
+#: 9.3e-14 .. 9.7e-14 at H = 32 / 48 on the two-link arm, 1 element), so a budget below ``HILL_FLOOR |rho|``
+#: (a tolerance near machine precision) is raised to it rather than made unreachable.
+HILL_FLOOR = 1e-12
+#: Most Hill harmonics a run may escalate to (doubling from the plant's count) to meet its budget.
+MAX_HARMONICS = 64
+#: Most steps of the frozen-modal fallback (doubling from ``TUNING_PROPAGATOR_STEPS``); the value of
+#: ``flexstab.plants.MAX_TUNING_STEPS`` (linearize may not import flexstab).
+MAX_FALLBACK_STEPS = 4096
 #: Labelling workspaces (one per plant and step count) kept per process by :func:`_labelling_workspace`.
 WORKSPACE_CACHE = 16
 
@@ -90,6 +115,24 @@ def _log_distance(z: complex, spectrum: np.ndarray) -> float:
     if spectrum.size == 0:
         return math.inf
     return float(np.min(np.abs(np.log(complex(z) / spectrum))))
+
+
+def _in_spectrum(z: complex, coarse: np.ndarray, fine: np.ndarray, budget: float) -> bool:
+    """Whether ``z`` is a multiplier of the magnus2 spectrum to the product's own accuracy.
+
+    ``w_2N`` is the multiplier of ``fine`` (``2N`` steps: the labelling pass) nearest ``z`` and ``w_N`` the one
+    of ``coarse`` (``N`` steps, half the labelling pass's) nearest ``w_2N``; accepted when
+    ``|z - w_2N| <= 4/3 |w_N - w_2N| + budget``.  Derivation:
+    second order in the step, ``|w_2N - rho| ~ |w_N - w_2N| / 3``, so for ``z`` within ``budget`` of the true
+    ``rho`` (Hill's own error, bounded by the per-run budget) ``|z - w_2N| <= |w_N - w_2N| / 3 + budget``;
+    the factor 4/3 (instead of 1/3) leaves room for a pre-asymptotic ratio, the rule of
+    ``flexstab.plants.propagator_steps``.
+    """
+    if fine.size == 0 or coarse.size == 0:
+        return False
+    w2 = complex(fine[int(np.argmin(np.abs(fine - z)))])
+    w1 = complex(coarse[int(np.argmin(np.abs(coarse - w2)))])
+    return abs(complex(z) - w2) <= 4.0 / 3.0 * abs(w1 - w2) + budget
 
 
 def drive_gain_family(lin: LinearizedPeriodicSystem) -> "GainParametrisedSystem":
@@ -192,6 +235,13 @@ class HillMeasure:
         :attr:`stability.hill.HillResult.tail` / ``residual`` of the Hill pair behind the value (NaN without one).
     modal_error_estimate : float
         Step-doubling estimate (relative) of the frozen-modal value (``method="modal-magnus2"``; else NaN).
+    harmonics : int
+        Hill harmonics of the value (a run escalates from the plant's count when its budget is not met).
+    run_error_estimate : float
+        Absolute error estimate of ``|dominant|`` that was checked against the run budget
+        (:attr:`HillModelPlant.budget`): Hill's H vs H/2 change, or the frozen-modal step-doubling estimate.
+    modal_steps : int
+        Steps of the frozen-modal value (0 for Hill).
     """
 
     dominant: complex
@@ -205,6 +255,9 @@ class HillMeasure:
     tail: float = math.nan
     residual: float = math.nan
     modal_error_estimate: float = math.nan
+    harmonics: int = TUNING_HARMONICS
+    run_error_estimate: float = math.nan
+    modal_steps: int = 0
 
     @property
     def truncated(self) -> bool:
@@ -225,15 +278,22 @@ class HillModelPlant:
         magnus2 steps of the labelling pass.
     harmonics : int
         Hill harmonics.
+    tolerance : float, optional
+        Absolute tuning tolerance on ``|rho|``; every response must meet :attr:`budget` (``RUN_BUDGET`` of it)
+        by its own error estimate, else the run refines (harmonics, fallback steps) or raises
+        :class:`stability.hill.HillError` (a failed tuning run).  None: ``DEFAULT_RTOL |rho|``.
 
     Picklable (the workspace is rebuilt once per process).
     """
 
     def __init__(self, linearization: LinearizedPeriodicSystem, orbit: PeriodicOrbit, *,
                  label_steps: int = LABEL_STEPS, harmonics: int = TUNING_HARMONICS,
-                 _token: Optional[str] = None) -> None:
+                 tolerance: Optional[float] = None, _token: Optional[str] = None) -> None:
         if linearization.B is None:
             raise ValueError("HillModelPlant needs a model file's linearisation (with drives)")
+        if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
+            raise ValueError(f"tolerance must be finite and > 0, got {tolerance!r}")
+        self.tolerance = None if tolerance is None else float(tolerance)
         self.linearization = linearization
         self.orbit = orbit
         self.label_steps = int(label_steps)
@@ -242,17 +302,21 @@ class HillModelPlant:
         # key of the per-process caches (workspaces per step count, frozen modes), shared by every copy
         # of this plant (replace, pickles) in one process
         self._key = _PlantKey(self._token, linearization, orbit)
+        #: One dict per :meth:`spectral_measure` call of this object whose response is not Hill's value
+        #: (``gains``, ``method``, ``error_estimate`` (absolute), ``modal_steps``); not pickled (a worker's copy
+        #: starts empty; ``flexstab tune`` collects the workers' records per run).
+        self.fallback_runs: list = []
 
     def __getstate__(self) -> dict:
         return {"linearization": self.linearization, "orbit": self.orbit, "label_steps": self.label_steps,
-                "harmonics": self.harmonics, "token": self._token}
+                "harmonics": self.harmonics, "tolerance": self.tolerance, "token": self._token}
 
     def __setstate__(self, state: dict) -> None:
         self.__init__(state["linearization"], state["orbit"], label_steps=state["label_steps"],
-                      harmonics=state["harmonics"], _token=state["token"])
+                      harmonics=state["harmonics"], tolerance=state.get("tolerance"), _token=state["token"])
 
     def replace(self, **changes: Any) -> "HillModelPlant":
-        kw = {"label_steps": self.label_steps, "harmonics": self.harmonics, **changes}
+        kw = {"label_steps": self.label_steps, "harmonics": self.harmonics, "tolerance": self.tolerance, **changes}
         return HillModelPlant(self.linearization, self.orbit, _token=self._token, **kw)
 
     @property
@@ -265,6 +329,12 @@ class HillModelPlant:
 
     def with_gains(self, kp: Gains, kd: Gains) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
+
+    def budget(self, rho: float) -> float:
+        """Absolute error allowed in one run's response ``|rho|``: ``RUN_BUDGET`` times the tolerance, at least
+        ``HILL_FLOOR |rho|``."""
+        tol = self.tolerance if self.tolerance is not None else DEFAULT_RTOL * abs(rho)
+        return max(RUN_BUDGET * tol, HILL_FLOOR * abs(rho))
 
     def _workspace(self, steps: int) -> Any:
         return _labelling_workspace(self._key, int(steps))
@@ -290,7 +360,7 @@ class HillModelPlant:
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
 
-    def measure(self, kp: Gains, kd: Gains, *, error_estimate: bool = False) -> HillMeasure:
+    def measure(self, kp: Gains, kd: Gains, *, error_estimate: bool = False, guard: bool = True) -> HillMeasure:
         """Dominant drive-mode / ``bending 1`` multiplier, measured and labelled by Hill.
 
         Candidates: every magnus2 multiplier labelled as a main mode, and every other
@@ -298,10 +368,10 @@ class HillModelPlant:
         product can mislabel the slow mode on a fine mesh); each is refined by Hill and
         labelled again from Hill's Floquet vector.  A refined value is *accepted* when its
         Hill label is a main mode, it is off the unit circle, its backward error is below
-        :data:`stability.hill.RESIDUAL_LIMIT` and some magnus2 multiplier (any label) lies
-        within :data:`MATCH_TOLERANCE` of it in ``log rho`` (a refinement that lands on a
-        main mode "from afar" must be a multiplier of the time-stepping spectrum, not a
-        truncation eigenvalue of Hill's matrices).  The response is the largest accepted one.
+        :data:`stability.hill.RESIDUAL_LIMIT` and it is a magnus2 multiplier (any label) to the product's
+        own accuracy (:func:`_in_spectrum`: a refinement that lands on a main mode "from afar" must be a
+        multiplier of the time-stepping spectrum, not a truncation eigenvalue of Hill's matrices).  The
+        response is the largest accepted one.
 
         Confirmed when every refined main-mode estimate lies within :data:`MATCH_TOLERANCE` of
         its refinement and no rejected refinement is larger than the response; else the
@@ -309,10 +379,14 @@ class HillModelPlant:
         labelled dominant of the frozen-modal magnus2 product (:meth:`modal_measure`) when no value
         was accepted or a rejected main-mode value is larger than the accepted ones, else the largest
         accepted value (only a main-mode estimate mismatched) -- ``confirmed=False``, logged.
-        A response whose Hill vector is truncated (:data:`stability.hill.TAIL_LIMIT`) is replaced
-        by the frozen-modal value, ``truncated=True``, with a warning; without any candidate the
-        unrefined magnus2 multiplier is returned, ``method="magnus2-unrefined"``, with a warning.
-        A :class:`stability.hill.HillError` also falls back to the frozen-modal value (logged).
+        Per-run guard (``guard=True``): a response that is truncated (:data:`stability.hill.TAIL_LIMIT`, an
+        indicator) or whose H vs H/2 change exceeds :meth:`budget` is measured again with twice the harmonics
+        (:attr:`HillMeasure.harmonics`); beyond :data:`MAX_HARMONICS` the frozen-modal value is used, with a
+        warning.  The frozen-modal value (also after a :class:`stability.hill.HillError`, logged) is refined to
+        the budget or raises :class:`stability.hill.HillError`.  Without any candidate the unrefined magnus2
+        multiplier is returned, ``method="magnus2-unrefined"``, with a warning.  ``guard=False`` (used by
+        :func:`select_harmonics`, which judges a count by its own stricter rule): no harmonic escalation, a
+        truncated response is replaced by a one-pass frozen-modal value.
         """
         from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
 
@@ -340,14 +414,16 @@ class HillModelPlant:
             except HillError as exc:  # no eigenvalue near a candidate / singular shift: the tuning run goes on
                 logger.warning("Hill's method failed at gains kp=%s kd=%s (%s); using the frozen-modal magnus2 "
                                "product", kp, kd, exc)
-                return self.modal_measure(kp, kd, label_steps=steps)
+                return self.modal_measure(kp, kd, label_steps=steps, refine=guard)
             labels = [self.hill_label(x) for x in h.states]
             main_off = [j for j, (z, lab) in enumerate(zip(h.multipliers, labels))
                         if lab in main and abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
             ok = [j for j in main_off if h.residual[j] <= RESIDUAL_LIMIT]
-            spectrum = np.asarray(res.multipliers)
-            spectrum = spectrum[spectrum != 0]
-            accepted = [j for j in ok if _log_distance(h.multipliers[j], spectrum) <= MATCH_TOLERANCE]
+            fine = np.asarray(res.multipliers)
+            gains = [v for pair in zip(lin.kp, lin.kd) for v in pair]
+            coarse = np.asarray(self._workspace(max(2, steps // 2)).floquet(gains).multipliers)
+            accepted = [j for j in ok if _in_spectrum(h.multipliers[j], coarse, fine,
+                                                      self.budget(abs(h.multipliers[j])))]
             # a magnus2 main-mode estimate must be near its refined value (the refinement of another
             # candidate may land on a main mode from afar: accepted above only if it is in the magnus2 spectrum)
             both = [j for j in ok if picks[j][0] in main]
@@ -367,18 +443,29 @@ class HillModelPlant:
                 logger.warning("Hill's method gave %s at gains kp=%s kd=%s (up to %d steps); using the frozen-modal "
                                "magnus2 product", "a main-mode value outside the magnus2 spectrum above the accepted "
                                "ones" if accepted else "no main-mode multiplier of the magnus2 spectrum", kp, kd, steps)
-                return self.modal_measure(kp, kd, label_steps=steps)
+                return self.modal_measure(kp, kd, label_steps=steps, refine=guard)
             # not confirmed at any step count: the largest accepted Hill value (mismatch ignored) -- flagged, logged
             logger.warning("Hill's method did not confirm the magnus2 labels at gains kp=%s kd=%s (up to %d steps); "
                            "using the largest accepted Hill-labelled main mode", kp, kd, steps)
         j = max(accepted, key=lambda i: abs(h.multipliers[i]))
         confirmed = bool(np.all(mismatch <= MATCH_TOLERANCE) and not hidden)
-        if h.truncated[j]:
-            warnings.warn(f"Hill plant: {self.harmonics} harmonics truncate the Floquet vector of the response at "
-                          f"kp={list(kp)} kd={list(kd)} (tail {h.tail[j]:.1e} > {TAIL_LIMIT:.0e}): the frozen-modal "
-                          f"magnus2 value is used; raise the harmonics", RuntimeWarning, stacklevel=2)
+        mu = complex(h.multipliers[j])
+        # the per-run bound (the tail is only an indicator, stability.hill.TAIL_LIMIT): H vs H/2 of the response
+        rel = (float(h.error_estimate[j]) if error_estimate else
+               float(pair_error_estimate(lin.M, lin.C, lin.K, lin.period, [mu], self.harmonics)[0]))
+        est = rel * abs(mu) if math.isfinite(rel) else math.inf
+        if h.truncated[j] or (guard and not est <= self.budget(abs(mu))):
+            why = (f"tail {h.tail[j]:.1e} > {TAIL_LIMIT:.0e}" if h.truncated[j] else
+                   f"H vs H/2 estimate {est:.1e} > budget {self.budget(abs(mu)):.1e}")
+            if guard and 2 * self.harmonics <= MAX_HARMONICS:
+                logger.info("Hill plant: %d harmonics at kp=%s kd=%s: %s; trying %d", self.harmonics, kp, kd, why,
+                            2 * self.harmonics)
+                return self.replace(harmonics=2 * self.harmonics).measure(kp, kd, error_estimate=error_estimate)
+            warnings.warn(f"Hill plant: {self.harmonics} harmonics do not resolve the response at kp={list(kp)} "
+                          f"kd={list(kd)} ({why}): the frozen-modal magnus2 value is used", RuntimeWarning,
+                          stacklevel=2)
             return self.modal_measure(kp, kd, label_steps=steps, tail=float(h.tail[j]),
-                                      residual=float(h.residual[j]))
+                                      residual=float(h.residual[j]), refine=guard)
         distinct: list = []  # two candidates refined onto the same exponent are listed once
         for i in accepted:
             z = complex(h.multipliers[i])
@@ -386,27 +473,53 @@ class HillModelPlant:
                 distinct.append((labels[i], z))
         return HillMeasure(dominant=complex(h.multipliers[j]), mode=labels[j], estimate=picks[j][1],
                            refined=distinct, hill_error_estimate=float(h.error_estimate[j]), label_steps=steps,
-                           confirmed=confirmed, tail=float(h.tail[j]), residual=float(h.residual[j]))
+                           confirmed=confirmed, tail=float(h.tail[j]), residual=float(h.residual[j]),
+                           harmonics=self.harmonics, run_error_estimate=est)
 
     def modal_measure(self, kp, kd, *, label_steps: int = LABEL_STEPS, tail: float = math.nan,
-                      residual: float = math.nan) -> HillMeasure:
+                      residual: float = math.nan, refine: bool = True) -> HillMeasure:
         """The fallback of :meth:`measure`: the labelled dominant multiplier (drive modes / ``bending 1``, the rule
         of :class:`linearize.analysis.ModelFloquetResult`) of the exponential-midpoint product in the frozen-modal
         frame (:meth:`linearize.analysis.ModelPlant.floquet`, Richardson-extrapolated), ``method="modal-magnus2"``,
-        ``confirmed=False``; ``tail``/``residual`` are those of the rejected Hill value."""
-        from linearize.analysis import ModelPlant, _dominant, _multiplier_estimate
+        ``confirmed=False``; ``tail``/``residual`` are those of the rejected Hill value.
 
-        res = ModelPlant(self.linearization, self.orbit).floquet(kp, kd)
-        modes = label_multipliers(self.with_gains(kp, kd), self.orbit, res)
-        mu = _dominant(res, modes, self.orbit.drive_names)
+        The step count doubles from ``TUNING_PROPAGATOR_STEPS`` until the value's step-doubling estimate meets
+        the run budget (:meth:`budget`); beyond :data:`MAX_FALLBACK_STEPS` a :class:`stability.hill.HillError` is
+        raised (the tuning records a failed run) rather than a response of unknown accuracy returned.
+        ``refine=False``: one pass at ``TUNING_PROPAGATOR_STEPS``, whatever its estimate (diagnostics only).
+        """
+        from linearize.analysis import TUNING_PROPAGATOR_STEPS, ModelPlant, _dominant, _multiplier_estimate
+
+        plant = ModelPlant(self.linearization, self.orbit)
+        steps = TUNING_PROPAGATOR_STEPS
+        while True:
+            res = plant.floquet(kp, kd, n_steps=steps)
+            modes = label_multipliers(self.with_gains(kp, kd), self.orbit, res)
+            mu = _dominant(res, modes, self.orbit.drive_names)
+            rel = _multiplier_estimate(res, mu)
+            est = rel * abs(mu) if math.isfinite(rel) else math.inf
+            if not refine or est <= self.budget(abs(mu)):
+                break
+            if 2 * steps > MAX_FALLBACK_STEPS:
+                raise HillError(f"frozen-modal fallback at kp={list(kp)} kd={list(kd)}: |rho| = {abs(mu):.6g} with "
+                                f"estimate {est:.1e} > budget {self.budget(abs(mu)):.1e} at {steps} steps")
+            steps *= 2
         i = int(np.argmin(np.abs(np.asarray(res.multipliers) - mu)))
         return HillMeasure(dominant=mu, mode=modes[i]["mode"], estimate=mu, label_steps=label_steps,
                            confirmed=False, method="modal-magnus2", tail=tail, residual=residual,
-                           modal_error_estimate=_multiplier_estimate(res, mu))
+                           modal_error_estimate=rel, harmonics=self.harmonics, run_error_estimate=est,
+                           modal_steps=steps)
 
     def spectral_measure(self, kp: Gains, kd: Gains) -> float:
-        """``|rho|`` of the dominant labelled multiplier (Hill)."""
-        return float(abs(self.measure(kp, kd).dominant))
+        """``|rho|`` of the dominant labelled multiplier (Hill); a response from another method is recorded in
+        :attr:`fallback_runs`."""
+        m = self.measure(kp, kd)
+        if m.method != "hill":
+            g = [float(v) for pair in zip(np.broadcast_to(kp, len(self.drives)), np.broadcast_to(kd, len(self.drives)))
+                 for v in pair]
+            self.fallback_runs.append({"gains": g, "method": m.method, "error_estimate": m.run_error_estimate,
+                                       "modal_steps": m.modal_steps, "spectral_radius": float(abs(m.dominant))})
+        return float(abs(m.dominant))
 
 
 @dataclass(frozen=True)
@@ -447,10 +560,11 @@ def select_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[fl
     if not candidates:
         raise ValueError("candidates: need at least one harmonic count")
     for H in candidates:
-        p = plant.replace(harmonics=H)
-        m = p.measure(kp, kd, error_estimate=True)
-        est = m.hill_error_estimate * abs(m.dominant) if m.method == "hill" else math.nan
-        if m.method == "hill" and not m.truncated and est <= tolerance / 20:
+        p = plant.replace(harmonics=H, tolerance=tolerance)
+        m = p.measure(kp, kd, error_estimate=True, guard=False)  # judged here, at H itself (tolerance / 20)
+        at_h = m.method == "hill" and m.harmonics == H  # not escalated by the per-run guard
+        est = m.hill_error_estimate * abs(m.dominant) if at_h else math.nan
+        if at_h and not m.truncated and est <= tolerance / 20:
             return HarmonicsChoice(plant=p, harmonics=H, converged=True, error_estimate=est, tolerance=tolerance)
     warnings.warn(f"Hill harmonics: none of {list(candidates)} meets the estimate tolerance {tolerance / 20:.2e} "
                   f"(tolerance / 20) at kp={list(kp)} kd={list(kd)}; using {H} (estimate {est:.2e}, method "

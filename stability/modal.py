@@ -1187,6 +1187,8 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
             fallback = {k: v for k, v in options.items() if k not in ("method", "n_steps", "error_estimate")}
             res = floquet(P, method=FALLBACK_METHOD, n_steps=None, **fallback)
             return _with_frame(res, "model", 0, str(exc))
+    # its exponents are nearly block diagonal over the frame's clusters: cheaper exact expm
+    options.setdefault("expm_blocks", tuple(system.clusters))
     steps = options.get("n_steps")
     if (extrapolate and steps is None and options.get("method", "magnus6") == "magnus2"
             and options.get("small_multipliers", "flag") != "qr"):

@@ -144,3 +144,33 @@ def test_residual_flag_on_an_iteration_stopped_early(monkeypatch):
     early = hill_multipliers(M, C, K, 1.0, exact * 1.02, harmonics=6, error_estimate=False)
     assert np.all(early.unconverged)
     assert np.all(np.abs(early.multipliers - exact) / np.abs(exact) > 1e-11)
+
+
+def _damped_mathieu(q: float, N: int = 64, c: float = 0.1):
+    """y'' + c y' + (a_2(q) + c^2/4 - 2 q cos 2t) y = 0 over T = pi: exact multiplier exp(-c pi / 2)."""
+    T = math.pi
+    t = np.arange(N) * T / N
+    M = np.ones((N, 1, 1))
+    K = (mathieu_a(2, q) + c * c / 4 - 2 * q * np.cos(2 * t)).reshape(N, 1, 1)
+    return M, c * M, K, T, math.exp(-c * T / 2)
+
+
+def test_tail_indicator_misses_where_the_pair_estimate_bounds():
+    """review4 M2: at q = 40, H = 10 the tail (8.7e-7) is below TAIL_LIMIT, yet the multiplier is 9.4e-3 off
+    (oracle: exp(-c pi / 2) on the a_2(q) curve, scipy.special.mathieu_a).  The per-pair H vs H/2 estimate is the
+    bound: it is >= the true error there (flagged against a 1e-3 tolerance), and where it passes (q = 10, H = 14)
+    the true error is below it (the double multiplier is split by rounding to ~1e-7, the floor of err)."""
+    from stability.hill import TAIL_LIMIT, pair_error_estimate
+
+    M, C, K, T, exact = _damped_mathieu(40.0)
+    r = hill_multipliers(M, C, K, T, [exact * (1 + 1e-3j)], harmonics=10, error_estimate=False)
+    err = abs(r.multipliers[0] - exact) / exact
+    assert not r.truncated[0] and r.tail[0] <= TAIL_LIMIT  # the indicator misses ...
+    assert err > 1e-3  # ... a value wrong beyond the tuning tolerance
+    est = pair_error_estimate(M, C, K, T, r.multipliers, 10)[0]
+    assert est >= err and est > 1e-3  # the bound flags it
+    M, C, K, T, exact = _damped_mathieu(10.0, N=8)
+    r = hill_multipliers(M, C, K, T, [exact * (1 + 1e-3j)], harmonics=14, error_estimate=False)
+    est = pair_error_estimate(M, C, K, T, r.multipliers, 14)[0]
+    err = abs(r.multipliers[0] - exact) / exact
+    assert est < 1e-3 and err <= est

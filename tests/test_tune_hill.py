@@ -37,6 +37,8 @@ def test_tune_two_link_hill_path(monkeypatch, capsys):
     assert d["response_method"] == "hill" and d["harmonics"] == 8 and d["elements"] == 1
     assert d["harmonics_converged"] is False and d["harmonics_error_estimate"] > 1e-14 / 20
     assert d["evaluations"] == 10 and len(d["iterations"]) == 1 and d["failed_runs"] == []
+    # every run's response met its budget with Hill's own value (no frozen-modal fallback at these gains)
+    assert d["fallback_runs"] == []
     assert d["verified_method"] == "magnus2, 8192 steps (streamed)"
     for key in ("spectral_radius_all", "spectral_radius_all_mode", "verified_error_estimate", "hill_error_estimate"):
         assert d[key] is not None, key
@@ -48,6 +50,38 @@ def test_tune_two_link_hill_path(monkeypatch, capsys):
     it = d["iterations"][0]
     ys = it["responses"] + [it["confirmation"]["spectral_radius"]]
     assert sum(abs(y - d["verified_spectral_radius"]) <= tol for y in ys) == ys.count(d["spectral_radius"])
+
+
+class _Falling:
+    """A plant stub whose every run is a 'fallback' (records like HillModelPlant.spectral_measure)."""
+
+    drives = ("a",)
+
+    def __init__(self) -> None:
+        self.fallback_runs: list = []
+
+    def spectral_measure(self, kp, kd) -> float:
+        self.fallback_runs.append({"gains": [kp[0], kd[0]], "method": "modal-magnus2"})
+        return kp[0] + kd[0]
+
+
+@pytest.mark.parametrize("pool", [False, True])
+def test_fallback_records_come_back_from_workers(pool):
+    """review4 H3: a run's fallback record is made in the worker's copy of the plant; tune's executor wrapper
+    returns it with the value (once each, also in-process), and the values are unchanged."""
+    import concurrent.futures as cf
+    import multiprocessing
+
+    from flexstab.commands.tune import DrivesObjective, _FallbackRecorder
+
+    plant = _Falling()
+    inner = (cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) if pool
+             else cf.ThreadPoolExecutor(1))
+    with inner:
+        ex = _FallbackRecorder(inner, plant)
+        ys = list(ex.map(DrivesObjective(plant), [(1.0, 2.0), (3.0, 4.0)]))
+    assert ys == [3.0, 7.0]
+    assert [r["gains"] for r in ex.records] == [[1.0, 2.0], [3.0, 4.0]] and plant.fallback_runs == []
 
 
 @pytest.mark.slow  # ~17 s CPU: 9 orbits + 66 Hill evaluations is the smallest design the options allow

@@ -168,6 +168,38 @@ class DrivesObjective:
         return float(self.plant.spectral_measure(g[0::2], g[1::2]))
 
 
+class _Recorded:
+    """``fn(*args) -> (value, new fallback records of plant)`` (picklable; ``fn`` and ``plant`` travel together,
+    so in a worker ``plant`` is the copy ``fn`` evaluates)."""
+
+    def __init__(self, fn, plant) -> None:
+        self.fn, self.plant = fn, plant
+
+    def __call__(self, *args):
+        n = len(self.plant.fallback_runs)
+        value = self.fn(*args)
+        new = self.plant.fallback_runs[n:]
+        del self.plant.fallback_runs[n:]  # returned here: not counted again from an in-process plant
+        return value, new
+
+
+class _FallbackRecorder:
+    """An executor whose ``map`` also collects the Hill plant's :attr:`fallback_runs` of every run into
+    :attr:`records` (they are made in the worker's copy of the plant); anything else is the inner executor's."""
+
+    def __init__(self, inner, plant) -> None:
+        self.inner, self.plant, self.records = inner, plant, []
+
+    def map(self, fn, *iterables, **kwargs):
+        pairs = list(self.inner.map(_Recorded(fn, self.plant), *iterables, **kwargs))
+        for _, new in pairs:
+            self.records.extend(new)
+        return iter([value for value, _ in pairs])
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
 def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, ...], tuple]:
     """Factor names and initial ranges of the tuning of ``n_drives`` (kp, kd) pairs.
 
@@ -318,6 +350,8 @@ def tune_report(args: argparse.Namespace) -> dict:
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
         progress = not args.json and sys.stderr.isatty()
         if model_file:  # Hill plants: one pass (no propagator steps to refine), passes == []
+            if hill and ex is not None:  # collect the workers' fallback records (HillModelPlant.fallback_runs)
+                ex = _FallbackRecorder(ex, plant)
             res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
             objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
         else:
@@ -351,6 +385,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["hill_error_estimate"] = chk.hill_error_estimate  # relative, H vs H/2 at the tuned gains
         out["verified_method"] = f"magnus2, {CHECK_STEPS[-1]} steps (streamed)"
         out["propagator_steps"] = plant.label_steps
+        # runs whose response is not Hill's value (the frozen-modal product, refined to a quarter of the
+        # tolerance; one that cannot be is a failed run): gains, method, absolute error estimate
+        out["fallback_runs"] = (ex.records if isinstance(ex, _FallbackRecorder) else []) + plant.fallback_runs
         from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
 
         out["elements"] = args.elements or DEFAULT_ELEMENTS
@@ -422,6 +459,9 @@ def run(args: argparse.Namespace) -> int:
     for f in d.get("failed_runs") or []:
         print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
               + ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, f["gains"])) + f": {f['error']}")
+    if d.get("fallback_runs"):
+        print(f"{len(d['fallback_runs'])} runs used the frozen-modal product instead of Hill's value (refined to "
+              f"tolerance / 4; see fallback_runs)")
     pc = d.get("propagator_choice")
     if pc and not pc["converged"]:
         print(f"warning: {pc['n_steps']} propagator steps (the cap) did not meet tolerance / 4 at the range centre "
