@@ -48,6 +48,17 @@ if str(ROOT) not in sys.path:
 
 #: Table 3 gains at Omega = 2 pi (paper) and the case.
 KP, KD, OMEGA = 37.1617, 29.2410, 2.0 * math.pi
+def estimate_covers(accuracy: str) -> str:
+    """What the dense error estimate covers with ``accuracy`` (recorded in the JSON and the table)."""
+    from stability.floquet import DOMINANT_BAND, DOMINANT_SAFETY, ESTIMATE_FLOOR
+
+    return {"moduli": f"every modulus >= {ESTIMATE_FLOOR:g} of the largest",
+            "multipliers": f"every multiplier (modulus and phase) >= {ESTIMATE_FLOOR:g} of the largest",
+            "dominant": f"the spectral radius and every modulus within {DOMINANT_BAND:g} of it or whose error "
+                        f"interval x{DOMINANT_SAFETY:g} reaches its one (stability.floquet.dominant_mask)"}[accuracy]
+
+
+_ACC_MARK = {"moduli": "", "dominant": " dom."}
 STAGES = ("orbit", "linearization", "modal_basis", "floquet_dense", "floquet_implicit")
 
 
@@ -98,7 +109,7 @@ def _cplx(z) -> list:
 def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: bool, k: int,
            floquet_limit: float = 0.0, frame: str = "model", extrapolate: bool = True,
            implicit_limit: float | None = None, trace_memory: bool = False, rtol: float | None = None,
-           collapse: bool = True) -> dict:
+           accuracy: str = "moduli", check: bool = False, collapse: bool = True) -> dict:
     """One mesh: all stages in this process; returns the record."""
     import numpy as np
 
@@ -110,7 +121,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     if trace_memory:
         tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)
     rec: dict = {"elements": elements, "samples": samples, "n_steps": n_steps, "frame": frame, "collapse": collapse,
-                 "extrapolate": bool(extrapolate and frame == "modal"), "rtol": rtol, "stages": {}}
+                 "extrapolate": bool(extrapolate and frame == "modal"), "rtol": rtol,
+                 "accuracy": accuracy, "check": bool(check), "stages": {}}
     st = rec["stages"]
     with _Stage(st, "orbit"):
         orbit = find_orbit("single-link", OMEGA, samples=samples, elements=elements)
@@ -143,16 +155,19 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
                 # --rtol: the step count chosen from the extrapolated estimate (72, 144/216/288, ...)
                 steps = None if (rtol is not None and extrapolate) else n_steps
                 opts = {"rtol": rtol} if steps is None else {}
-                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy="moduli", **opts,
-                                    extrapolate=extrapolate, collapse=collapse)
+                res = modal_floquet(lin, basis=system, method="magnus2", n_steps=steps, accuracy=accuracy, check=check,
+                                    **opts, extrapolate=extrapolate, collapse=collapse)
             else:
-                res = floquet(system, method="magnus2", n_steps=n_steps, accuracy="moduli")
+                res = floquet(system, method="magnus2", n_steps=n_steps, accuracy=accuracy)
     if dense and res is not None:
         dense_mult = np.asarray(res.multipliers)
         damped = [z for z in dense_mult if abs(abs(z) - 1.0) >= UNDAMPED_TOLERANCE]
         rec["dense"] = {"spectral_radius": float(res.spectral_radius), "dominant": _cplx(dense_mult[0]),
                         "dominant_damped": _cplx(damped[0]) if damped else None,
                         "error_estimate": float(res.error_estimate), "n_steps": int(res.n_steps),
+                        # what error_estimate certifies (stability.floquet.ACCURACIES / dominant_mask)
+                        "estimate_covers": estimate_covers(res.accuracy)
+                        + ("; nested estimate and a non-nested check solve at 9N/8 steps" if check else ""),
                         "n_evaluations": int(res.n_evaluations),
                         "liouville_residual": float(res.liouville_residual),
                         "top": [_cplx(z) for z in dense_mult[:k]]}
@@ -238,9 +253,15 @@ def markdown(records: list, exps: dict) -> str:
             f"{st['linearization']['cpu_s']:.2f} | {_cell(st, 'modal_basis') if 'modal_basis' in st else '—'} | "
             f"{_cell(st, 'floquet_dense')} | {_cell(st, 'floquet_implicit')} | "
             f"{total} | {r['peak_rss_mb']:.0f} | "
-            + (f"{d['spectral_radius']:.9f} ({d['error_estimate']:.0e})" if d else "—") + " | "
+            + (f"{d['spectral_radius']:.9f} ({d['error_estimate']:.0e}{_ACC_MARK.get(r.get('accuracy'), '')}"
+                f"{' +chk' if r.get('check') else ''})"
+               if d else "—") + " | "
             + (f"{dom[0]:+.8f}{dom[1]:+.8f}i | {math.hypot(*dom):.8f}" if dom else "— | —")
             + f" | {imp_cell} |")
+    lines.append("")
+    used = sorted({r.get("accuracy", "moduli") for r in records if "error" not in r})
+    lines.append("Estimate (est.) certifies: " + "; ".join(f"{a}{_ACC_MARK.get(a, '')}: {estimate_covers(a)}"
+                                                         for a in used))
     lines.append("")
     lines.append("Growth exponent p (CPU s ~ elements^p, least squares over the meshes where the stage finished): "
                  + ", ".join(f"{s} {_fmt(v)}" for s, v in exps.items()))
@@ -261,6 +282,13 @@ def main(argv=None) -> int:
     ap.add_argument("--rtol", type=float, default=None,
                     help="modal frame, extrapolated: choose the dense step count from the estimate (<= rtol) "
                          "instead of --steps (stability.modal.modal_floquet with n_steps=None)")
+    ap.add_argument("--accuracy", choices=("moduli", "dominant"), default="moduli",
+                    help="what the dense estimate (and --rtol's step choice) covers: every modulus >= 1e-6 of "
+                         "the largest, or the spectral radius and the multipliers that could be it "
+                         "(stability.floquet.dominant_mask)")
+    ap.add_argument("--check", action="store_true",
+                    help="modal frame, extrapolated: add the non-nested check solve (9N/8 steps) to the estimate "
+                         "(stability.modal.modal_floquet(check=True))")
     ap.add_argument("--k", type=int, default=6, help="multipliers of the implicit method")
     ap.add_argument("--dense-max", type=int, default=64, help="largest mesh for the dense Floquet")
     ap.add_argument("--no-implicit", action="store_true")
@@ -281,7 +309,7 @@ def main(argv=None) -> int:
     if args.worker is not None:
         rec = worker(args.worker, args.samples, args.steps, bool(args.dense), not args.no_implicit, args.k,
                      args.floquet_limit, args.frame, not args.no_extrapolate, args.implicit_limit,
-                     args.trace_memory, args.rtol, not args.no_collapse)
+                     args.trace_memory, args.rtol, args.accuracy, args.check, not args.no_collapse)
         print(json.dumps(rec))
         return 0
     records = []
@@ -289,9 +317,11 @@ def main(argv=None) -> int:
     for e in args.elements:
         cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(e), "--samples", str(args.samples),
                "--steps", str(args.steps), "--k", str(args.k), "--dense", str(int(e <= args.dense_max)),
-               "--floquet-limit", str(args.floquet_limit), "--frame", args.frame]
+               "--floquet-limit", str(args.floquet_limit), "--frame", args.frame, "--accuracy", args.accuracy]
         if args.no_extrapolate:
             cmd.append("--no-extrapolate")
+        if args.check:
+            cmd.append("--check")
         if args.rtol is not None:
             cmd += ["--rtol", repr(args.rtol)]
         if args.implicit_limit is not None:
@@ -322,7 +352,9 @@ def main(argv=None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"case": {"model": "single-link", "omega": OMEGA, "kp": KP, "kd": KD,
-                                        "samples": args.samples, "n_steps": args.steps, "frame": args.frame},
+                                        "samples": args.samples, "n_steps": args.steps, "frame": args.frame,
+                                        "accuracy": args.accuracy, "rtol": args.rtol,
+                                        "check": args.check},
                                "records": records, "growth_exponents": exps, "table": table}, indent=1))
     return 0
 

@@ -1010,6 +1010,10 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
     nested coarser level (``N / 2``, ``N / 3``, ``N / 9``) shares, so no estimate from
     nested solves can see it.  At 16 elements the estimates bound the errors at 72-648
     steps (against 1296 steps, whose own estimate is 4e-7).
+    ``options["accuracy"] = "dominant"``: the estimate is the largest ``changes`` entry over
+    :func:`stability.floquet.dominant_mask`'s multipliers (the spectral radius and those whose
+    error interval, widened ``DOMINANT_SAFETY`` = 10 times, reaches its one); the per-multiplier
+    ``changes`` (``reliable_digits``, the verdict band) are the same as with ``"moduli"``.
     The frozen-modal frame is what makes the expansion hold at a few dozen
     steps: there the stiff blocks are nearly exact already and the error is the
     smooth ``h^2`` error of the slow modes (measured ratio 3.9-4.0 per doubling
@@ -1048,7 +1052,7 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
             lo, hi = TRUSTED_RATIOS
             trusted = (d2 >= lo * changes) & (d2 <= hi * changes) if N % 8 == 0 else np.zeros(len(changes), bool)
             changes = np.where(trusted, changes, np.maximum(changes, d2))
-        est = _estimate(changes, spec, 1.0)
+        est = _estimate(changes, spec, 1.0, accuracy)  # "dominant": over dominant_mask's multipliers
         phase = _estimate(_phase_changes(spec, prev), spec, 1.0)
         rho = float(math.exp(spec.log_moduli[0]))
         moduli = np.exp(spec.log_moduli)
@@ -1070,6 +1074,70 @@ def _extrapolated(system: "FrozenModalSystem", fine: Any, options: dict) -> Any:
                    elapsed=fine.elapsed + extra_elapsed, phase_error_estimate=phase)
 
 
+def _check_steps(N: int, by_nine: bool) -> int:
+    """Step count ``M >= 9 N / 8`` of the non-nested check solve of :func:`_checked`: the next multiple
+    of 9 (``by_nine``: a system larger than ``SMALL_N``, ratio 3 from the ``M``-step factors) or of 8
+    (ratio 2 with ``M / 2``, ``M / 4``, ``M / 8``); ``9 N / 8`` itself when 72 divides ``N``."""
+    return 9 * math.ceil(N / 8) if by_nine else 8 * math.ceil(9 * N / 64)
+
+
+def _fixed_extrapolated(system: "FrozenModalSystem", N: int, options: dict) -> Any:
+    """The extrapolated solve of :func:`modal_floquet` at a fixed ``N`` (ratio 3 when it can, else 2)."""
+    from stability.floquet import SMALL_N, floquet
+
+    opts = dict(options, n_steps=N)
+    if N % 9 == 0 and system.n > SMALL_N:
+        fine = floquet(system, **dict(opts, error_estimate=True))
+        if len(fine.companion_monodromies) == 2:
+            return _extrapolated(system, fine, opts)
+    return _extrapolated(system, floquet(system, **dict(opts, error_estimate=False)), opts)
+
+
+def _checked(system: "FrozenModalSystem", res: Any, options: dict) -> Any:
+    """``res`` (extrapolated, ``N`` steps) with its estimate raised by a non-nested check solve.
+
+    The nested estimate of :func:`_extrapolated` compares ``N`` with ``N / 2``, ``N / 3``, ...: an
+    error that repeats on every grid of the family (measured on the single link: the spectral
+    radius of the extrapolated frozen-modal solve at 16 elements is 1 - 3.064e-7 at 72, 144 and
+    1152 steps and 1 - 3.092e-7 at 216, with nested estimates of ~3e-12) is invisible to it.  The
+    check solves again, extrapolated, with ``M ~ 9 N / 8`` steps (:func:`_check_steps`: not in
+    ``N``'s family), and the estimate of each multiplier becomes the larger of its nested estimate
+    and its relative change to the ``M``-step solve (sorted moduli, or multipliers with
+    ``accuracy="multipliers"``) plus the ``M`` solve's own nested estimate (``|e_N| <= |R_N - R_M|
+    + |e_M|``); ``error_estimate`` is their maximum over what ``accuracy`` covers,
+    ``reliable_digits`` and the verdict band follow.  The ``M`` solve's cost is counted.
+    The premise: ``M``'s nested estimate bounds its error (``M`` is not in a family that shares
+    ``N``'s error); if both are off alike the difference can be small - a heuristic, measured in
+    ``benchmarks/modal_estimate_check.py --check``.
+    """
+    from stability.floquet import SMALL_N, _estimate, _select_changes, _Spectrum, _verdict
+
+    M = _check_steps(int(res.n_steps), system.n > SMALL_N)
+    other = _fixed_extrapolated(system, M, options)
+    accuracy = options.get("accuracy", "moduli")
+    a = _Spectrum(np.asarray(res.multipliers), np.asarray(res.log_moduli))
+    b = _Spectrum(np.asarray(other.multipliers), np.asarray(other.log_moduli))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
+        d = _select_changes(a, b, accuracy)
+        # per multiplier, capped at 1e-16: the nested estimates of both solves
+        nested = 10.0 ** -np.asarray(res.reliable_digits, float)
+        nested_m = 10.0 ** -np.asarray(other.reliable_digits, float)
+        # triangle inequality: |e_N| <= |R_N - R_M| + |e_M|, e_M by the M solve's own estimate
+        changes = np.maximum(nested, d + nested_m)
+        est = max(float(res.error_estimate), _estimate(changes, a, 1.0, accuracy))
+        digits = np.minimum(res.reliable_digits, np.clip(-np.log10(np.maximum(d, 1e-16)), 0.0, 16.0))
+        moduli = np.exp(a.log_moduli)
+        rho = float(res.spectral_radius)
+        keep = a.log_moduli >= a.log_moduli[0] + math.log(1e-6)
+        upper = float(np.max(np.where(np.isfinite(changes[keep]), moduli[keep] * (1.0 + changes[keep]), np.inf)))
+    tol = max(float(res.stability_tolerance), upper - rho)
+    logger.debug("non-nested check at %d steps (N = %d): estimate %.2e -> %.2e", M, res.n_steps,
+                 res.error_estimate, est)
+    return replace(res, error_estimate=est, reliable_digits=digits, stability_tolerance=tol,
+                   verdict=_verdict(rho, tol), n_evaluations=res.n_evaluations + other.n_evaluations,
+                   elapsed=res.elapsed + other.elapsed)
+
+
 #: First step count of the adaptive extrapolated solve (``modal_floquet(extrapolate=True,
 #: n_steps=None)``): divisible by 9 (ratio 3, ``N / 3`` and ``N / 9`` from the ``N`` factors, on
 #: systems larger than ``stability.floquet.SMALL_N``) and by 8 (ratio 2 with the premise check on
@@ -1083,7 +1151,7 @@ ADAPTIVE_RATIOS = (2, 3, 4)
 ADAPTIVE_MARGIN = 1.2
 
 
-def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict) -> Any:
+def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict, check: bool = False) -> Any:
     """:func:`_extrapolated` at ``N = ADAPTIVE_START_STEPS, ...`` until its estimate is ``<= rtol``.
 
     The step count is chosen from the accuracy reached, not fixed: each pass is one fixed-``N``
@@ -1094,7 +1162,8 @@ def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict) -> Any:
     counts in ``n_evaluations`` and ``elapsed``.  Raises :class:`stability.FloquetError` when
     the next count would exceed ``max_steps`` (the estimate reached is in the message).
     The premise of any such choice is that the estimate bounds the error at the count where
-    it stops: see the limitation measured in :func:`_extrapolated`.
+    it stops: see the limitation measured in :func:`_extrapolated`.  ``check``: every pass adds
+    the non-nested check solve of :func:`_checked` (``9 N / 8`` steps) to its estimate.
     """
     from stability.floquet import MAX_STEPS, SMALL_N, FloquetError, floquet
 
@@ -1111,6 +1180,8 @@ def _adaptive_extrapolated(system: "FrozenModalSystem", options: dict) -> Any:
             res = _extrapolated(system, fine, opts)
         else:
             res = _extrapolated(system, floquet(system, **dict(opts, error_estimate=False)), opts)
+        if check:
+            res = _checked(system, res, opts)
         evaluations, elapsed = evaluations + res.n_evaluations, elapsed + res.elapsed
         est = float(res.error_estimate)
         if est <= rtol:
@@ -1179,7 +1250,8 @@ def _rebase(system: "FrozenModalSystem", P: Any) -> "FrozenModalSystem":
 
 
 def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[FrozenModalSystem] = None,
-                  extrapolate: bool = False, levels: int = MODAL_LEVELS, collapse: bool = True,
+                  extrapolate: bool = False, levels: int = MODAL_LEVELS, check: bool = False,
+                  collapse: bool = True,
                   **options: Any) -> ModalFloquetResult:
     """:func:`stability.floquet` of ``P`` propagated in frozen-modal coordinates.
 
@@ -1208,6 +1280,9 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     chosen from the accuracy reached (:func:`_adaptive_extrapolated`): 72, then 144 or
     216, ... steps until the extrapolated estimate is ``<= rtol`` (``options["rtol"]``,
     default that of :func:`stability.floquet`, 1e-9), at most ``max_steps``.
+    ``check=True`` (with ``extrapolate``): the estimate also covers the change against a
+    non-nested extrapolated solve with ``9 N / 8`` steps (:func:`_checked`; about 1.1 times the
+    work again), which sees errors that every nested coarser level shares.
     Without a modal basis (the fallback) no extrapolation is done: in the
     model's coordinates the midpoint error is not in its asymptotic range.
     ``collapse=True`` (default): nested frames are propagated in their composite basis
@@ -1235,7 +1310,7 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
     steps = options.get("n_steps")
     if (extrapolate and steps is None and options.get("method", "magnus6") == "magnus2"
             and options.get("small_multipliers", "flag") != "qr"):
-        res = _adaptive_extrapolated(system, options)
+        res = _adaptive_extrapolated(system, options, check)
         return _with_frame(replace(res, monodromy=_to_base(frame, res.monodromy)), "modal", _levels(frame))
     can_extrapolate = (extrapolate and steps is not None and int(steps) >= 8
                        and options.get("method", "magnus6") == "magnus2"
@@ -1251,4 +1326,6 @@ def modal_floquet(P: Any, *, samples: Optional[int] = None, basis: Optional[Froz
         res = fine
     else:
         res = floquet(system, **options)
+    if check and can_extrapolate and res is not fine:
+        res = _checked(system, res, options)
     return _with_frame(replace(res, monodromy=_to_base(frame, res.monodromy)), "modal", _levels(frame))
