@@ -335,7 +335,11 @@ def analyze(
     samples : int
         Collocation / linearisation samples per period.
     method, n_steps :
-        :func:`stability.floquet` method and sub-intervals (``n_steps=None``: adaptive).
+        :func:`stability.floquet` method and sub-intervals.  ``n_steps=None``: adaptive -- in the
+        frozen-modal frame with ``magnus2`` the extrapolated solve at 72, 144/216/288, ... steps until
+        its estimate meets ``rtol`` (:func:`stability.modal.modal_floquet`), *with* the non-nested check
+        solve (``check=True``: a step family shares errors its own nested estimate cannot see, measured
+        on the single link at 8-16 elements); otherwise :func:`stability.floquet`'s adaptive engine.
         The default ``magnus2`` (exponential midpoint) keeps every factor an exact
         matrix exponential, robust for the stiff, strongly damped modes of PD-controlled
         flexible models; its step-doubling estimate watches the moduli.
@@ -388,7 +392,7 @@ def analyze(
     sm = small_multipliers if method != "paper" else "flag"
     if frame == "modal" and method == "magnus2":
         res = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm,
-                            extrapolate=True)
+                            check=n_steps is None, extrapolate=True)
     elif frame == "modal" and method != "paper":
         res = modal_floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     elif method == "magnus2":
