@@ -711,6 +711,14 @@ def _parent_bounds(P: Any) -> Optional[list]:
     return list(zip([0] + cuts, cuts + [P.n]))
 
 
+def _transformed(P: np.ndarray, V: np.ndarray, Vt: np.ndarray) -> np.ndarray:
+    """``V^-1 (P V - V')`` for stacks of matrices: the system matrix in the basis ``V``
+    (one product and one LU solve per time)."""
+    X = P @ V
+    X -= Vt
+    return np.linalg.solve(V, X)
+
+
 class FrozenModalSystem:
     """``P_hat(t) = V^-1 (P V - V')`` for a smooth periodic frozen-eigenvector basis ``V(t)``.
 
@@ -843,10 +851,7 @@ class FrozenModalSystem:
             P *= cached[1]  # a fresh array from the inner frame's solve: balanced in place
         else:
             P = P * cached[1]  # a user's P(t) may hand out its own arrays: never written to
-        V, Vt = self.basis(t), self.basis(t, derivative=True)
-        X = P @ V
-        X -= Vt
-        return np.linalg.solve(V, X)
+        return _transformed(P, self.basis(t), self.basis(t, derivative=True))
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
@@ -954,10 +959,7 @@ class CollapsedModalSystem:
         """``P_hat(t)`` at ``times``, shape ``(m, n, n)``: one product and one LU solve per time."""
         t = np.atleast_1d(np.asarray(times, dtype=float))
         P = self._wrapped.evaluate(t) * self._ratio  # a user's P(t) may hand out its own arrays: a copy
-        V, Vt = self.basis(t), self.basis(t, derivative=True)
-        X = P @ V
-        X -= Vt
-        return np.linalg.solve(V, X)
+        return _transformed(P, self.basis(t), self.basis(t, derivative=True))
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([float(t)]))[0]
