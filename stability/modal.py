@@ -520,17 +520,24 @@ def _real_columns(lams: np.ndarray, Ws: np.ndarray, bounds: list) -> np.ndarray:
                     np.take_along_axis(Ws.real, pick[:, None, :], axis=2))
 
 
+def _batched_inverse(A: np.ndarray) -> tuple:
+    """Inverses of a batch ``(m, s, s)`` and each one's growth ``max|A^-1| max|A|`` (a cheap
+    condition measure); a singular batch gives ``inf`` entries and growth, never an exception."""
+    with np.errstate(all="ignore"):
+        try:
+            inv = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            inv = np.full_like(A, np.inf)
+        growth = np.abs(inv).max(axis=(1, 2)) * np.abs(A).max(axis=(1, 2))
+    return inv, growth
+
+
 def _block_log(H: np.ndarray) -> tuple:
     """Eigen-decompositions ``(h, S, S^-1)`` of a batch of holonomy blocks (``(m, s, s)``) with a real
     logarithm (``log H = S diag(log h) S^-1`` real); falls back to :func:`_real_log` block by block
     (returned as its own eigen-decomposition) where ``S`` is ill-conditioned."""
     h, S = np.linalg.eig(H)
-    with np.errstate(all="ignore"):
-        try:
-            Sinv = np.linalg.inv(S)
-        except np.linalg.LinAlgError:
-            Sinv = np.full_like(S, np.inf)
-    growth = np.abs(Sinv).max(axis=(1, 2)) * np.abs(S).max(axis=(1, 2))
+    Sinv, growth = _batched_inverse(S)
     real = np.abs(h.imag) <= 1e-12 * np.abs(h)
     if np.any(real & (h.real <= 0)):
         raise ModalBasisError("a frozen invariant subspace has a holonomy without a real logarithm "
@@ -589,12 +596,7 @@ def _eig_basis(Pb: np.ndarray, times: np.ndarray, period: float) -> tuple:
         blockinv = np.zeros((n, n))
         for size, idx in index.items():
             proj = proj_all[idx[:, :, None], idx[:, None, :]]  # (clusters, size, size)
-            with np.errstate(all="ignore"):
-                try:
-                    inv = np.linalg.inv(proj)
-                except np.linalg.LinAlgError:
-                    inv = np.full_like(proj, np.inf)
-                growth = np.abs(inv).max(axis=(1, 2)) * np.abs(proj).max(axis=(1, 2))
+            inv, growth = _batched_inverse(proj)
             if not np.all(growth <= MAX_CONDITION):
                 raise ModalBasisError("a frozen invariant subspace turns by ~90 degrees between two samples "
                                       "(too few samples)")
