@@ -41,6 +41,8 @@ from exudyn.itemInterface import (LoadMassProportional, MarkerBodyMass, MarkerBo
 
 #: Default disk mass (kg), shaft stiffnesses (N/m), external damping (N s/m), gravity (m/s^2).
 DEFAULTS = {"mass": 2.0, "stiffness_xi": 2.0e4, "stiffness_eta": 2.6e4, "damping": 2.0, "gravity": 9.81}
+#: x of the bearing axis (m); see the comment in :func:`build`.
+BEARING_X = 1.0
 
 
 def _positive(name: str, value) -> float:
@@ -85,7 +87,10 @@ def build(mbs, omega, mass=DEFAULTS["mass"], stiffness_xi=DEFAULTS["stiffness_xi
     ground = mbs.AddObject(ObjectGround())
     # initial guess of the orbit: the static sag of the mean stiffness
     sag = -m * g * 0.5 * (1.0 / k_xi + 1.0 / k_eta)
-    disk_node = mbs.AddNode(NodePoint2D(referenceCoordinates=[0.0, 0.0], initialCoordinates=[0.0, sag],
+    # the bearing axis passes through (BEARING_X, 0), not through the origin: the linearisation co-rotates
+    # free planar points with their best-fit rotation about the origin (linearize.constrained.corotating_frame),
+    # which for a disk whirling around the origin itself would turn once per whirl and is not resolved
+    disk_node = mbs.AddNode(NodePoint2D(referenceCoordinates=[BEARING_X, 0.0], initialCoordinates=[0.0, sag],
                                         name="disk"))
     disk = mbs.AddObject(ObjectMassPoint2D(mass=m, nodeNumber=disk_node, name="disk"))
 
@@ -98,7 +103,7 @@ def build(mbs, omega, mass=DEFAULTS["mass"], stiffness_xi=DEFAULTS["stiffness_xi
         fa, fb = k_xi * a, k_eta * b
         return [cs * fa - sn * fb + c * v[0], sn * fa + cs * fb + c * v[1], 0.0]
 
-    m_ground = mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[0.0, 0.0, 0.0]))
+    m_ground = mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[BEARING_X, 0.0, 0.0]))
     m_disk = mbs.AddMarker(MarkerNodePosition(nodeNumber=disk_node))
     mbs.AddObject(ObjectConnectorCartesianSpringDamper(markerNumbers=[m_ground, m_disk], stiffness=[k_xi, k_eta, 0.0],
                                                        damping=[c, c, 0.0], springForceUserFunction=shaft_force,
