@@ -127,3 +127,17 @@ def _upper_rotating(W):
     b = np.linalg.norm(oracle.P_MINUS @ v[:2]) ** 2
     rep = l + 1j * W if a >= b else l - 1j * W
     return abs(rep.imag)
+
+
+@pytest.mark.slow
+def test_study_runs_the_rotor_by_name(tmp_path):
+    from flexstab.cli import main
+
+    assert main(["study", "--model", "laval-rotor", "--omega", "80", "--quick", "--out", str(tmp_path)]) == 0
+    fl = json.loads((tmp_path / "floquet.json").read_text())
+    mu = np.array([complex(*m) for m in fl["floquet"]["multipliers"]])
+    # the study's fixed 128-step solve certifies the moduli: within its own step-doubling estimate (relative)
+    exact = np.sort(np.abs(oracle.multipliers(80.0)))
+    assert np.max(np.abs(np.sort(np.abs(mu)) - exact) / exact) <= fl["error_estimate"]
+    assert _max_distance(mu, oracle.multipliers(80.0 * 1.0001)) > fl["error_estimate"]
+    assert json.loads((tmp_path / "validation.json").read_text())["agrees"] is True
