@@ -148,7 +148,7 @@ def multipliers(omega: float, steps: int = 2000, keep: int = 4) -> dict:
     "estimate": |last change|, "ratio": observed convergence ratio, "defect": largest orbit defect}``.
     """
     x, base, Phi, defect = orbit(omega, steps)
-    levels, defects = [], [defect]
+    levels, defects, orbits = [], [defect], []
     for s in (steps, 2 * steps, 4 * steps):
         F = OnePeriodMap(omega, s)
         if s != steps:
@@ -157,6 +157,7 @@ def multipliers(omega: float, steps: int = 2000, keep: int = 4) -> dict:
                 x = x - np.linalg.solve(Phi - np.eye(x.size), r)
             defects.append(float(np.max(np.abs(F.reduced(x, base) - x))))
             Phi = monodromy(F, x, base, 1300.0)
+        orbits.append((x.copy(), base))
         mu = np.linalg.eigvals(Phi)
         mu = mu[np.argsort(-np.abs(mu))][:keep]
         levels.append(mu if not levels else _match(levels[0], mu))
@@ -166,4 +167,139 @@ def multipliers(omega: float, steps: int = 2000, keep: int = 4) -> dict:
     ext = (16 * r2 - r1) / 15
     ratio = float(np.max(np.abs(m2 - m1)) / max(float(np.max(np.abs(m4 - m2))), 1e-300))
     return {"levels": levels, "extrapolated": ext, "estimate": float(np.max(np.abs(ext - r2))), "ratio": ratio,
-            "defect": max(defects)}
+            "defect": max(defects), "steps": steps, "orbits": orbits}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The drive form under feed-forward + PD: the crank released, tau = tau_ff(t) - kp (theta - W t) - kd (theta' - W)
+# ----------------------------------------------------------------------------------------------------------
+#: Free coordinates of the closed loop: the crank angle joins; the pin node's position (3, 4) follows it.
+FREE_DRIVE = np.array([2, 5, 6, 7, 8, 9, 10, 11, 13, 14])
+#: Harmonics kept of the recorded feed-forward torque (its samples' trigonometric interpolant).
+FEEDFORWARD_HARMONICS = 48
+
+
+def feedforward(omega: float, steps: int, x: np.ndarray, base: tuple) -> np.ndarray:
+    """Fourier coefficients (``numpy.fft.rfft`` / N, first :data:`FEEDFORWARD_HARMONICS`) of the torque that
+    holds the crank on ``omega t`` along the constant-speed orbit ``x``: minus the Lagrange multiplier of the
+    rheonomic crank constraint (its equation is ``theta - omega t = 0``, so its generalised force on
+    ``theta`` is ``-lambda``), recorded after every step of one period."""
+    import exudyn as exu
+
+    F = OnePeriodMap(omega, steps)
+    idx = F.mbs.GetObjectNumber("crank speed")
+    record: list = []
+
+    def post_step(mbs, t):
+        record.append((t, float(mbs.GetObjectOutput(idx, exu.OutputVariableType.Force))))
+        return True
+
+    F.mbs.SetPostStepUserFunction(post_step)
+    q, v = base[0].copy(), base[1].copy()
+    q[FREE], v[FREE] = x[:FREE.size], x[FREE.size:]
+    F(q, v)
+    t, lam = np.array(record).T
+    # the last sample is t = T (= t = 0 of the next period): N equispaced samples 0 .. T - h, rolled
+    samples = np.roll(-lam[-steps:], 1)
+    return np.fft.rfft(samples)[:FEEDFORWARD_HARMONICS] / steps
+
+
+def _trig(coef: np.ndarray, omega: float, t: float) -> float:
+    k = np.arange(coef.size)
+    w = np.where(k == 0, 1.0, 2.0)
+    return float(np.sum(w * (coef.real * np.cos(k * omega * t) - coef.imag * np.sin(k * omega * t))))
+
+
+class ClosedLoopMap(OnePeriodMap):
+    """One period of the drive form released under feed-forward + PD (a ``CoordinateSpringDamper`` on the crank
+    angle whose spring-force user function is ``kp (theta - W t) + kd (theta' - W) - tau_ff(t)``)."""
+
+    def __init__(self, omega: float, steps: int, kp: float, kd: float, coef: np.ndarray):
+        import exudyn as exu
+        from exudyn.itemInterface import CoordinateSpringDamper, MarkerNodeCoordinate, NodePointGround
+
+        from mbs_models.builtin.slider_crank import DEFAULTS, build
+
+        self.omega, self.T = float(omega), 2 * math.pi / float(omega)
+        self.sc = exu.SystemContainer()
+        self.mbs = self.sc.AddSystem()
+        drives = build(self.mbs, omega, form="drive", elements=2)
+        m0, m1 = drives[0]["markers"]
+        W = self.omega
+        last = [None, 0.0]  # tau_ff at the last time asked (Newton iterations of a step share it)
+
+        def force(mbs, t, item, u, v, k, d, offset):
+            if t != last[0]:
+                last[0], last[1] = t, _trig(coef, W, t)
+            return kp * (u - W * t) + kd * (v - W) - last[1]
+
+        self.mbs.AddObject(CoordinateSpringDamper(markerNumbers=[m0, m1], stiffness=kp, damping=kd,
+                                                  springForceUserFunction=force))
+        self.mbs.Assemble()
+        self.settings = _settings(self.T, steps)
+        self.r = DEFAULTS["crank"]
+        sd = self.mbs.systemData
+        ini = exu.ConfigurationType.Initial
+        self.q_file = np.array(sd.GetODE2Coordinates(configuration=ini))
+        self.v_file = np.array(sd.GetODE2Coordinates_t(configuration=ini))
+        self._exu = exu
+
+    def reduced(self, x: np.ndarray, base: tuple) -> np.ndarray:
+        n = FREE_DRIVE.size
+        q, v = base[0].copy(), base[1].copy()
+        q[FREE_DRIVE], v[FREE_DRIVE] = x[:n], x[n:]
+        th, w = q[2], v[2]  # the pin node's position follows the crank exactly (displacement from (r, 0))
+        q[3], q[4] = self.r * math.cos(th) - self.r, self.r * math.sin(th)
+        v[3], v[4] = -self.r * math.sin(th) * w, self.r * math.cos(th) * w
+        qT, vT = self(q, v)
+        return np.concatenate([qT[FREE_DRIVE], vT[FREE_DRIVE]])
+
+
+def _monodromy_drive(F, x, base, rate_scale):
+    n = x.size
+    h = np.where(np.arange(n) < FREE_DRIVE.size, EPS, EPS * rate_scale)
+    cols = []
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h[j]
+        cols.append((F.reduced(x + e, base) - F.reduced(x - e, base)) / (2 * h[j]))
+    return np.array(cols).T
+
+
+def closed_loop_multipliers(constant: dict, omega: float, kp: float, kd: float, keep: int = 4) -> dict:
+    """As :func:`multipliers`, for the drive form under feed-forward + PD, at the step levels of ``constant``
+    (a :func:`multipliers` result): the feed-forward of each level is recorded along that level's own
+    constant-speed orbit, the closed loop's periodic orbit found by chord steps from it.  Adds
+    ``"orbit_gap"``: the closed loop's orbit against the constant-speed one at the finest level (max norm
+    over the free positions and rates): the feed-forward is the recorded reaction of the trapezoidal rule,
+    truncated to :data:`FEEDFORWARD_HARMONICS`, so the two orbits differ by what that misses."""
+    steps = constant["steps"]
+    levels, defects = [], []
+    Phi = None
+    gap = math.nan
+    for s, (x_c, base_c) in zip((steps, 2 * steps, 4 * steps), constant["orbits"]):
+        coef = feedforward(omega, s, x_c, base_c)
+        F = ClosedLoopMap(omega, s, kp, kd, coef)
+        q, v = base_c[0].copy(), base_c[1].copy()
+        q[FREE], v[FREE] = x_c[:FREE.size], x_c[FREE.size:]
+        base = (q, v)
+        x0 = np.concatenate([q[FREE_DRIVE], v[FREE_DRIVE]])
+        x = x0.copy()
+        if Phi is None:
+            Phi = _monodromy_drive(F, x, base, 1300.0)
+        for _ in range(3):  # the closed loop's own periodic orbit (chord steps from the constant-speed one)
+            r = F.reduced(x, base) - x
+            x = x - np.linalg.solve(Phi - np.eye(x.size), r)
+        defects.append(float(np.max(np.abs(F.reduced(x, base) - x))))
+        gap = float(np.max(np.abs(x - x0)))
+        Phi = _monodromy_drive(F, x, base, 1300.0)
+        mu = np.linalg.eigvals(Phi)
+        mu = mu[np.argsort(-np.abs(mu))][:keep]
+        levels.append(mu if not levels else _match(levels[0], mu))
+    m1, m2, m4 = levels
+    r1 = (4 * m2 - m1) / 3
+    r2 = (4 * m4 - m2) / 3
+    ext = (16 * r2 - r1) / 15
+    ratio = float(np.max(np.abs(m2 - m1)) / max(float(np.max(np.abs(m4 - m2))), 1e-300))
+    return {"levels": levels, "extrapolated": ext, "estimate": float(np.max(np.abs(ext - r2))), "ratio": ratio,
+            "defect": max(defects), "orbit_gap": gap}

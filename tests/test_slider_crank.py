@@ -55,3 +55,22 @@ def test_bad_options_are_one_line_errors():
         build_model(builtin_model("slider-crank", rod=0.1), OMEGA)
     with pytest.raises(ModelFileError, match="form must be"):
         build_model(builtin_model("slider-crank", form="belt"), OMEGA)
+
+
+KP, KD = 20.0, 0.2
+
+
+@pytest.mark.slow
+def test_drive_form_under_pd_matches_the_finite_difference_monodromy(reference):
+    """The natural drive form, motion (Omega t, Omega, 0), released under feed-forward + PD."""
+    from linearize import analyze
+
+    closed = oracle.closed_loop_multipliers(reference, OMEGA, KP, KD)
+    assert closed["defect"] < 1e-7 and 3.6 < closed["ratio"] < 4.4 and closed["estimate"] < TOLERANCE / 3
+    res = analyze("slider-crank", OMEGA, kp=KP, kd=KD, n_steps=None)
+    assert res.linearization.size == 10  # the crank angle is released
+    mu = np.asarray(res.floquet.multipliers)[:4]
+    assert _matched_distance(closed["extrapolated"], mu) < TOLERANCE
+    # the comparison can fail: the constant-speed multipliers (crank held) and the coarsest level
+    assert _matched_distance(closed["extrapolated"], reference["extrapolated"]) > 100 * TOLERANCE
+    assert _matched_distance(closed["levels"][0], mu) > 100 * TOLERANCE
