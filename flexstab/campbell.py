@@ -37,6 +37,10 @@ PRINCIPAL_RULE = ("principal frequency: Im(log(rho)/T) + k* Omega, k* the harmon
                   "-Re(lambda)/|lambda| of that representative; 'harmonics' maps k - k* to its share")
 
 
+#: Propagator steps of a speed at which the adaptive solve (``--steps`` not given) cannot meet its
+#: tolerance (a ``FloquetError``): the fixed-step frozen-modal solve of :func:`linearize.analysis.analyze`
+#: with twice its default steps, Richardson-extrapolated, its error estimate in the point's JSON.
+FALLBACK_STEPS = 256
 #: Modes whose multiplier the Floquet engine resolves to fewer digits (``reliable_digits``: a multiplier below
 #: the product's rounding floor, e.g. a strongly PD-damped mode) are left out of the diagram: their
 #: exponents, hence frequency and damping, are rounding noise.  The count is stated per speed.
@@ -80,13 +84,26 @@ class CampbellPointTask:
     def __call__(self, omega: float) -> dict:
         from linearize.analysis import analyze
 
+        from stability.floquet import FloquetError
+
         t0, c0 = time.perf_counter(), time.process_time()
         kp = self.kp if self.kp else 0.0
         kd = self.kd if self.kd else 0.0
-        res = analyze(self.definition(), float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=self.n_steps)
+        definition = self.definition()
+        fallback = None
+        try:
+            res = analyze(definition, float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=self.n_steps)
+        except FloquetError as exc:
+            if self.n_steps is not None:
+                raise
+            # the adaptive solve could not meet its rtol: the fixed-step solve, its estimate stated
+            fallback = f"adaptive solve failed ({exc}); {FALLBACK_STEPS} steps, extrapolated"
+            logger.warning("Omega = %.6g: %s", omega, fallback)
+            res = analyze(definition, float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=FALLBACK_STEPS)
         modes = point_modes(res)
         out = {
             "omega": float(omega),
+            "fallback": fallback,
             "modes": modes,
             "unresolved_modes": _pairs(res.floquet.multipliers) - len(modes),
             "orbit_residual": float(res.orbit.residual),
@@ -250,12 +267,17 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
     fmax = max(fmax, 1e-12) * 1.25
     fig, (ax, az) = plt.subplots(2, 1, figsize=(8, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     xs = np.array([x.min(), x.max()])
+    placed: list = []
     for k in range(1, orders + 1):
         ax.plot(xs, k * xs, color="0.6", lw=0.8, ls="--", zorder=1)
         xe = min(x.max(), fmax / k)
-        if xe > x.min():  # the label where the line leaves the axes (top or right edge), inside them
-            ax.annotate(f"{k}P", (xe, k * xe), textcoords="offset points", xytext=(-16, -12), fontsize=8,
-                        color="0.4")
+        ye = k * xe
+        # the label where the line leaves the axes (top or right edge), inside them; lines that leave
+        # close together (a frequency range far above the rotation) share the lowest one's label
+        if xe > x.min() and all(abs(ye - y) > 0.04 * fmax for y in placed):
+            ax.annotate(f"{k}P", (xe, ye), textcoords="offset points", xytext=(-16, -12 if ye > 0.1 * fmax else 2),
+                        fontsize=8, color="0.4")
+            placed.append(ye)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for n, b in enumerate(shown):
         col = colors[n % len(colors)]
