@@ -5,8 +5,8 @@ Per speed ``Omega`` (:class:`CampbellPointTask`, picklable, so the points can ru
 the monodromy matrix (:func:`linearize.analysis.analyze`), then the modes of the point
 (:func:`stability.campbell.floquet_modes`): the principal frequency of each mode by the harmonic content of
 its Floquet solution read in the linearisation's independent displacement coordinates ``z`` (which co-rotate
-with the bodies, as the package's mode labels do), in a window of harmonics centred on the frozen-time modal
-frequency of the mode (so that a structural mode far above ``Omega`` is not aliased), propagated in a
+with the bodies, as the package's mode labels do), of its harmonics' aliases the one nearest plus or minus
+the frozen-time modal frequency of the mode (so that a structural mode far above ``Omega`` is not aliased), propagated in a
 frozen-modal frame of the linearisation (where the stiff part is nearly constant); the mode shape for
 tracking are the displacements ``dq = N(0) z`` at ``t = 0`` in Exudyn's coordinates.  The modes are then tracked across the speeds by MAC
 and an optimal assignment (:func:`stability.campbell.campbell`).
@@ -31,8 +31,8 @@ logger = logging.getLogger(__name__)
 #: The frequency rule, as the JSON output states it.
 PRINCIPAL_RULE = ("principal frequency: Im(log(rho)/T) + k* Omega, k* the harmonic of Omega carrying the largest "
                   "share of the Floquet solution's periodic part, read in the linearisation's independent "
-                  "displacement coordinates (co-rotating with the bodies) over 64 harmonics centred on the "
-                  "frozen-time modal frequency; "
+                  "displacement coordinates (co-rotating with the bodies) at 64 samples, of k*'s aliases k* + 64 m the "
+                  "one nearest +-(the frozen-time modal frequency of the mode's label); "
                   "one mode per conjugate pair (the member with positive frequency); damping ratio "
                   "-Re(lambda)/|lambda| of that representative; 'harmonics' maps k - k* to its share")
 
