@@ -266,7 +266,7 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
     shown = branches[:max_branches]
     fmax = max((max((v for v in b["frequency_hz"] if v is not None), default=0.0) for b in shown), default=1.0)
     fmax = max(fmax, 1e-12) * 1.25
-    fig, (ax, az) = plt.subplots(2, 1, figsize=(8, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    fig, (ax, az) = plt.subplots(2, 1, figsize=(10.5, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     xs = np.array([x.min(), x.max()])
     placed: list = []
     for k in range(1, orders + 1):
@@ -275,10 +275,11 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
         ye = k * xe
         # the label where the line leaves the axes (top or right edge), inside them; lines that leave
         # close together (a frequency range far above the rotation) share the lowest one's label
-        if xe > x.min() and all(abs(ye - y) > 0.04 * fmax for y in placed):
+        span = max(float(x.max() - x.min()), 1e-300)
+        if xe > x.min() and all(math.hypot((xe - a) / span, (ye - b) / fmax) > 0.04 for a, b in placed):
             ax.annotate(f"{k}P", (xe, ye), textcoords="offset points", xytext=(-16, -12 if ye > 0.1 * fmax else 2),
                         fontsize=8, color="0.4")
-            placed.append(ye)
+            placed.append((xe, ye))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for n, b in enumerate(shown):
         col = colors[n % len(colors)]
@@ -324,7 +325,8 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
 
         handles.append(Patch(color="red", alpha=0.15))
         labels.append("a mode unstable (ζ < 0)")
-    ax.legend(handles, labels, fontsize=8, loc="lower right", framealpha=0.9)
+    # beside the axes, never over the curves
+    ax.legend(handles, labels, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
