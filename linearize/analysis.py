@@ -57,11 +57,13 @@ PROPAGATOR_WARNING = 1e-4
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
 #: A mode carries a drive's name, and counts as one the drives can move, only when that drive's share
-#: in it (:func:`_drive_shares`: ``|c^T z|^2 / ((c^T M^-1 c)(z^H M z))`` in [0, 1], the fraction of the
-#: mode's kinetic-energy norm a unit generalised force on the drive coordinate can reach) is at least
-#: this.  A mode decoupled from every drive (share 0 to rounding, e.g. the lateral modes of a chain
-#: driven axially) is out of reach of PD gains on the drives; 5 % keeps the weakly coupled ones.
-DRIVE_SHARE_THRESHOLD = 0.05
+#: in it (:func:`_drive_shares`: ``|c^T z|^2 / ((c^T M^-1 c)(z^H M z))`` in [0, 1]) is at least this.
+#: A mode decoupled from every drive (share 0 to rounding, ~1e-30: e.g. the lateral modes of a chain
+#: driven axially) is out of reach of PD gains on the drives.  The share of a mode a drive plainly moves
+#: can itself be small (the rigid rotation of a flexible arm about a light hub: the normalisation
+#: ``c^T M^-1 c`` is the hub's own mobility), so the threshold only separates "decoupled" from
+#: "coupled": 1e-6, a coupling a million times weaker than a mode the drive alone moves.
+DRIVE_SHARE_THRESHOLD = 1e-6
 
 
 @dataclass(frozen=True)
