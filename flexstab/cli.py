@@ -17,7 +17,7 @@ from typing import Optional, Sequence
 __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: Sub-command modules, in the order ``--help`` lists them.
-COMMANDS = ("floquet", "modes", "tune", "validate", "chart", "study")
+COMMANDS = ("floquet", "modes", "tune", "validate", "chart", "campbell", "study")
 
 
 class CLIError(Exception):

@@ -155,7 +155,7 @@ SPARSE_SIMULATION_SIZE = 100
 
 #: Generalised-alpha spectral radius of the guess and shooting runs: index-3
 #: constraints need some numerical damping (rho_inf = 1 failed on the single
-#: link's clamp); 0.9 is the value the single-link simulations use (issue 4).
+#: link's clamp); 0.9 is the value the single-link simulations use.
 SHOOTING_SPECTRAL_RADIUS = 0.9
 
 

@@ -77,6 +77,7 @@ logger = logging.getLogger(__name__)
 BUILTIN_MODELS = {
     "single-link": "single_link.py",
     "two-link": "two_link.py",
+    "laval-rotor": "laval_rotor.py",
 }
 
 #: A drive's motion must satisfy ``|motion(t + T) - motion(t)| <=`` this times
