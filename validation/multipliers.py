@@ -1462,6 +1462,7 @@ def validate_model_multipliers(
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)
         q0, v0 = orbit.q[0].copy(), orbit.q_t[0].copy()
+        turns = np.asarray(orbit.shift, dtype=float)  # q0(t + T) = q0(t) + turns (whole turns of angles)
         norm = energy_norm(lin.M[0], lin.K[0])
         if d:
             # the hub-mass scale of the amplitude: the first driven coordinate's mass
@@ -1474,7 +1475,8 @@ def validate_model_multipliers(
 
         def start(x: np.ndarray, t0: float = 0.0) -> None:
             dz, dzt = x[:r], x[r:]
-            q, v = _consistent_state(constraints, q0 + N0 @ dz, v0 + N0 @ dzt + N0t @ dz, t0, T)
+            q_ref = q0 + round(t0 / T) * turns  # the orbit at t0 = j T
+            q, v = _consistent_state(constraints, q_ref + N0 @ dz, v0 + N0 @ dzt + N0t @ dz, t0, T)
             sd.SetODE2Coordinates(q, configuration=ini)
             sd.SetODE2Coordinates_t(v, configuration=ini)
 
@@ -1485,7 +1487,7 @@ def validate_model_multipliers(
                 raise RuntimeError("Exudyn time integration did not succeed")
             qT = np.array(sd.GetODE2Coordinates())
             vT = np.array(sd.GetODE2Coordinates_t())
-            ez = N0p @ (qT - q0)
+            ez = N0p @ (qT - q0 - turns)
             ezt = N0p @ (vT - v0 - N0t @ ez)
             return np.concatenate([ez, ezt])
 
@@ -1516,7 +1518,7 @@ def validate_model_multipliers(
                     raise RuntimeError("Exudyn time integration did not succeed")
                 qT = np.array(sd.GetODE2Coordinates())
                 vT = np.array(sd.GetODE2Coordinates_t())
-                ez = N0p @ (qT - q0)
+                ez = N0p @ (qT - q0 - (round(t0 / T) + 1) * turns)
                 return np.concatenate([ez, N0p @ (vT - v0 - N0t @ ez)])
 
             growth = measure_growth(pm, np.zeros(2 * r), prediction.right[:, 0], norm,
