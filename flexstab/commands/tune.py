@@ -242,9 +242,6 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
 RESTART_WIDTH = 0.25
 
 
-_pairs = gain_pairs  # former private name
-
-
 def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
                      progress: bool = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
