@@ -42,6 +42,7 @@ from typing import Any, TypeVar
 import numpy as np
 from tqdm import tqdm
 
+from flexstab.threads import blas_threads, limit_blas_threads
 from stability.serialization import json_ready
 
 __all__ = [
@@ -57,6 +58,7 @@ __all__ = [
     "run_sweep",
     "validate_scheduler_address",
     "exit_with_parent",
+    "worker_init",
     "PARENT_POLL_INTERVAL",
 ]
 
@@ -134,6 +136,10 @@ class DaskExecutor(cf.Executor):
     def __init__(self, client: Any, owns_client: bool = True) -> None:
         self.client = client
         self._owns_client = owns_client
+        # one BLAS thread per worker process (flexstab.threads), also on workers that join later
+        from flexstab._dask_plugin import BlasThreadsPlugin
+
+        client.register_plugin(BlasThreadsPlugin(blas_threads()), name="flexstab-blas-threads")
         self._inner = client.get_executor(pure=False)
         self._closed = False
 
@@ -287,7 +293,14 @@ def make_executor(
         return SerialExecutor()
     context = multiprocessing.get_context(mp_context) if mp_context is not None else None
     return cf.ProcessPoolExecutor(max_workers=max_workers, mp_context=context,
-                                  initializer=exit_with_parent, initargs=(os.getpid(),))
+                                  initializer=worker_init, initargs=(os.getpid(), blas_threads()))
+
+
+def worker_init(parent_pid: int, blas: int) -> None:
+    """Initializer of every pool worker: ``blas`` BLAS threads (:mod:`flexstab.threads`), and end with
+    the parent (:func:`exit_with_parent`)."""
+    limit_blas_threads(blas)
+    exit_with_parent(parent_pid)
 
 
 #: Seconds between two checks of the parent process by a pool worker (see :func:`exit_with_parent`).

@@ -705,11 +705,11 @@ def _preload(stages: Sequence[str]) -> None:
     floquet(ReducedModel(2 * math.pi))
 
 
-def _lane_worker_init(parent_pid: int) -> None:
-    """Initializer of the study's Exudyn processes: quiet, and end with the parent."""
-    from flexstab.executor import exit_with_parent
+def _lane_worker_init(parent_pid: int, blas: int = 1) -> None:
+    """Initializer of the study's Exudyn processes: ``blas`` BLAS threads, and end with the parent."""
+    from flexstab.executor import worker_init
 
-    exit_with_parent(parent_pid)
+    worker_init(parent_pid, blas)
 
 
 def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOptions()) -> StudyResult:
@@ -849,12 +849,15 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         import concurrent.futures as cf
         import multiprocessing
 
+        from flexstab.threads import blas_threads
+
         _preload(stages)  # imported once here, inherited by the forked processes
         for _ in chains:
             # start each process now, from this thread while it is the only one: a fork from a helper
             # thread could copy a lock (the import lock) that the main thread holds at that moment
             pools.append(cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                                initializer=_lane_worker_init, initargs=(os.getpid(),)))
+                                                initializer=_lane_worker_init,
+                                                initargs=(os.getpid(), blas_threads())))
             pools[-1].submit(int).result()
         remote = replace(opts, progress=False, log=None)
 

@@ -7,9 +7,8 @@ import math
 import sys
 from pathlib import Path
 
-from flexstab.config import load_config
-from flexstab.options import (add_model_options, dump_json, ensure_out_dir, gain_list, omega_type, positive_float,
-                              resolve_omega)
+from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
+                              gain_list, omega_type, positive_float, resolve_omega)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -59,6 +58,13 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
 
     ``cfg`` (a :class:`~flexstab.config.StudyConfig`) overrides ``args.config``.
     """
+    _check_args(args)  # before any numerical import
+    from flexstab.config import load_config
+
+    cfg = cfg if cfg is not None else load_config(args.config)
+    model = getattr(args, "model", "reduced")
+    if model not in ("reduced", "exudyn"):
+        return model_charts(args, cfg, progress=progress)
     from flexstab.charts import (
         ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
         plot_omega_chart,
@@ -67,10 +73,6 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     from mbs_models.reduced import ReducedModel
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
-    cfg = cfg if cfg is not None else load_config(args.config)
-    model = getattr(args, "model", "reduced")
-    if model not in ("reduced", "exudyn"):
-        return model_charts(args, cfg, progress=progress)
     for flag in ("drive", "samples", "steps"):
         if getattr(args, flag, None) is not None:
             raise ValueError(f"--{flag} applies to model files only")
@@ -150,6 +152,20 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
                "figures": [str(png1), str(png2)], "json": str(out / f"chart_{name}.json")}
     (out / f"chart_{name}.json").write_text(json.dumps(summary))
     return summary
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    """The checks of the arguments alone (no configuration, no model): grid sizes, counts, ranges."""
+    for flag, minimum in (("grid", 2), ("omega_points", 2), ("samples", 4), ("steps", 1), ("workers", 1)):
+        v = getattr(args, flag, None)
+        if v is not None and v < minimum:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= {minimum}, got {v}")
+    for flag in ("kp_range", "kd_range"):
+        check_range_arg(getattr(args, flag, None), "--" + flag.replace("_", "-"))
+    check_model_arg(getattr(args, "model", None))
+    w = getattr(args, "omega_range", None)
+    if w is not None and not w[0] < w[1]:
+        raise ValueError(f"--omega-range must have LO < HI, got {w[0]:g} {w[1]:g}")
 
 
 def _fixed_gains(values, n_drives: int, flag: str) -> tuple:

@@ -5,7 +5,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from flexstab.config import load_config
 from flexstab.options import omega_type
 
 __all__ = ["register", "run"]
@@ -80,23 +79,33 @@ def _report_exit_code(res) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from flexstab.study import StudyOptions, run_study
+    if args.model is None:  # the checks of the arguments alone, before any numerical import
+        for flag in ("omega", "samples", "elements"):
+            if getattr(args, flag) is not None:
+                raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
+        if args.stages is not None and not args.stages.strip():
+            raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, "
+                             "validation")
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    else:
+        from flexstab.options import check_model_arg
 
-    cfg = load_config(args.config)
-    if args.model is not None:
-        return run_model(args, cfg)
-    for flag in ("omega", "samples", "elements"):
-        if getattr(args, flag) is not None:
-            raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
+        if args.samples is not None and (args.samples < 4 or args.samples % 2):
+            raise ValueError(f"--samples must be an even integer >= 4, got {args.samples}")
+        check_model_arg(args.model)
     if args.scheduler:
         from flexstab.executor import validate_scheduler_address
 
         validate_scheduler_address(args.scheduler)  # fail before hours of work, not after
-    if args.stages is not None and not args.stages.strip():
-        raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
+    from flexstab.config import load_config
+
+    cfg = load_config(args.config)
+    if args.model is not None:
+        return run_model(args, cfg)
+    from flexstab.study import StudyOptions, run_study
+
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
                                       progress=sys.stderr.isatty(), scheduler=args.scheduler, log=_progress_log(),
                                       resume=not args.no_resume, jobs=args.jobs))

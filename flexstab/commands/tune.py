@@ -7,11 +7,21 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any, Optional
 
-from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
-# the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
-                             plant_for, propagator_steps, whole_spectrum)
+from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
+                              positive_float, resolve_omega)
+
+#: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
+#: there), imported on first use so that parsing the command line imports no numerical package.
+_PLANTS_NAMES = ("HILL_HARMONICS", "HILL_MODELS", "MAX_TUNING_STEPS", "MODEL_RESPONSE", "plant_choice_for",
+                 "plant_for", "propagator_steps", "whole_spectrum")
+
+
+def __getattr__(name: str):
+    if name in _PLANTS_NAMES:
+        import flexstab.plants
+
+        return getattr(flexstab.plants, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 if TYPE_CHECKING:
     from taguchi.tuning import TuningConfig
@@ -87,6 +97,8 @@ def robust_report(args: argparse.Namespace) -> dict:
 
     if args.model not in ("reduced", "two-link"):
         raise ValueError("--robust is available for --model reduced and --model two-link")
+    from flexstab.config import load_config
+
     cfg = load_config(args.config)
     rs = cfg.robust
     grid = getattr(args, "grid", None) or rs.grid
@@ -265,6 +277,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
+    from flexstab.plants import MAX_TUNING_STEPS
     from taguchi.tuning import recentre, taguchi_tune
 
     from linearize.hill_plant import HillModelPlant
@@ -303,16 +316,18 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
 
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
-    from flexstab.executor import make_executor
-    from linearize.hill_plant import HillModelPlant
-    from stability import floquet
-    from taguchi.direct import direct_tune
+    if args.max_evaluations < 1:
+        raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    check_range_arg(args.kp_range, "--kp-range")
+    check_range_arg(args.kd_range, "--kd-range")
+    check_model_arg(args.model)
+    from flexstab.config import load_config
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = load_config(args.config)
     omega = resolve_omega(args, cfg)
-    if args.max_evaluations < 1:
-        raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
     kp_range = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_range = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     specs = getattr(args, "factor_range", None)
@@ -328,6 +343,18 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
+    if args.scheduler:
+        from flexstab.executor import validate_scheduler_address
+
+        validate_scheduler_address(args.scheduler)
+        if model_file:
+            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
+    from flexstab.executor import make_executor
+    from flexstab.plants import plant_choice_for, whole_spectrum
+    from linearize.hill_plant import HillModelPlant
+    from stability import floquet
+    from taguchi.direct import direct_tune
+
     harmonics_choice = steps_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
