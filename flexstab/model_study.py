@@ -359,9 +359,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
         d = v.to_dict()
         d["gains_source"] = TUNING_FAILED_VALIDATION if untuned else ("tuned" if kp else "no drives")
-        if not d.get("agrees"):
-            checks.append("validation: the multipliers measured from the nonlinear runs do not confirm the "
-                          "predicted ones (agrees = false)")
+        from flexstab.checks import validation_failures
+
+        checks.extend(f"validation: {line}" for line in validation_failures(d))
         (out / "validation.json").write_text(json.dumps(_ready(d), indent=2, default=float))
         fig = "validation_multipliers.png"
         plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],

@@ -465,8 +465,10 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     blocks = validation_blocks(d, f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: "
                                   f"{source}).", check.steps, fig)
+    from flexstab.checks import validation_failures
+
     return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
-            "files": [fig, "validation.json"]}
+            "files": [fig, "validation.json"], "check_failures": validation_failures(d)}
 
 
 def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> list:
@@ -632,7 +634,8 @@ def render_report(out: Path) -> tuple[Path, Path]:
         if entry.get("status") == "reused":
             head += f"; reused from the run finished at {rec['finished_at']} (inputs unchanged)"
             reused.append(title)
-        sections.append((title, [text(head)] + rec["blocks"]))
+        checks = [text(f"**Check failed:** {'; '.join(rec['check_failures'])}")] if rec.get("check_failures") else []
+        sections.append((title, [text(head)] + checks + rec["blocks"]))
     quick = manifest["quick"]
     omega = cfg.omega
     preamble = [
@@ -788,6 +791,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
                 results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"],
                                  "cpu": rec.get("cpu")}
                 entries[name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
+                if rec.get("check_failures"):  # a reused stage keeps its failed checks (and exit code 1)
+                    results[name].update(status="check failed", error="; ".join(rec["check_failures"]))
             done(name)
             return None
         _record_path(out, name).unlink(missing_ok=True)
@@ -817,12 +822,17 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         files = {f: _file_sha(out / f) for f in _stage_files(r)}
         record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
                   "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
-                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now()}
+                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now(),
+                  "check_failures": list(r.get("check_failures") or [])}
         _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
-        say(f"{tag(name)} finished in {el:.1f} s")
+        checks = list(r.get("check_failures") or [])  # flexstab.checks: computed, but a check failed
+        status = "check failed" if checks else "computed"
+        say(f"{tag(name)} finished in {el:.1f} s" + (f"; check failed: {'; '.join(checks)}" if checks else ""))
         with lock:
-            results[name] = {"status": "computed", "json": r["json"], "elapsed": el, "cpu": cpu}
-            entries[name] = {"status": "computed", "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
+            results[name] = {"status": status, "json": r["json"], "elapsed": el, "cpu": cpu}
+            entries[name] = {"status": status, "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
+            if checks:
+                results[name]["error"] = entries[name]["error"] = "; ".join(checks)
         done(name)
 
     def run_here(name: str) -> None:

@@ -317,4 +317,9 @@ def run(args: argparse.Namespace) -> int:
         dump_json(d, sys.stdout)
     else:
         print(_text(d))
-    return 0
+    from flexstab.checks import exit_code, validation_failures
+
+    failures = validation_failures(d)
+    for line in failures:
+        print(f"flexstab validate: check failed: {line}", file=sys.stderr)
+    return exit_code(failures)
