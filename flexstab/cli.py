@@ -15,6 +15,7 @@ applied before any numerical work.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import os
@@ -92,7 +93,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         from flexstab.threads import blas_threads, limit_blas_threads
 
         limit_blas_threads(blas_threads(args.blas_threads))  # before any numerical work (docs/running.md)
-        rc = int(args.func(args) or 0)
+        # stdout is the command's result only (flexstab.options.result_output): whatever else is printed
+        # while it runs -- Exudyn's solver banners and warnings -- goes to stderr
+        args.result_stdout = sys.stdout
+        with contextlib.redirect_stdout(sys.stderr):
+            rc = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at interpreter exit
         return rc
     except BrokenPipeError:

@@ -40,8 +40,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-from tqdm import tqdm
 
+from flexstab.progress import make_bar
 from flexstab.threads import blas_threads, limit_blas_threads
 from stability.serialization import json_ready
 
@@ -341,7 +341,7 @@ def map_ordered(
     items: Iterable[T],
     executor: cf.Executor | None = None,
     *,
-    progress: bool = False,
+    progress: Any = False,
     desc: str | None = None,
 ) -> list[R]:
     """Evaluate ``fn`` on every item through ``executor``; results in input order.
@@ -355,8 +355,8 @@ def map_ordered(
     executor : concurrent.futures.Executor, optional
         Where to run; ``None`` or a :class:`SerialExecutor` runs the calls one
         after the other in this process (the bar then advances per call).
-    progress : bool
-        Show a tqdm progress bar (on stderr).
+    progress : bool or callable
+        Show a tqdm progress bar (on stderr), or a bar of this factory (:mod:`flexstab.progress`).
     desc : str, optional
         Label of the progress bar.
 
@@ -374,7 +374,7 @@ def map_ordered(
     seq = list(items)
     if not seq:
         return []
-    with tqdm(total=len(seq), desc=desc, disable=not progress, leave=False) as bar:
+    with make_bar(progress, total=len(seq), desc=desc, unit="runs") as bar:
         if executor is None or isinstance(executor, SerialExecutor):
             out = []
             for i, item in enumerate(seq):
@@ -478,7 +478,7 @@ def run_sweep(
     executor: cf.Executor | None,
     store_path: str | os.PathLike[str],
     *,
-    progress: bool = False,
+    progress: Any = False,
     desc: str | None = None,
 ) -> SweepResult:
     """Evaluate ``fn`` on every point, resumably, storing each result as it finishes.
@@ -502,7 +502,8 @@ def run_sweep(
     store_path : path-like
         JSON Lines file; created (with parent folders) if missing.
     progress, desc
-        tqdm progress bar over the points still to compute.
+        Progress bar over the points still to compute: ``True`` (tqdm) or a bar factory
+        (:mod:`flexstab.progress`).
 
     Returns
     -------
@@ -544,9 +545,7 @@ def run_sweep(
         fh.flush()
         done[key] = json.loads(json.dumps(result_json))
 
-    with open(path, "a", encoding="utf-8") as fh, tqdm(
-        total=len(todo), desc=desc, disable=not progress, leave=False
-    ) as bar:
+    with open(path, "a", encoding="utf-8") as fh, make_bar(progress, total=len(todo), desc=desc, unit="points") as bar:
         if executor is None or isinstance(executor, SerialExecutor):
             for key, point in todo.items():
                 try:

@@ -91,8 +91,9 @@ class ModelStudyOptions:
         Coarser charts and validation (see the module docstring).
     log : callable, optional
         Called with one line when a stage starts or ends (the CLI: on a non-terminal stderr).
-    progress : bool
-        Progress bars of the tuning and the charts (the CLI: on a terminal stderr).
+    progress : bool or callable
+        Progress of the tuning and the charts: tqdm bars, or a bar factory (:mod:`flexstab.progress`; the
+        CLI: tqdm on a terminal stderr, one line per step otherwise).
     """
 
     out: Path = Path("results")
@@ -104,7 +105,7 @@ class ModelStudyOptions:
     elements: Optional[int] = None
     quick: bool = False
     log: Optional[Callable[[str], None]] = None
-    progress: bool = False
+    progress: Any = False
 
 
 def _cpu() -> float:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
            "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
-           "check_range_arg", "check_model_arg"]
+           "check_range_arg", "check_model_arg", "result_output"]
 
 _PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -171,6 +171,20 @@ def resolve_omega(args: argparse.Namespace, cfg) -> float:
     """The one Omega rule of every command: ``--omega`` if given, else ``[study] omega`` of the config (2pi)."""
     omega = getattr(args, "omega", None)
     return float(omega) if omega is not None else float(cfg.omega)
+
+
+def result_output(args: argparse.Namespace):
+    """Context in which a command prints its result: to the real standard output.
+
+    :func:`flexstab.cli.main` sends everything else written to ``sys.stdout`` while a command runs
+    (Exudyn's solver banners and warnings, any library's console output) to stderr, so that stdout holds
+    the table or the ``--json`` object only; it keeps the real stream as ``args.result_stdout``.
+    Without it (a command's ``run`` called directly) the current ``sys.stdout``.
+    """
+    import contextlib
+    import sys
+
+    return contextlib.redirect_stdout(getattr(args, "result_stdout", None) or sys.stdout)
 
 
 def dump_json(obj, fp) -> None:

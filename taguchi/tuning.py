@@ -553,7 +553,7 @@ def taguchi_tune(
     config: TuningConfig = TuningConfig(),
     *,
     executor: Optional[cf.Executor] = None,
-    progress: bool = False,
+    progress: Any = False,
 ) -> TaguchiResult:
     """Tune the factors so that ``objective(gains) = max|rho|`` reaches ``config.target``.
 
@@ -566,8 +566,9 @@ def taguchi_tune(
     config : TuningConfig
     executor : concurrent.futures.Executor, optional
         Runs the array's rows; default serial in this process.
-    progress : bool
-        Show a tqdm bar over iterations.
+    progress : bool or callable
+        Show a tqdm bar over iterations, or a bar of this factory ``progress(total=, desc=, unit=)``
+        (an object with tqdm's ``update`` and ``close``).
 
     Returns
     -------
@@ -600,9 +601,13 @@ def taguchi_tune(
 
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        bar_options = {"total": config.max_evaluations, "desc": f"Taguchi rho_d={target:g}", "unit": "eval"}
+        if callable(progress):  # a bar factory (one line per iteration on a pipe, see flexstab.progress)
+            bar = progress(**bar_options)
+        else:
+            from tqdm.auto import tqdm
 
-        bar = tqdm(total=config.max_evaluations, desc=f"Taguchi rho_d={target:g}", unit="eval", leave=False)
+            bar = tqdm(**bar_options, leave=False)
     try:
         while evaluations + n_runs + 1 <= config.max_evaluations:
             lv_values = [_levels(r, s) for r, s in zip(rngs, oa.levels)]

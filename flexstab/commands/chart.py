@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
-                              gain_list, omega_type, positive_float, resolve_omega)
+                              gain_list, omega_type, positive_float, resolve_omega, result_output)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -53,7 +53,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> dict:
+def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
     """Compute and plot both charts; return the JSON-ready summary.
 
     ``cfg`` (a :class:`~flexstab.config.StudyConfig`) overrides ``args.config``.
@@ -122,7 +122,8 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     path = None
     tuned = None
     if not args.no_taguchi:
-        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
+        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
+                             progress=progress)
         path = [it.incumbent_gains for it in tuned.iterations]
     n_tasks = kp.size * kd.size
     kind = "dask" if args.scheduler else ("process" if exudyn and args.workers != 1 else "auto")
@@ -179,7 +180,7 @@ def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
     return tuple(values)
 
 
-def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
+def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     """Both charts of a model file (``--model PATH.py`` or a built-in model file).
 
     Gain chart: the dominant labelled multiplier over the (kp, kd) grid of one drive (``--drive``)
@@ -267,7 +268,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
                 def objective(g):  # (kp, kd) of the charted drive -> response at the chart Omega
                     return task({"omega": float(omega), "kp": float(g[0]), "kd": float(g[1])})
 
-                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
+                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
+                             progress=progress)
                 path = [it.incumbent_gains for it in tuned.iterations]
             ctag = f"{tag}_{'all' if idx is None else idx}_" + hashlib.sha1(
                 json.dumps([fkp, fkd]).encode()).hexdigest()[:6]
@@ -331,15 +333,18 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    s = make_charts(args, progress=not args.json and sys.stderr.isatty())
-    if args.json:
-        dump_json(s, sys.stdout)
-    else:
-        g = s["gain_chart"]
-        if g is not None:
-            print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, "
-                  f"{g['n_computed']} computed)")
-        if s.get("note"):
-            print(s["note"])
-        print("figures: " + ", ".join(s["figures"]))
+    from flexstab.progress import progress_bars
+
+    s = make_charts(args, progress=progress_bars())  # on stderr: tqdm on a terminal, lines otherwise
+    with result_output(args):
+        if args.json:
+            dump_json(s, sys.stdout)
+        else:
+            g = s["gain_chart"]
+            if g is not None:
+                print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, "
+                      f"{g['n_computed']} computed)")
+            if s.get("note"):
+                print(s["note"])
+            print("figures: " + ", ".join(s["figures"]))
     return 0

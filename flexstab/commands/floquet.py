@@ -5,7 +5,8 @@ import argparse
 import math
 import sys
 
-from flexstab.options import add_model_options, check_model_arg, dump_json, gain_list, non_negative_float
+from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, non_negative_float,
+                              result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -173,8 +174,9 @@ def _table(d: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     d = floquet_report(args)
-    if args.json:
-        dump_json(d, sys.stdout)
-    else:
-        print(_table(d))
+    with result_output(args):
+        if args.json:
+            dump_json(d, sys.stdout)
+        else:
+            print(_table(d))
     return 0

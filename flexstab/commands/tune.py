@@ -8,7 +8,7 @@ import sys
 from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
-                              positive_float, resolve_omega)
+                              positive_float, resolve_omega, result_output)
 
 #: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
 #: there), imported on first use so that parsing the command line imports no numerical package.
@@ -256,7 +256,7 @@ _pairs = gain_pairs  # former private name
 
 
 def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
-                     progress: bool = False) -> tuple[Any, Any, list]:
+                     progress: Any = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
     check at the tuned gains for a time-stepping plant.
 
@@ -375,7 +375,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
         kind = "process" if hill and args.workers != 1 else "serial"
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
-        progress = not args.json and sys.stderr.isatty()
+        from flexstab.progress import progress_bars
+
+        progress = progress_bars()  # on stderr: tqdm on a terminal, one line per iteration otherwise
         if model_file:  # Hill plants: one pass (no propagator steps to refine), passes == []
             if hill and ex is not None:  # collect the workers' fallback records (HillModelPlant.fallback_runs)
                 ex = _FallbackRecorder(ex, plant)
@@ -451,16 +453,23 @@ def _response_name(d: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "robust", False):
         d = robust_report(args)
-        if args.json:
-            dump_json(d, sys.stdout)
-        else:
-            _print_robust(d)
+        with result_output(args):
+            if args.json:
+                dump_json(d, sys.stdout)
+            else:
+                _print_robust(d)
         return 0 if d["converged"] else 1
     d = tune_report(args)
     failure = check_failure(d)
     if failure:
         print(f"flexstab tune: {failure}", file=sys.stderr)
     rc = 1 if failure else 0
+    with result_output(args):
+        return _print_tune(args, d, rc)
+
+
+def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
+    """Print the tuning result ``d`` (a table, or one JSON object with ``--json``); return ``rc``."""
     if args.json:
         dump_json(d, sys.stdout)
         return rc

@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from flexstab.options import dump_json, ensure_out_dir, parse_omega
+from flexstab.options import dump_json, ensure_out_dir, parse_omega, result_output
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -304,7 +304,10 @@ def _text(d: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    d, res = validation_report(args)
+    from flexstab.progress import progress_log
+
+    with progress_log("validation", "validate"):  # the measurement's steps, one line each, on stderr
+        d, res = validation_report(args)
     if args.out is not None:
         from validation.plots import plot_multiplier_plane
 
@@ -313,10 +316,11 @@ def run(args: argparse.Namespace) -> int:
         gains = ", ".join(f"{g['name']}: kp = {g['kp']:.4g}, kd = {g['kd']:.4g}" for g in d.get("drives", []))
         plot_multiplier_plane([res], out / "validation.png",
                               titles=[f"{d['model']}, Omega = {d['omega_over_pi']:.4g} pi" + (f", {gains}" if gains else "")])
-    if args.json:
-        dump_json(d, sys.stdout)
-    else:
-        print(_text(d))
+    with result_output(args):
+        if args.json:
+            dump_json(d, sys.stdout)
+        else:
+            print(_text(d))
     from flexstab.checks import exit_code, validation_failures
 
     failures = validation_failures(d)
