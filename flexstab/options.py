@@ -8,7 +8,7 @@ from pathlib import Path
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
            "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
-           "check_range_arg", "check_model_arg", "result_output"]
+           "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS"]
 
 _PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -185,6 +185,22 @@ def result_output(args: argparse.Namespace):
     import sys
 
     return contextlib.redirect_stdout(getattr(args, "result_stdout", None) or sys.stdout)
+
+
+#: Fields holding gains: in every command's JSON each is an array with one number per drive, in the
+#: order of the model's drives (the single link: one element), whatever the model (docs/running.md).
+GAIN_FIELDS = ("kp", "kd")
+
+
+def gains_as_lists(d: dict) -> dict:
+    """Apply the JSON typing rule of :data:`GAIN_FIELDS` to ``d`` (in place; returned): a number
+    becomes a one-element list, a tuple a list; ``None`` stays ``None``."""
+    for key in GAIN_FIELDS:
+        v = d.get(key)
+        if v is None:
+            continue
+        d[key] = [float(x) for x in v] if isinstance(v, (list, tuple)) else [float(v)]
+    return d
 
 
 def dump_json(obj, fp) -> None:

@@ -13,6 +13,7 @@ import scipy.linalg
 from linearize.constrained import linearize_orbit
 from linearize.periodic_orbit import DEFAULT_SAMPLES, PeriodicOrbit, StageClock, find_orbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.frozen import frozen_result
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
@@ -56,6 +57,7 @@ PROPAGATOR_WARNING = 1e-4
 UNDAMPED_TOLERANCE = 2e-3
 
 
+@frozen_result
 @dataclass(frozen=True)
 class ModelFloquetResult:
     """Floquet analysis of a model file about its periodic orbit.

@@ -75,6 +75,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from stability.floquet import FloquetError
+from stability.frozen import frozen_result
 from stability.hill import HillError
 from stability.modal import ModalBasisError
 from taguchi.analysis import TaguchiAnalysis, analyze
@@ -423,6 +424,7 @@ class NamedGains:
         return self.gains[self.names.index(key)]
 
 
+@frozen_result(repr=False)
 @dataclass(frozen=True)
 class TaguchiResult(NamedGains):
     """Outcome of :func:`taguchi_tune`.

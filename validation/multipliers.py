@@ -103,6 +103,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from stability.frozen import frozen_result
 from stability.serialization import json_ready
 
 __all__ = [
@@ -268,6 +269,7 @@ def energy_norm(M: np.ndarray, K: np.ndarray) -> EnergyNorm:
     return EnergyNorm(Lk=Lk, Lm=Lm, hub_mass=float(M[0, 0]))
 
 
+@frozen_result
 @dataclass(frozen=True)
 class Prediction:
     """Multipliers under test with their right / left Floquet vectors.
@@ -443,6 +445,7 @@ class GrowthResult:
         return json_ready(dict(self.__dict__))
 
 
+@frozen_result
 @dataclass(frozen=True)
 class MultiplierValidation:
     """Measured against predicted multipliers (see the module docstring).

@@ -307,7 +307,8 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
                                         ylabel="dominant |ρ| (drive modes / bending 1)")))
     summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
-               "tuned": ({"kp": tuned.kp, "kd": tuned.kd, "response": tuned.spectral_radius, "status": tuned.status,
+               # kp, kd: every drive's gains (the JSON typing rule), the charted drive's tuned, the others fixed
+               "tuned": ({"kp": list(gkp), "kd": list(gkd), "response": tuned.spectral_radius, "status": tuned.status,
                           "evaluations": tuned.evaluations} if tuned is not None else None),
                "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
                "response_method": "hill" if hill else "magnus2",

@@ -5,8 +5,8 @@ import argparse
 import math
 import sys
 
-from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, non_negative_float,
-                              result_output)
+from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, gains_as_lists,
+                              non_negative_float, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -173,7 +173,7 @@ def _table(d: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    d = floquet_report(args)
+    d = gains_as_lists(floquet_report(args))
     with result_output(args):
         if args.json:
             dump_json(d, sys.stdout)

@@ -8,7 +8,7 @@ import sys
 from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
-                              positive_float, resolve_omega, result_output)
+                              gains_as_lists, positive_float, resolve_omega, result_output)
 
 #: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
 #: there), imported on first use so that parsing the command line imports no numerical package.
@@ -393,7 +393,8 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["evaluations"] = sum(p["evaluations"] for p in passes)
         out["propagator_passes"] = passes
     kp, kd = gain_pairs(res.gains, n_drives)
-    out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
+    out["kp"], out["kd"] = kp, kd
+    gains_as_lists(out)  # the JSON typing rule: one value per drive, a list also for one drive
     if model_file and getattr(plant, "orbit", None) is not None:
         out.update(whole_spectrum(plant.orbit, omega, kp, kd))
     if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap

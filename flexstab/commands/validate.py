@@ -26,7 +26,7 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from flexstab.options import dump_json, ensure_out_dir, parse_omega, result_output
+from flexstab.options import dump_json, ensure_out_dir, gains_as_lists, parse_omega, result_output
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -308,6 +308,7 @@ def run(args: argparse.Namespace) -> int:
 
     with progress_log("validation", "validate"):  # the measurement's steps, one line each, on stderr
         d, res = validation_report(args)
+    gains_as_lists(d)
     if args.out is not None:
         from validation.plots import plot_multiplier_plane
 
