@@ -82,6 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _terminate(signum, frame):  # noqa: ARG001 - the signal handler's signature
+    """SIGTERM as Ctrl-C: the study records ``"status": "interrupted"`` and the command ends with one line."""
+    raise KeyboardInterrupt("SIGTERM")
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -89,6 +94,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         level=logging.WARNING - 10 * min(args.verbose, 2),
         format="%(levelname)s %(name)s: %(message)s",
     )
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        previous_sigterm = signal.signal(signal.SIGTERM, _terminate)
+    else:  # pragma: no cover - signal handlers can be set in the main thread only
+        previous_sigterm = None
+    try:
+        return _run(args)
+    finally:
+        if previous_sigterm is not None:
+            signal.signal(signal.SIGTERM, previous_sigterm)
+
+
+def _run(args: argparse.Namespace) -> int:
     try:
         from flexstab.threads import blas_threads, limit_blas_threads
 
@@ -118,9 +138,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         print(f"flexstab {args.command}: failed: {type(exc).__name__}: {first}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"flexstab {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        term = str(exc) == "SIGTERM"
+        print(f"flexstab {args.command}: interrupted{' (SIGTERM)' if term else ''}", file=sys.stderr)
+        return 143 if term else 130  # 128 + the signal number, as a shell reports it
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -297,8 +297,12 @@ def make_executor(
 
 
 def worker_init(parent_pid: int, blas: int) -> None:
-    """Initializer of every pool worker: ``blas`` BLAS threads (:mod:`flexstab.threads`), and end with
-    the parent (:func:`exit_with_parent`)."""
+    """Initializer of every pool worker: ``blas`` BLAS threads (:mod:`flexstab.threads`), SIGTERM's default
+    action (the pool stops its workers with it; the parent's handler, inherited by a fork, is the CLI's),
+    and end with the parent (:func:`exit_with_parent`)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     limit_blas_threads(blas)
     exit_with_parent(parent_pid)
 

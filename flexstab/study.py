@@ -62,6 +62,7 @@ chain of :data:`EXUDYN_CHAINS`.
 """
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -74,13 +75,13 @@ import time
 import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, Iterator, Optional, Sequence
 
 from flexstab.config import StudyConfig
 from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
 __all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash",
-           "validation_blocks"]
+           "validation_blocks", "folder_lock", "LOCK_FILE"]
 
 logger = logging.getLogger(__name__)
 
@@ -656,6 +657,62 @@ def render_report(out: Path) -> tuple[Path, Path]:
 
 
 # ----------------------------------------------------------------------------- driver
+#: The lock file of a study's output folder: holds the pid of the study writing there.
+LOCK_FILE = ".flexstab.lock"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path) -> Iterator[Path]:
+    """Hold ``out/.flexstab.lock`` (this process's pid) while the block runs: one study per folder.
+
+    A lock left by a process that no longer runs (killed with SIGKILL, a crashed machine) is stale:
+    it is replaced, with a log line.
+
+    Raises
+    ------
+    ValueError
+        Another running process holds the folder (one line naming it, its pid and the lock file).
+    """
+    path = Path(out) / LOCK_FILE
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid = int(path.read_text().split()[0])
+            except (OSError, ValueError, IndexError):
+                pid = -1
+            if pid > 0 and pid != os.getpid() and _pid_alive(pid):
+                raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (pid {pid}; "
+                                 f"lock file {path}): wait for it to finish or choose another --out") from None
+            logger.warning("removing the stale lock %s (pid %s is not running)", path, pid)
+            path.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{os.getpid()}\n")
+        break
+    else:  # pragma: no cover - another process took the stale lock between our two attempts
+        raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (lock file {path})")
+    try:
+        yield path
+    finally:
+        try:
+            if path.read_text().split()[0] == str(os.getpid()):
+                path.unlink()
+        except (OSError, IndexError):
+            pass
+
+
 def _prepare_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -737,6 +794,13 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")
     out = Path(opts.out)
     _prepare_out(out)
+    with folder_lock(out):
+        return _run_study(cfg, opts, stages, out, t0, c0)
+
+
+def _run_study(cfg: StudyConfig, opts: StudyOptions, stages: Sequence[str], out: Path, t0: float,
+               c0: float) -> StudyResult:
+    """:func:`run_study` in its locked output folder."""
     say = opts.log or (lambda line: None)
     chash = config_hash(cfg)
     code = _code_hash()
@@ -855,6 +919,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     pools: list = []
     helpers: list = []
     lane_error: list = []
+    stopping = threading.Event()
     if chains:
         import concurrent.futures as cf
         import multiprocessing
@@ -882,6 +947,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
                     try:
                         r, el, cpu = fut.result()
                     except Exception as exc:
+                        if stopping.is_set():  # the study was interrupted: its process was stopped, no failure
+                            return
                         failed(name, p[1], exc, time.perf_counter() - ts)
                     else:
                         finished(name, p[0], p[1], r, el, cpu)
@@ -897,7 +964,15 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
             run_here(name)
         for helper in helpers:
             helper.join()
-    except BaseException:
+    except BaseException as exc:
+        stopping.set()
+        # the manifest says how the run ended: Ctrl-C / SIGTERM (KeyboardInterrupt, see flexstab.cli) or an error
+        manifest.update({"status": "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed",
+                         "finished_at": _now(), "elapsed": time.perf_counter() - t0})
+        try:
+            write_manifest()
+        except OSError:
+            pass
         for pool in pools:  # interrupted: stop the other processes now, do not wait for their stages
             for proc in list(getattr(pool, "_processes", {}).values()):
                 proc.terminate()
