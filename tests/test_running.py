@@ -49,6 +49,7 @@ def _blas(argv, env_extra=None) -> dict:
     return json.loads(p.stderr.strip().splitlines()[-1])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: every BLAS runs one thread anyway")
 def test_one_blas_thread_per_process_by_default_and_overridable():
     """Without any environment variable the CLI and its pool workers run one BLAS thread (the BLAS
@@ -128,6 +129,7 @@ def _exudyn_banner() -> None:
         pass
 
 
+@pytest.mark.slow
 def test_json_stdout_holds_only_the_json_object(monkeypatch, capsys):
     import flexstab.commands.floquet as fq
 
@@ -177,6 +179,7 @@ def test_validation_failures_is_the_one_rule():
 
 
 # ----------------------------------------------------------------------------- JSON typing rule
+@pytest.mark.slow
 def test_gains_are_lists_in_every_command(capsys):
     assert cli_main(["floquet", "--kp", "2", "--kd", "1", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
