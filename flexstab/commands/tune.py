@@ -5,8 +5,6 @@ import argparse
 import logging
 import math
 import sys
-
-import numpy as np
 from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
@@ -24,6 +22,7 @@ def __getattr__(name: str):
 
         return getattr(flexstab.plants, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 if TYPE_CHECKING:
     from taguchi.tuning import TuningConfig
@@ -328,6 +327,8 @@ def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
         ``tuned_modulus`` (the dominant multiplier the tuning works on), and a one-line ``message``;
         ``None`` when the largest multiplier is a mode a drive moves.
     """
+    import numpy as np
+
     from linearize.analysis import analyze, drive_movable
 
     centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
