@@ -12,8 +12,7 @@ from pathlib import Path
 import pytest
 
 from flexstab.cli import main as cli_main
-from mbs_models.model_file import (DERIVATIVE_TOLERANCE, Drive, ModelFileError, build_model, check_derivatives,
-                                   load_model_file)
+from mbs_models.model_file import Drive, ModelFileError, build_model, load_model_file
 
 HEADER = textwrap.dedent("""
     import math
@@ -103,6 +102,8 @@ def _triangle(T: float):
 
 
 def test_non_smooth_motion_passes_at_declared_breakpoints_only():
+    from mbs_models.model_file import check_derivatives
+
     T = 1.0
     with pytest.raises(ModelFileError, match="q_t = .* not the time derivative"):
         check_derivatives(_drive(_triangle(T)), T)  # t = 0 and T/2 straddle the kinks
@@ -112,6 +113,8 @@ def test_non_smooth_motion_passes_at_declared_breakpoints_only():
 
 
 def test_motion_advancing_whole_turns_is_checked_like_a_periodic_one():
+    from mbs_models.model_file import check_derivatives
+
     T, w = 0.5, 2 * math.pi / 0.5
     check_derivatives(_drive(lambda t: (w * t + 0.1 * math.sin(w * t), w + 0.1 * w * math.cos(w * t),
                                         -0.1 * w**2 * math.sin(w * t))), T)
@@ -122,6 +125,8 @@ def test_motion_advancing_whole_turns_is_checked_like_a_periodic_one():
 def test_derivative_check_accepts_high_harmonics_within_its_error_bound():
     """The central difference's truncation error for harmonic k is (2 pi k h/T)^2/6 relative: for k = 40
     (1e-3 x 0.17) it is far inside DERIVATIVE_TOLERANCE, and a 1 % error in q_t is still rejected."""
+    from mbs_models.model_file import DERIVATIVE_TOLERANCE, check_derivatives
+
     T, k = 1.0, 40
     w = 2 * math.pi * k / T
 
