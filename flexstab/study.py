@@ -13,9 +13,9 @@ report can be traced to a file:
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers;
-7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
-   :mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
-   figures, and the cached results of ``scripts/two_link_study.py``.
+7. ``two_link`` -- the built-in two-link flexible arm (:mod:`flexstab.two_link_report`):
+   orbit, Floquet uncontrolled, four-gain Taguchi tuning with an independent check of the
+   tuned value, figures (full study only; ``--quick`` leaves it out unless named).
 
 Which Omega
 -----------
@@ -504,7 +504,7 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
 
 
 def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """The built-in two-link arm (issue 11): see :mod:`flexstab.two_link_report`."""
+    """The built-in two-link arm at the study Omega: see :mod:`flexstab.two_link_report`."""
     from flexstab.two_link_report import stage_two_link
 
     return stage_two_link(cfg, opts)
@@ -529,7 +529,7 @@ STAGE_TITLES: dict[str, str] = {
     "transients": "Transient responses",
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
-    "two_link": "Two-link flexible arm (issue 11)",
+    "two_link": "Two-link flexible arm",
 }
 
 
@@ -669,7 +669,8 @@ def _prepare_out(out: Path) -> None:
 EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
-#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: its tuning is
+#: ~20 s CPU on the idle machine).
 FULL_ONLY = ("two_link",)
 
 
@@ -775,11 +776,6 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
         if name == "validation":  # reads the gains tuned by the exudyn stage
             inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
-        if name == "two_link":  # reads the cached results of scripts/two_link_study.py
-            from flexstab.two_link_report import find_cache
-
-            c = find_cache(out)
-            inputs["cache"] = _file_sha(c) if c is not None else None
         ihash = _sha(_canonical(inputs))
         rec = _load_record(out, name)
         if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:
