@@ -335,7 +335,8 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
         table(["case", "Ω", "kp (N·m/rad)", "kd (N·m·s/rad)", "|ρ₁|", "measured ratio", "at",
                "relative difference"], rows),
     ]
-    blocks += [figure(f, "") for f in figs]
+    blocks += [figure(c["figure_file"], (f"Fig. {c['figure']}. " if c["figure"] is not None else "") + c["caption"])
+               for c in doc["cases"]]
     paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
     title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
