@@ -139,7 +139,8 @@ def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Op
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
-    ax.set_title(title or f"{orbit.model.name}: poses over one period, Ω = {orbit.omega:.4g} rad/s", fontsize=11)
+    ax.set_title(title or f"{orbit.model.name}: poses over one period, Ω = {orbit.omega / math.pi:.4g}π rad/s",
+                 fontsize=11)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="time", title_fontsize=8)
     return _save(fig, path, dpi=130)
 
@@ -195,7 +196,8 @@ def mode_title(orbit: Any, rho: complex, label: str, measured: Optional[tuple[co
         value = f"|ρ| = {abs(measured[0]):.6f} ({label}; {measured[1]})"
     else:
         value = f"|ρ| = {abs(rho):.4f} ({label})"
-    return f"{orbit.model.name}, Ω = {orbit.omega:.4g} rad/s: Floquet mode of {value}"
+    k = f"{orbit.omega / math.pi:.4g}"
+    return f"{orbit.model.name}, Ω = {'' if k == '1' else k}π rad/s: Floquet mode of {value}"
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ __all__ = [
     "OmegaChart",
     "gain_chart",
     "omega_chart",
+    "dominant_ylabel",
     "plot_gain_chart",
     "plot_omega_chart",
     "check_grid",
@@ -384,6 +385,12 @@ def _gain_text(g) -> str:
     if isinstance(g, (list, tuple)):
         return "(" + ", ".join(f"{v:.4g}" for v in g) + ")"
     return f"{g:.4g}"
+
+
+def dominant_ylabel(orbit) -> str:
+    """Axis label of a model's dominant multiplier: the drive modes, and the first bending mode only when
+    the model has beams (ANCF slope nodes; a rigid arm has no bending mode)."""
+    return f"dominant |ρ| ({'drive modes / bending 1' if orbit.slope_nodes else 'drive modes'})"
 
 
 def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model",

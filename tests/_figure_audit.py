@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import re
+from types import SimpleNamespace
 from typing import Iterator
 
 import matplotlib
@@ -115,12 +116,15 @@ def audit(fig: Figure, *, min_points: float = 8.0, pad: float = 1.0) -> list[str
 
 @contextlib.contextmanager
 def capture() -> Iterator[list]:
-    """Collect ``(figure, path)`` of every ``Figure.savefig`` inside the block, with its :func:`audit`."""
+    """Collect one record per ``Figure.savefig`` inside the block: ``path``, ``defects`` (:func:`audit`) and
+    ``texts`` (every drawn text, for checks of what a figure says)."""
     saved: list = []
     original = Figure.savefig
 
     def savefig(self, fname, *args, **kwargs):
-        saved.append((str(fname), audit(self)))
+        defects = audit(self)
+        texts = [t.get_text() for t, _ in _drawn_texts(self)]
+        saved.append(SimpleNamespace(path=str(fname), defects=defects, texts=texts))
         return original(self, fname, *args, **kwargs)
 
     Figure.savefig = savefig

@@ -174,8 +174,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     import dataclasses
     import hashlib
 
-    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
-                                 plot_omega_chart)
+    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, dominant_ylabel, gain_chart, omega_chart,
+                                 plot_gain_chart, plot_omega_chart)
     from flexstab.executor import make_executor
     from flexstab.options import resolve_model_definition
     from flexstab.plants import is_hill_model
@@ -285,10 +285,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     if gc is not None:
         figures.append(str(plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label,
                                            drive="" if nd == 1 else charted)))
-    # a rigid model has no bending modes: its dominant multiplier is a drive mode's
-    modes = "drive modes / bending 1" if plants.linearised(omega)[0].slope_nodes else "drive modes"
     figures.append(str(plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                                        ylabel=f"dominant |ρ| ({modes})")))
+                                        ylabel=dominant_ylabel(plants.linearised(omega)[0]))))
     summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
                "tuned": ({"kp": tuned.kp, "kd": tuned.kd, "response": tuned.spectral_radius, "status": tuned.status,
