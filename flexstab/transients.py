@@ -231,12 +231,15 @@ def _caption(case: Case, res: dict, with_forcing: bool) -> str:
     n_plot, n_meas = s["periods_plotted"], s["periods_measured"]
     window = ("the last plotted period" if n_meas == n_plot
               else f"period {n_meas} of {n_meas} integrated (the first {n_plot} are plotted)")
+    k_text = (f"k = {n_meas - 1}, the last plotted period" if n_meas == n_plot
+              else f"k = {n_meas - 1}, integrated beyond the {n_plot} plotted periods")
     return (
         f"{what} Top: hub-angle perturbation y₁ and tip deflection X₁y₂; bottom: their magnitudes on a log scale; "
         f"thin vertical lines mark the periods. Dashed: the envelope ±C·ρ₁^(t/T) of the dominant Floquet multiplier "
         f"ρ₁ = {s['dominant_multiplier'][0]:.6g}{printed}, with C fitted over {window}. Measured growth per period "
-        f"‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at k = {n_meas - 1} "
-        f"({_signed_percent(s['last_ratio_relative_error'])} relative to ρ₁)."
+        f"‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at {k_text} "
+        f"({_signed_percent(s['last_ratio_relative_error'])} relative to ρ₁; it tends to ρ₁ like |ρ₂/ρ₁|^k, "
+        f"{_ratio_text(s)})."
     )
 
 
