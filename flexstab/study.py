@@ -442,7 +442,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
     else the reference gains (see the module docstring).  Measurement:
-    :func:`validation.multipliers.validate_link_multipliers` (issue 10): the one-period map of the
+    :func:`validation.multipliers.validate_link_multipliers`: the one-period map of the
     nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
     linearisation within the measurement's own error bar.
     """
