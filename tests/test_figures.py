@@ -169,3 +169,19 @@ def test_two_link_mode_and_pose_figures_have_labelled_axes_with_units_and_a_stat
     assert 0.05 < mf.scale_m < 0.1  # 8 % of the arm's reach (0.9 m)
     assert any(f"drawn as {mf.scale_m:.3g} m" in t for t in saved[0].texts)  # the scale is on the figure
     assert sum(t == "x (m)" for t in saved[0].texts) >= 1 and sum(t == "y (m)" for t in saved[0].texts) >= 1
+
+
+def test_two_link_gain_slices_keep_the_colour_bar_label_clear_of_the_title(tmp_path):
+    """The colour-bar label '|rho| dominant (drive / bending-1 modes; clipped at 1.5)' ran into the title."""
+    from flexstab.two_link import TUNING_RANGES, GainSlices, plot_gain_slices
+
+    def grid(r):
+        return tuple(np.linspace(*r, 9))
+
+    x = np.add.outer(np.linspace(0, 1, 9), np.linspace(0, 1, 9))
+    sl = GainSlices(kp_grid=(grid(TUNING_RANGES[0]), grid(TUNING_RANGES[2])),
+                    kd_grid=(grid(TUNING_RANGES[1]), grid(TUNING_RANGES[3])), shoulder=x, elbow=0.5 * x,
+                    fixed=(15.0, 8.9, 7.1, 1.4))
+    with capture() as saved:
+        plot_gain_slices(sl, tmp_path / "slices.png")
+    assert saved[0].defects == [], saved[0].defects
