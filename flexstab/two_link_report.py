@@ -123,6 +123,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     """
     from flexstab.arm_figures import plot_floquet_mode, plot_poses
     from flexstab.plants import whole_spectrum
+    from flexstab.study import _pi
     from flexstab.two_link import TUNING_RANGES, tune_four_gains, two_link_floquet
 
     out = Path(opts.out)
@@ -215,9 +216,3 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
         blocks.insert(2, text(f"**Tuning did not reach ρ_d:** {tuned.message}."))
     return {"json": "two_link.json", "title": f"Two-link flexible arm at Ω = {_pi(omega)} rad/s", "blocks": blocks,
             "files": ["two_link.json", poses, mode_png]}
-
-
-def _pi(omega: float) -> str:
-    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
-    k = f"{omega / math.pi:.4g}"
-    return "π" if k == "1" else f"{k}π"
