@@ -81,6 +81,7 @@ BUILTIN_MODELS = {
     "single-link": "single_link.py",
     "two-link": "two_link.py",
     "laval-rotor": "laval_rotor.py",
+    "slider-crank": "slider_crank.py",
 }
 
 #: A drive's motion must satisfy ``|motion(t + T) - motion(t)| <=`` this times
