@@ -20,6 +20,14 @@ import pytest
 
 from flexstab.cli import main as cli_main
 
+@pytest.fixture
+def stub_model_file(tmp_path, monkeypatch):
+    """A file ``x.py`` in the working folder: the CLI checks that a model file exists before it imports
+    anything; the tests stub what would be built from it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.py").write_text("def build(mbs, omega):\n    return []\n")
+
+
 REL = 1e-12
 RANGES = ["--kp-range", "0", "30", "--kd-range", "0", "10"]
 
@@ -151,7 +159,7 @@ def test_chart_plants_are_an_explicit_cache_shared_by_the_tasks(tmp_path):
 
 
 @pytest.mark.parametrize("tty", [True, False])
-def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path, monkeypatch, capsys):
+def test_progress_rule_is_the_same_for_tune_chart_and_study_model(stub_model_file, tty, tmp_path, monkeypatch, capsys):
     """tqdm bars on a terminal stderr, none otherwise, for all three commands (``study --model`` once had it
     inverted: bars off on a terminal); on a non-terminal the study prints one line per stage event instead.
     The commands' work is stubbed: only the flag each passes on is recorded."""
@@ -189,4 +197,10 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path,
     assert cli_main(["chart", "--model", "x.py", "--out", str(tmp_path)]) == 0
     assert cli_main(["tune", "--model", "x.py"]) == 1
     assert cli_main(["study", "--model", "x.py", "--out", str(tmp_path)]) == 0
-    assert seen == {"chart": tty, "tune": tty, "study": (tty, tty)}
+    # the progress rule (flexstab.progress.progress_bars): tqdm bars on a terminal, one line per step otherwise
+    from flexstab.progress import LineProgress
+
+    assert set(seen) == {"chart", "tune", "study"}
+    for name in ("chart", "tune"):
+        assert (seen[name].func is not LineProgress) == tty, name
+    assert (seen["study"][0].func is not LineProgress) == tty and seen["study"][1] == tty

@@ -278,8 +278,9 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
-    from flexstab.plants import MAX_TUNING_STEPS
     from taguchi.tuning import recentre, taguchi_tune
+
+    MAX_TUNING_STEPS = sys.modules[__name__].MAX_TUNING_STEPS  # the re-export (patchable in tests)
 
     from linearize.hill_plant import HillModelPlant
 
@@ -387,7 +388,6 @@ def tune_report(args: argparse.Namespace) -> dict:
         if model_file:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
     from flexstab.executor import make_executor
-    from flexstab.plants import plant_choice_for, whole_spectrum
     from linearize.hill_plant import HillModelPlant
     from stability import floquet
     from taguchi.direct import direct_tune
@@ -400,7 +400,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
-        choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        choice = sys.modules[__name__].plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
         unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         if unreachable is not None:
@@ -441,7 +441,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     out["kp"], out["kd"] = kp, kd
     gains_as_lists(out)  # the JSON typing rule: one value per drive, a list also for one drive
     if model_file and getattr(plant, "orbit", None) is not None:
-        out.update(whole_spectrum(plant.orbit, omega, kp, kd))
+        out.update(sys.modules[__name__].whole_spectrum(plant.orbit, omega, kp, kd))
     if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap
         out["propagator_choice"] = steps_choice.to_dict()
     if hill:
