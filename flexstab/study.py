@@ -13,9 +13,9 @@ report can be traced to a file:
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers;
-7. ``two_link`` -- the built-in two-link flexible arm
-   (:mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
-   figures, and the cached results of ``scripts/two_link_study.py``.
+7. ``two_link`` -- the built-in two-link flexible arm (:mod:`flexstab.two_link_report`):
+   orbit, Floquet uncontrolled, four-gain Taguchi tuning with an independent check of the
+   tuned value, figures (full study only; ``--quick`` leaves it out unless named).
 
 Which Omega
 -----------
@@ -336,7 +336,8 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
         table(["case", "Ω", "kp (N·m/rad)", "kd (N·m·s/rad)", "|ρ₁|", "measured ratio", "at",
                "relative difference"], rows),
     ]
-    blocks += [figure(f, "") for f in figs]
+    blocks += [figure(c["figure_file"], (f"Fig. {c['figure']}. " if c["figure"] is not None else "") + c["caption"])
+               for c in doc["cases"]]
     paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
     title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
@@ -507,7 +508,7 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
 
 
 def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """The built-in two-link arm: see :mod:`flexstab.two_link_report`."""
+    """The built-in two-link arm at the study Omega: see :mod:`flexstab.two_link_report`."""
     from flexstab.two_link_report import stage_two_link
 
     return stage_two_link(cfg, opts)
@@ -729,7 +730,8 @@ def _prepare_out(out: Path) -> None:
 EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
-#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: its tuning is
+#: ~20 s CPU on the idle machine).
 FULL_ONLY = ("two_link",)
 
 
@@ -757,8 +759,7 @@ def _preload(stages: Sequence[str]) -> None:
         from taguchi.arrays import available_arrays
 
         available_arrays()  # loads and verifies the catalogue (imports pydoe -> scipy.stats) once
-    # the compiled Floquet kernel (numba's on-disk cache, ~1 s CPU to load): every stage's reduced-model
-    # and small-system Floquet runs use it; loaded once here instead of once per process
+    # the Floquet engine's modules, imported and run once here instead of once per process
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 
@@ -842,11 +843,6 @@ def _run_study(cfg: StudyConfig, opts: StudyOptions, stages: Sequence[str], out:
         inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
         if name == "validation":  # reads the gains tuned by the exudyn stage
             inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
-        if name == "two_link":  # reads the cached results of scripts/two_link_study.py
-            from flexstab.two_link_report import find_cache
-
-            c = find_cache(out)
-            inputs["cache"] = _file_sha(c) if c is not None else None
         ihash = _sha(_canonical(inputs))
         rec = _load_record(out, name)
         if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:

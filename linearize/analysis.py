@@ -58,11 +58,14 @@ PROPAGATOR_WARNING = 1e-4
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
 #: A mode carries a drive's name, and counts as one the drives can move, only when that drive's share
-#: in it (:func:`_drive_shares`: ``|c^T z|^2 / ((c^T M^-1 c)(z^H M z))`` in [0, 1], the fraction of the
-#: mode's kinetic-energy norm a unit generalised force on the drive coordinate can reach) is at least
-#: this.  A mode decoupled from every drive (share 0 to rounding, e.g. the lateral modes of a chain
-#: driven axially) is out of reach of PD gains on the drives; 5 % keeps the weakly coupled ones.
-DRIVE_SHARE_THRESHOLD = 0.05
+#: in it (:func:`_drive_shares`: ``|c^T z|^2 / ((c^T M^-1 c)(z^H M z))`` in [0, 1], a squared cosine:
+#: the fraction of the mode's kinetic-energy norm a unit generalised force on the drive coordinate can
+#: reach) is at least this.  A mode decoupled from every drive (e.g. the lateral modes of a chain driven
+#: axially) has a share at rounding level (<= 1e-20); a mode the drive moves through a heavy structure
+#: can have a small one (the single link's hub mode at 2 ANCF elements: 1.7e-3, because the link's
+#: nodal coordinates carry most of the kinetic energy), so the threshold separates "decoupled" from
+#: "weakly coupled": a cosine of 1e-4.
+DRIVE_SHARE_THRESHOLD = 1e-8
 
 
 @frozen_result

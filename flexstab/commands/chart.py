@@ -191,8 +191,8 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     import dataclasses
     import hashlib
 
-    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
-                                 plot_omega_chart)
+    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, dominant_ylabel, gain_chart, omega_chart,
+                                 plot_gain_chart, plot_omega_chart)
     from flexstab.executor import make_executor
     from flexstab.options import resolve_model_definition
     from flexstab.plants import is_hill_model
@@ -304,7 +304,7 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
         figures.append(str(plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label,
                                            drive="" if nd == 1 else charted)))
     figures.append(str(plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                                        ylabel="dominant |ρ| (drive modes / bending 1)")))
+                                        ylabel=dominant_ylabel(plants.linearised(omega)[0]))))
     summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
                # kp, kd: every drive's gains (the JSON typing rule), the charted drive's tuned, the others fixed

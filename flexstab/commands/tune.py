@@ -253,9 +253,6 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
 RESTART_WIDTH = 0.25
 
 
-_pairs = gain_pairs  # former private name
-
-
 def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
                      progress: Any = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
@@ -331,7 +328,10 @@ def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
     import numpy as np
 
     from linearize.analysis import analyze, drive_movable
+    from linearize.periodic_orbit import PeriodicOrbit
 
+    if not isinstance(orbit, PeriodicOrbit):
+        return None  # a plant without a model-file orbit (e.g. a stand-in): nothing to label
     centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
     n = len(orbit.drive_names)
     kp, kd = centre[0::2], centre[1::2]
@@ -400,9 +400,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
+        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         choice = sys.modules[__name__].plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
-        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         if unreachable is not None:
             print(f"flexstab tune: {unreachable['message']}", file=sys.stderr, flush=True)
     else:
@@ -589,9 +589,12 @@ def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
 def check_failure(d: dict) -> Optional[str]:
     """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
 
-    Not accepted: the tuning did not converge, or the independent re-check at the tuned gains
+    Not accepted: the tuning did not converge (it stopped early as unreachable or stalled: its message,
+    :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
     (``verified_spectral_radius``, by ``verified_method``) lies outside ``rho_d +- tolerance``.
     """
+    if d.get("status") in ("target unreachable", "search stalled"):  # the message is the one line
+        return d["message"]
     if not d["converged"]:
         return f"not converged: {d['message']}"
     v = d.get("verified_spectral_radius")
