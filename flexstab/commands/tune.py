@@ -498,7 +498,10 @@ def _response_name(d: dict) -> str:
 
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "robust", False):
-        d = robust_report(args)
+        from flexstab.progress import progress_log
+
+        with progress_log("flexstab.robust", "tune"), progress_log("taguchi.robust", "tune"):  # stages, on stderr
+            d = robust_report(args)
         with result_output(args):
             if args.json:
                 dump_json(d, sys.stdout)
