@@ -137,6 +137,7 @@ class ModelFloquetResult:
             "drives": list(self.drives),
             "orbit_residual": self.orbit_residual,
             "shooting_residual": float(self.orbit.shooting_residual),
+            "turns": self.orbit.summary()["turns"],
             "samples": self.orbit.samples,
             "ode2": self.orbit.size,
             "independent_coordinates": self.linearization.size,

@@ -163,6 +163,9 @@ def _table(d: dict) -> str:
             f"orbit residual {d['orbit_residual']:.1e} (shooting check {d['shooting_residual']:.1e}), "
             f"{d['samples']} samples, {d['ode2']} Exudyn coordinates -> {d['independent_coordinates']} independent",
         ]
+        if d.get("turns"):
+            lines.append("periodic up to whole turns per period: "
+                         + ", ".join(f"{k} {v:+d}" for k, v in d["turns"].items()))
     elif d["model"] == "exudyn":
         lines += [
             f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
