@@ -265,7 +265,7 @@ def gain_chart(
     store: Path,
     *,
     target: Optional[float] = None,
-    progress: bool = False,
+    progress: Any = False,
 ) -> GainChart:
     """Evaluate ``task({"omega", "kp", "kd"})`` on the grid ``kd x kp`` (resumable via ``store``)."""
     kp = np.asarray(kp, dtype=float)
@@ -284,7 +284,7 @@ def omega_chart(
     executor,
     store: Path,
     *,
-    progress: bool = False,
+    progress: Any = False,
 ) -> OmegaChart:
     """max|rho| against Omega with zero gains and with ``(kp, kd)`` (resumable via ``store``).
 

@@ -98,6 +98,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from stability.floquet import FloquetError
+from stability.frozen import frozen_result
 from stability.hill import HillError
 from stability.modal import ModalBasisError
 from taguchi.analysis import TaguchiAnalysis, analyze, is_constant
@@ -461,6 +462,7 @@ class NamedGains:
         return self.gains[self.names.index(key)]
 
 
+@frozen_result(repr=False)
 @dataclass(frozen=True)
 class TaguchiResult(NamedGains):
     """Outcome of :func:`taguchi_tune`.
@@ -564,9 +566,6 @@ def recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[
     return (lo, hi)
 
 
-_recentre = recentre  # former private name, kept for callers on other branches
-
-
 class _Guarded:
     """``point -> (response, None)``, or ``(nan, "ErrorType: message")`` when the objective raises one of
     :data:`RUN_FAILURES` (picklable if the objective is)."""
@@ -594,7 +593,7 @@ def taguchi_tune(
     config: TuningConfig = TuningConfig(),
     *,
     executor: Optional[cf.Executor] = None,
-    progress: bool = False,
+    progress: Any = False,
 ) -> TaguchiResult:
     """Tune the factors so that ``objective(gains) = max|rho|`` reaches ``config.target``.
 
@@ -607,8 +606,9 @@ def taguchi_tune(
     config : TuningConfig
     executor : concurrent.futures.Executor, optional
         Runs the array's rows; default serial in this process.
-    progress : bool
-        Show a tqdm bar over iterations.
+    progress : bool or callable
+        Show a tqdm bar over iterations, or a bar of this factory ``progress(total=, desc=, unit=)``
+        (an object with tqdm's ``update`` and ``close``).
 
     Returns
     -------
@@ -646,9 +646,13 @@ def taguchi_tune(
 
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        bar_options = {"total": config.max_evaluations, "desc": f"Taguchi rho_d={target:g}", "unit": "eval"}
+        if callable(progress):  # a bar factory (one line per iteration on a pipe, see flexstab.progress)
+            bar = progress(**bar_options)
+        else:
+            from tqdm.auto import tqdm
 
-        bar = tqdm(total=config.max_evaluations, desc=f"Taguchi rho_d={target:g}", unit="eval", leave=False)
+            bar = tqdm(**bar_options, leave=False)
     try:
         while evaluations + n_runs + 1 <= config.max_evaluations:
             lv_values = [_levels(r, s) for r, s in zip(rngs, oa.levels)]
