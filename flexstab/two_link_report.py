@@ -146,7 +146,8 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
                             "response": tuned.spectral_radius, "tolerance": tol,
                             "evaluations": tuned.evaluations, "iterations": len(tuned.iterations),
                             "cpu_seconds": tune_cpu},
-                 "tuned_gains": g, "check": dict(check, confirmed=confirmed)}
+                 "tuned_gains": g, "gains_source": "Taguchi tuning in this stage (tuning)",
+                 "check": dict(check, confirmed=confirmed)}
     for label, fl in (("uncontrolled", unc), ("tuned", ctl)):
         row[label] = {
             "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
@@ -170,7 +171,8 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     mode_fig = plot_floquet_mode(res, out / mode_png, measured=measured)
     row["tuned"]["mode_figure"] = {"file": mode_png, "modulus": abs(ctl.measure.dominant), "method": measured[1],
                                    "deformation_scale_m": mode_fig.scale_m}
-    doc = {"rows": [row], "figures": [poses, mode_png]}
+    # "cache" stays for readers of earlier files: the stage reads no cached results (always null)
+    doc = {"omegas_over_pi": [k], "cache": None, "rows": [row], "figures": [poses, mode_png]}
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
     t = row["tuning"]
     names = ", ".join(tuned.names)
