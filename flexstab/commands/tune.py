@@ -592,12 +592,10 @@ def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
 def check_failure(d: dict) -> Optional[str]:
     """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
 
-    Not accepted: the tuning did not converge (it stopped early as unreachable or stalled: its message,
-    :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
+    Not accepted: the tuning did not converge (e.g. it stopped early as unreachable or stalled, its
+    message says why: :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
     (``verified_spectral_radius``, by ``verified_method``) lies outside ``rho_d +- tolerance``.
     """
-    if d.get("status") in ("target unreachable", "search stalled"):  # the message is the one line
-        return d["message"]
     if not d["converged"]:
         return f"not converged: {d['message']}"
     v = d.get("verified_spectral_radius")
