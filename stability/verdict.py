@@ -193,7 +193,7 @@ def _distinct(labels: Optional[Sequence[str]], idx: Sequence[int]) -> tuple:
 
 def _named(label: Optional[str], freq: Optional[float]) -> str:
     if label is None:
-        return "the largest multiplier"
+        return ""
     if freq is not None and math.isfinite(freq) and freq > 0:
         f = f"{freq / 1e3:.3g} kHz" if freq >= 1e3 else f"{freq:.3g} Hz"
         return f"{label} ({f})"
@@ -274,19 +274,19 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
     name = _named(label, freq)
     if verdict == VERDICT_STABLE:
         message = (f"asymptotically stable: every multiplier decays by a factor e within {decay_periods:g} "
-                   f"periods; the slowest, {name}, |rho| = {rho:.6g} +- {err:.1g}, decays by e in "
+                   f"periods; the slowest{', ' + name if name else ''}, |rho| = {rho:.6g} +- {err:.1g}, decays by e in "
                    f"{_periods_to_decay(rho):.3g} periods ({margin:.3g} below the threshold {r_star:.6g})")
     elif verdict == VERDICT_UNSTABLE:
         what = f" ({_listing(g_labels)})" if g_labels else ""
         message = (f"unstable: {len(growing)} of {n} multipliers grow{what}; spectral radius {rho:.6g} +- "
-                   f"{err:.1g} ({name})")
+                   f"{err:.1g}" + (f" ({name})" if name else ""))
     else:
         what = f" ({_listing(u_labels)})" if u_labels else ""
         decay = _periods_to_decay(rho)
         slow = (f"decays by e only in {decay:.3g} periods" if math.isfinite(decay) else "does not decay")
         message = (f"critical: {len(undamped)} of {n} multipliers are practically undamped{what}: |rho| + error "
                    f"> {r_star:.6g} (no certified decay by e within {decay_periods:g} periods); spectral radius "
-                   f"{rho:.10g} +- {err:.1g} ({name}) {slow}")
+                   f"{rho:.10g} +- {err:.1g}" + (f" ({name})" if name else "") + f" {slow}")
     return Verdict(verdict=verdict, spectral_radius=rho, spectral_radius_error=err, spectral_radius_label=label,
                    spectral_radius_frequency_hz=freq, threshold=r_star, decay_periods=float(decay_periods),
                    periods_to_decay=_periods_to_decay(rho), margin=margin, n_multipliers=n, undamped=undamped,

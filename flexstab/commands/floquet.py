@@ -88,6 +88,10 @@ def floquet_report(args: argparse.Namespace) -> dict:
         }
     )
     out.update(res.to_dict())
+    if "verdict_detail" not in out:  # the reduced model: no mode labels
+        from stability.verdict import judge_floquet
+
+        out["verdict_detail"] = judge_floquet(res).to_dict()
     return out
 
 
@@ -145,6 +149,7 @@ def _table(d: dict) -> str:
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
+        f"verdict          {d['verdict_detail']['message']}",
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
