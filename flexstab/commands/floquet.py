@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, gain_list, non_negative_float
+from flexstab.options import add_damping_option, add_model_options, dump_json, gain_list, non_negative_float, resolve_damping
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -31,10 +31,11 @@ def register(sub) -> None:
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    add_damping_option(p)
     p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
-                   help="structural bending damping of the ANCF elements (Exudyn's bendingDamping; default 0)")
+                   help="added to --damping: Exudyn's bendingDamping of the ANCF elements (N m^2 s; default 0)")
     p.add_argument("--axial-damping", type=non_negative_float, default=0.0,
-                   help="structural axial damping of the ANCF elements (Exudyn's axialDamping; default 0)")
+                   help="added to --damping: Exudyn's axialDamping of the ANCF elements (N s; default 0)")
     p.add_argument("--small-multipliers", choices=["flag", "qr"], default="flag",
                    help="multipliers below the rounding floor of the product: flag them (default) or "
                         "compute their moduli accurately by QR sweeps (log_moduli)")
@@ -59,10 +60,10 @@ def floquet_report(args: argparse.Namespace) -> dict:
     if args.samples is not None:
         raise ValueError("--samples applies to model files only")
     out: dict = {"model": args.model}
+    damping = resolve_damping(args, cfg)
     if args.model == "reduced":
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
-                                                ("--bending-damping", args.bending_damping != 0.0),
-                                                ("--axial-damping", args.axial_damping != 0.0)) if given]
+                                                ("--damping", damping.given)) if given]
         if exudyn_only:
             raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only")
         from mbs_models.reduced import ReducedModel
@@ -73,12 +74,17 @@ def floquet_report(args: argparse.Namespace) -> dict:
     else:
         from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
 
+        from mbs_models.damping import material_damping_values
+
         elements = args.elements if args.elements is not None else cfg.elements
-        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
-                            bending_damping=args.bending_damping, axial_damping=args.axial_damping)
+        p = cfg.manipulator
+        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
+                                                 damping.bending, damping.axial)
+        ex = exudyn_floquet(p, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
+                            bending_damping=bending, axial_damping=axial)
         res = ex.floquet
         out.update(ex.summary())
-        out.update({"bending_damping": args.bending_damping, "axial_damping": args.axial_damping})
+        out.update({"bending_damping": bending, "axial_damping": axial, "damping": damping.to_dict()})
     out.update(
         {
             "omega": omega,
@@ -101,8 +107,8 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from flexstab.options import resolve_model_definition
 
-    model, options = resolve_model_definition(args.model, cfg, args.elements, bending_damping=args.bending_damping,
-                                              axial_damping=args.axial_damping)
+    damping = resolve_damping(args, cfg)
+    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
                   small_multipliers=args.small_multipliers, **options)
@@ -110,6 +116,7 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
     out.update(res.summary())
     out["model"] = args.model
     out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
+    out["damping"] = damping.to_dict()
     out.update(res.floquet.to_dict())
     return out
 
