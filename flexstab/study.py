@@ -15,7 +15,12 @@ report can be traced to a file:
    against the predicted multipliers;
 7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
    :mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
-   figures, and the cached results of ``scripts/two_link_study.py``.
+   figures, and the cached results of ``scripts/two_link_study.py``;
+8. ``sensitivity`` -- the verdict of the whole closed loop (:mod:`stability.verdict`) at the
+   reference gains for 2, 4, 8 ANCF elements (``quick``: 2, 4), without and with structural damping.
+
+The report opens with the verdict block (:mod:`flexstab.verdict_report`): uncontrolled, tuned and
+nonlinear check, in words and numbers (also the ``verdict`` key of ``study.json``).
 
 Which Omega
 -----------
@@ -157,6 +162,8 @@ def config_dict(cfg: StudyConfig) -> dict:
         "kp_range": list(cfg.kp_range),
         "kd_range": list(cfg.kd_range),
         "elements": cfg.elements,
+        # structural damping only when set (the hash of an undamped study's configuration is unchanged)
+        **({"damping": cfg.damping.to_dict()} if getattr(cfg.damping, "given", False) else {}),
     }
 
 
@@ -379,6 +386,11 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
             tuned = taguchi_tune(GainObjective(plant), tcfg)
             tuned_dominant, loop = tuned.spectral_radius, plant
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
+    # ---- verdicts of the whole closed loop (stability.verdict; the verdict block of the report reads them)
+    verdicts = {"verdict_uncontrolled": _whole_loop_verdict(ef.linearization, 0.0, 0.0),
+                "verdict_reference": ef.verdict.to_dict(),
+                "verdict_tuned": _whole_loop_verdict(ef.linearization, tuned.kp, tuned.kd)}
+    # ---- end of the verdicts
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "samples": samples,
         "target": cfg.target,
@@ -399,6 +411,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
         # tuned gains (tuned_dominant is always at the plant's full count, plant.n_steps)
         "tuning_propagator_steps": loop.n_steps, "propagator_steps": plant.n_steps,
         "tuning_step_doubling_estimate": step_check,
+        **verdicts,
     }
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
@@ -426,6 +439,76 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
              f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
     ]
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
+
+
+# ----------------------------------------------------------------------------- verdicts (stability.verdict)
+#: Kelvin-Voigt loss time (s) of the damped rows of the sensitivity stage (mbs_models.damping: zeta ~ 1e-3 at
+#: 30 Hz, the order of the material damping of a metal beam's lowest modes).
+SENSITIVITY_DAMPING = 1e-5
+
+
+def _whole_loop_verdict(lin, kp: float, kd: float, steps: int = 512) -> dict:
+    """:func:`stability.verdict.judge_floquet` of the whole Exudyn linearisation at ``(kp, kd)`` (frozen-modal
+    frame, extrapolated), with the mode labels, as a dict."""
+    from linearize.link_floquet import classify_multipliers
+    from stability.modal import modal_floquet
+    from stability.verdict import judge_floquet
+
+    sys_ = lin.with_gains(kp, kd)
+    res = modal_floquet(sys_, method="magnus2", n_steps=steps, accuracy="moduli", extrapolate=True)
+    modes = classify_multipliers(sys_, res)
+    return judge_floquet(res, labels=[m["mode"] for m in modes],
+                         frequencies=[m["frequency_hz"] for m in modes]).to_dict()
+
+
+def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
+    """The verdict's sensitivity to the mesh (2/4/8 elements; 2/4 in quick mode) and to structural damping
+    (none, and ``SENSITIVITY_DAMPING``) at the reference gains, Exudyn link."""
+    from linearize.link_floquet import exudyn_floquet
+    from mbs_models.damping import material_damping_values
+
+    kp, kd, source = _reference_gains(cfg, opts)
+    p = cfg.manipulator
+    meshes = (2, 4) if opts.quick else (2, 4, 8)
+    rows = []
+    base = cfg.damping if getattr(cfg.damping, "given", False) else None
+    dampings = [("none", 0.0, 0.0)]
+    b, a = material_damping_values(SENSITIVITY_DAMPING, p.bending_stiffness, p.axial_stiffness)
+    dampings.append((f"β = {SENSITIVITY_DAMPING:g} s", b, a))
+    if base is not None:
+        b, a = material_damping_values(base.material, p.bending_stiffness, p.axial_stiffness, base.bending, base.axial)
+        dampings.append((f"configured: {base.describe()}", b, a))
+    for e in meshes:
+        orbit = None
+        for name, b, a in dampings:
+            ex = exudyn_floquet(p, omega=cfg.omega, kp=kp, kd=kd, elements=e, samples=16 if opts.quick else 32,
+                                bending_damping=b, axial_damping=a, verify_orbit=False,
+                                orbit=orbit if (b == 0.0 and a == 0.0) else None)
+            if b == 0.0 and a == 0.0:
+                orbit = ex.orbit
+            v = ex.verdict.to_dict()
+            rows.append({"elements": e, "damping": name, "bending_damping": b, "axial_damping": a,
+                         "verdict": v["verdict"], "spectral_radius": v["spectral_radius"],
+                         "spectral_radius_mode": v["spectral_radius_mode"], "undamped_count": v["undamped_count"],
+                         "margin": v["margin"], "message": v["message"],
+                         "dominant_modulus": float(abs(ex.dominant_multiplier))})
+    (opts.out / "sensitivity.json").write_text(json.dumps({"rows": rows, "kp": kp, "kd": kd, "gains_source": source},
+                                                          indent=2))
+    blocks = [
+        text(f"The verdict of the whole closed loop (every multiplier, rule of `docs/verdicts.md`) at the reference "
+             f"gains ({source}: kp = {kp:.4f}, kd = {kd:.4f}) for {', '.join(map(str, meshes))} ANCF elements, "
+             f"without structural damping and with a Kelvin-Voigt loss time β (bendingDamping = β EI, "
+             f"axialDamping = β EA; `--damping`). Without damping the mesh modes of the link stay on the unit "
+             "circle up to their weak coupling with the hub and the verdict is critical at every mesh; with "
+             "damping they decay and the hub sets the spectral radius."),
+        table(["elements", "damping", "verdict", "spectral radius (mode)", "undamped multipliers",
+               "dominant |ρ| (hub, bending 1)"],
+              [[r["elements"], r["damping"], r["verdict"], f"{r['spectral_radius']:.10g} ({r['spectral_radius_mode']})",
+                r["undamped_count"], f"{r['dominant_modulus']:.5f}"] for r in rows]),
+    ]
+    return {"json": "sensitivity.json", "title": f"Verdict sensitivity to mesh and damping at Ω = {_w(cfg.omega)}",
+            "blocks": blocks}
+# ----------------------------------------------------------------------------- end of verdicts
 
 
 def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
@@ -519,6 +602,7 @@ STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
     "exudyn": _stage_exudyn,
     "validation": _stage_validation,
     "two_link": _stage_two_link,
+    "sensitivity": _stage_sensitivity,
 }
 
 #: Section titles (a stage's own title may name the Omega or the paper's table).
@@ -530,6 +614,7 @@ STAGE_TITLES: dict[str, str] = {
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
     "two_link": "Two-link flexible arm (issue 11)",
+    "sensitivity": "Verdict sensitivity to mesh and damping",
 }
 
 
@@ -645,6 +730,12 @@ def render_report(out: Path) -> tuple[Path, Path]:
              f"{manifest.get('elapsed', float('nan')):.1f} s."
              + (f" Reused from an earlier run with the same inputs: {', '.join(reused)}." if reused else "")),
     ]
+    # ---- the verdict block (flexstab.verdict_report): first section of the report
+    from flexstab.verdict_report import verdict_blocks, verdict_summary
+
+    computed = {k for k, e in manifest["stages"].items() if e.get("status") in ("computed", "reused")}
+    sections.insert(0, ("Verdict", verdict_blocks(verdict_summary(out, omega, computed))))
+    # ---- end of the verdict block
     title = "flexstab study report"
     md_path, html_path = out / "report.md", out / "report.html"
     md_path.write_text(to_markdown(title, preamble, sections))
@@ -666,7 +757,7 @@ def _prepare_out(out: Path) -> None:
 #: Chains of stages that each run in a process of their own beside this one when the study runs on
 #: several processes (``jobs >= 2``): the Exudyn chain (``validation`` reads the gains ``exudyn``
 #: tuned) and the independent two-link section.  Only those processes import Exudyn.
-EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
+EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link", "sensitivity"))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
 #: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
@@ -903,7 +994,11 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed, "cpu": cpu})
     write_manifest()
     md, ht = render_report(out)
-    (out / "study.json").write_text(json.dumps({"elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
+    from flexstab.verdict_report import verdict_summary
+
+    computed = {k for k, e in entries.items() if e.get("status") in ("computed", "reused")}
+    verdict = verdict_summary(out, cfg.omega, computed)
+    (out / "study.json").write_text(json.dumps({"verdict": verdict, "elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
                                                 "jobs": opts.jobs, "config_hash": chash,
                                                 "stages": {k: results[k] for k in stages if k in results}},
                                                indent=2, default=str))

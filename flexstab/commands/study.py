@@ -93,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
 
         validate_scheduler_address(args.scheduler)  # fail before hours of work, not after
     if args.stages is not None and not args.stages.strip():
-        raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
+        raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation, "
+                         "two_link, sensitivity")
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
     if args.jobs < 1:
         raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
