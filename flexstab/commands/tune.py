@@ -11,7 +11,8 @@ from flexstab.config import load_config
 from flexstab.options import (add_damping_option, add_model_options, dump_json, gain_pairs, positive_float,
                               resolve_damping, resolve_omega)
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
+from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, mesh_dependence,
+                             plant_choice_for, response_note,
                              plant_for, propagator_steps, whole_spectrum)
 
 if TYPE_CHECKING:
@@ -443,7 +444,6 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
     multiplier's own), ``spectral_radius_mesh`` (built-in models: the same at twice the elements),
     ``verdict`` / ``verdict_detail`` (:func:`stability.verdict.judge`) and ``response_note`` (words,
     when the tuned response is below the spectral radius)."""
-    from flexstab.plants import mesh_dependence, response_note
     from stability.verdict import judge_floquet
 
     tuned = float(out["spectral_radius"])  # TaguchiResult's spectral_radius: the tuned response
