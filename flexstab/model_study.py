@@ -285,16 +285,16 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
                                             _absolute_estimate(check), opts.target, tcfg.effective_tolerance))
         doc["check"]["failures"] = list(checks)
         # the whole closed loop at the tuned gains (stability.verdict), beside the tuned response
-        from flexstab.plants import MODEL_RESPONSE, response_note
+        from flexstab.plants import MODEL_RESPONSE_MODES, response_note
 
         whole = check.verdict.to_dict()
-        doc.update({"tuned_response": float(res.spectral_radius), "tuned_response_modes": MODEL_RESPONSE,
+        doc.update({"tuned_response": float(res.spectral_radius), "tuned_response_modes": MODEL_RESPONSE_MODES,
                     "spectral_radius": whole["spectral_radius"], "spectral_radius_mode": whole["spectral_radius_mode"],
                     "spectral_radius_frequency_hz": whole["spectral_radius_frequency_hz"],
                     "spectral_radius_error_estimate": (whole["spectral_radius_error"] / whole["spectral_radius"]
                                                        if whole["spectral_radius"] else None),
                     "verdict": whole["verdict"], "verdict_detail": whole,
-                    "response_note": response_note(float(res.spectral_radius), MODEL_RESPONSE, whole)})
+                    "response_note": response_note(float(res.spectral_radius), MODEL_RESPONSE_MODES, whole)})
         (out / "tuning.json").write_text(json.dumps(_ready(doc), indent=2))
         if hill:
             how = (f"{res.status} after {res.evaluations} evaluations by Hill's method ({plant.harmonics} harmonics, "

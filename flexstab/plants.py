@@ -34,7 +34,7 @@ from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
+__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
            "hill_plant", "hill_choice", "StepsChoice", "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum",
            "mesh_dependence", "response_note"]
 
@@ -53,6 +53,8 @@ MAX_TUNING_STEPS = 4096
 
 #: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
+#: The modes :data:`MODEL_RESPONSE` covers, in a sentence ("the ... decay at 0.30 per period").
+MODEL_RESPONSE_MODES = "drive modes and bending 1"
 
 Plant = Union[HillModelPlant, ModelPlant]
 
@@ -288,7 +290,8 @@ def mesh_dependence(resolve: Any, omega: float, kp: Sequence[float], kd: Sequenc
 
 
 def response_note(tuned: float, covers: str, verdict: dict, mesh: Optional[list] = None) -> Optional[str]:
-    """Words for a tuned response below the whole loop's spectral radius (``None`` when they are equal).
+    """Words for a tuned response below the whole loop's spectral radius (``None`` when they are equal);
+    ``covers`` names the tuned modes (e.g. :data:`MODEL_RESPONSE_MODES`).
 
     E.g. "the drive modes decay at 0.30 per period; axial 9 at 22.1 kHz decays at 0.557, set by the mesh
     and by structural damping the model does not have".
@@ -301,7 +304,7 @@ def response_note(tuned: float, covers: str, verdict: dict, mesh: Optional[list]
     where = ""
     if f:
         where = f" at {f / 1e3:.3g} kHz" if f >= 1e3 else f" at {f:.3g} Hz"
-    text = (f"the tuned modes ({covers}) decay at {tuned:.3g} per period; {label}{where} decays at {rho:.3g} per "
+    text = (f"the {covers} decay at {tuned:.3g} per period; {label}{where} decays at {rho:.3g} per "
             f"period (the whole loop's spectral radius)")
     if mesh and len(mesh) > 1:
         a, b = mesh[0], mesh[1]

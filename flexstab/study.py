@@ -416,7 +416,8 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
         text(f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic "
-             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`). 'dominant' = largest "
+             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`; the reference-gain and whole-loop values in the frozen-modal frame, the Taguchi "
+             "loop's in the linearisation's own coordinates). 'dominant' = largest "
              "multiplier of the modes the reduced model has (hub, first bending); the axial and higher bending "
              "modes are undamped (no structural damping) and sit on the unit circle. Reference gains: "
              f"{source}."),
@@ -437,6 +438,10 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
                    f"with {plant.n_steps}."))] if opts.quick else []),
         text(f"At the reference gains the Exudyn and reduced models differ by "
              f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
+        # the whole loop's verdicts (stability.verdict) reconcile 'dominant' with 'all modes max|ρ|'
+        text("The whole closed loop (every multiplier, rule of `docs/verdicts.md`): uncontrolled — "
+             f"{verdicts['verdict_uncontrolled']['message']}; reference gains — "
+             f"{verdicts['verdict_reference']['message']}; Taguchi gains — {verdicts['verdict_tuned']['message']}."),
     ]
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
 

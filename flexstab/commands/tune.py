@@ -11,7 +11,8 @@ from flexstab.config import load_config
 from flexstab.options import (add_damping_option, add_model_options, dump_json, gain_pairs, positive_float,
                               resolve_damping, resolve_omega)
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, mesh_dependence,
+from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, MODEL_RESPONSE_MODES,
+                             mesh_dependence,
                              plant_choice_for, response_note,
                              plant_for, propagator_steps, whole_spectrum)
 
@@ -451,7 +452,7 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
     model_file = args.model not in ("reduced", "exudyn")
     mesh = None
     if model_file:
-        fields["tuned_response_modes"] = MODEL_RESPONSE
+        fields["tuned_response_modes"] = MODEL_RESPONSE_MODES
         verdict = out.get("verdict_detail") or {}
         if args.model in ("single-link", "two-link"):
             from flexstab.options import resolve_model_definition
@@ -470,12 +471,12 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
         modes = classify_multipliers(lin, res)
         verdict = judge_floquet(res, labels=[m["mode"] for m in modes],
                                 frequencies=[m["frequency_hz"] for m in modes]).to_dict()
-        fields["tuned_response_modes"] = "dominant multiplier of the paper's modes (hub, bending 1)"
+        fields["tuned_response_modes"] = "hub and bending 1 (the paper's modes)"
     else:
         from stability import floquet
 
         verdict = judge_floquet(floquet(plant.with_gains(kp, kd))).to_dict()
-        fields["tuned_response_modes"] = "every mode of the model (the reduced model has the hub and bending 1 only)"
+        fields["tuned_response_modes"] = "modes of the reduced model (hub and bending 1: all it has)"
     fields.update({"spectral_radius": verdict.get("spectral_radius"),
                    "spectral_radius_mode": verdict.get("spectral_radius_mode"),
                    "spectral_radius_frequency_hz": verdict.get("spectral_radius_frequency_hz"),
