@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Scale of the generic path: orbit, linearisation and Floquet of the single link at 4 ... 64 elements.
 
-Issue 12 item 4.  For each mesh, in a fresh subprocess (so that each mesh's
+For each mesh, in a fresh subprocess (so that each mesh's
 peak memory is its own): the periodic orbit (:func:`linearize.periodic_orbit.find_orbit`,
 ``solver="auto"``: structured Newton above the threshold), the constraint-correct
 linearisation with the Table 3 gains (:func:`linearize.constrained.linearize_orbit`),

@@ -17,7 +17,7 @@ from typing import Optional, Sequence
 __all__ = ["main", "build_parser", "COMMANDS"]
 
 #: Sub-command modules, in the order ``--help`` lists them.
-COMMANDS = ("floquet", "modes", "tune", "validate", "chart", "study")
+COMMANDS = ("floquet", "modes", "tune", "validate", "chart", "campbell", "study")
 
 
 class CLIError(Exception):
@@ -71,8 +71,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             pass
         return 141  # 128 + SIGPIPE, as a shell reports a process killed by the signal
     except (ValueError, CLIError, OSError) as exc:
-        print(f"flexstab {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        if not _is_linear_algebra_error(exc):
+            print(f"flexstab {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        # numpy's LinAlgError is a ValueError, but a singular matrix inside a computation is a
+        # numerical failure (exit 1), never bad input
+        print(f"flexstab {args.command}: failed: {type(exc).__name__}: {str(exc).strip() or 'singular matrix'}",
+              file=sys.stderr)
+        return 1
     except (RuntimeError, FloatingPointError, ArithmeticError) as exc:
         # a computation that could not be completed (an orbit that does not converge,
         # an Exudyn solver failure): one line naming the cause, exit code 1
@@ -82,6 +88,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print(f"flexstab {args.command}: interrupted", file=sys.stderr)
         return 130
+
+
+def _is_linear_algebra_error(exc: BaseException) -> bool:
+    """Whether ``exc`` is numpy's ``LinAlgError`` (a ``ValueError`` subclass raised by a computation)."""
+    numpy = sys.modules.get("numpy")
+    return numpy is not None and isinstance(exc, numpy.linalg.LinAlgError)
 
 
 if __name__ == "__main__":  # pragma: no cover

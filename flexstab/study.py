@@ -13,8 +13,8 @@ report can be traced to a file:
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers;
-7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
-   :mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
+7. ``two_link`` -- the built-in two-link flexible arm
+   (:mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
    figures, and the cached results of ``scripts/two_link_study.py``;
 8. ``sensitivity`` -- the verdict of the whole closed loop (:mod:`stability.verdict`) at the
    reference gains for 2, 4, 8 ANCF elements (``quick``: 2, 4), without and with structural damping.
@@ -529,7 +529,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
     else the reference gains (see the module docstring).  Measurement:
-    :func:`validation.multipliers.validate_link_multipliers` (issue 10): the one-period map of the
+    :func:`validation.multipliers.validate_link_multipliers`: the one-period map of the
     nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
     linearisation within the measurement's own error bar.
     """
@@ -592,7 +592,7 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
 
 
 def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """The built-in two-link arm (issue 11): see :mod:`flexstab.two_link_report`."""
+    """The built-in two-link arm: see :mod:`flexstab.two_link_report`."""
     from flexstab.two_link_report import stage_two_link
 
     return stage_two_link(cfg, opts)
@@ -618,7 +618,7 @@ STAGE_TITLES: dict[str, str] = {
     "transients": "Transient responses",
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
-    "two_link": "Two-link flexible arm (issue 11)",
+    "two_link": "Two-link flexible arm",
     "sensitivity": "Verdict sensitivity to mesh and damping",
 }
 

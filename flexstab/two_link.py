@@ -1,4 +1,4 @@
-"""The two-link flexible arm study (issue 11): Floquet, mesh convergence, four-gain Taguchi, checks, figures.
+"""The two-link flexible arm study: Floquet, mesh convergence, four-gain Taguchi, checks, figures.
 
 Everything goes through the generic model-file path (``linearize.find_orbit``,
 ``linearize.linearize_orbit``, ``linearize.analyze``) with the built-in model

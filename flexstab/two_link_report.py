@@ -1,4 +1,4 @@
-"""The study's two-link section (issue 11): one stage function and its report blocks.
+"""The study's two-link section: one stage function and its report blocks.
 
 Computed in the stage (a few CPU seconds per Omega): the periodic orbit, the
 linearisation and the labelled Floquet multipliers of the built-in two-link arm at
@@ -173,7 +173,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     doc["figures"] = figs
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
     blocks = [
-        text("Built-in two-link flexible arm (`--model two-link`, issue 11): shoulder q1 = π/2 + (π/4) sin Ωt, "
+        text("Built-in two-link flexible arm (`--model two-link`): shoulder q1 = π/2 + (π/4) sin Ωt, "
              "elbow q2 = (π/4) sin Ωt, 2 ANCF elements per link, four PD gains (kp1, kd1, kp2, kd2). Multipliers: "
              "`magnus2` (512 steps) for all of them and their mode labels; the dominant one (drive modes / first "
              "bending mode) measured by Hill's method (`stability.hill`, 16 harmonics; its H vs H/2 estimate is in "
@@ -203,7 +203,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
                f"Floquet mode of the dominant multiplier at the tuned gains, Ω = {k}: deformation along one "
                "period (red) on the orbit pose (grey)")
         blocks.append(figure(f, cap))
-    return {"json": "two_link.json", "title": "Two-link flexible arm (issue 11)", "blocks": blocks,
+    return {"json": "two_link.json", "title": "Two-link flexible arm", "blocks": blocks,
             "files": ["two_link.json"] + (["two_link_cached.json"] if raw is not None else []) + figs}
 
 

@@ -263,5 +263,21 @@ class ExudynSystem:
                 out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ("fit",)))
         return out
 
+    def rotation_coordinates(self) -> np.ndarray:
+        """ODE2 indices of the angles a whole turn (2 pi) leaves the configuration unchanged for:
+        the angle of ``RigidBody2D`` nodes and the three Tait-Bryan angles of ``RigidBodyRxyz`` nodes
+        (they enter the kinematics through sines and cosines only).  The candidates for an orbit
+        periodic up to whole turns (:func:`linearize.periodic_orbit.whole_turn_shift`)."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            kind = mbs.GetNode(j).get("nodeType")
+            ltg = [int(i) for i in mbs.systemData.GetNodeLTGODE2(j)]
+            if kind == "RigidBody2D" and len(ltg) == 3:
+                out.append(ltg[2])
+            elif kind == "RigidBodyRxyz" and len(ltg) == 6:
+                out.extend(ltg[3:6])
+        return np.array(sorted(out), dtype=int)
+
     def describe(self) -> dict[str, Any]:
         return {"ode2": self.n, "constraints": self.m, "drives": [d.name for d in self.built.drives]}

@@ -16,8 +16,8 @@ Independent check (:func:`direct_monodromy`): the nonlinear free-hub model
 orbit's state and from ``2 n`` perturbed states; the difference quotients form
 the monodromy matrix of Exudyn's own discrete map.
 
-Hazards (issue 4) and how they are handled
-------------------------------------------
+Hazards and how they are handled
+--------------------------------
 * The link has no structural damping (paper), so modes that the hub hardly
   moves (the axial modes, 1.3-47 kHz at 8 elements, and -- with the strongly
   damped hub of the Table 3 gains, which acts almost as a clamp -- the bending

@@ -56,6 +56,7 @@ __all__ = [
     "PERIODICITY_TOLERANCE",
     "build_model",
     "builtin_model",
+    "drive_turns",
     "load_model_file",
     "model_from_build",
     "resolve_model",
@@ -67,6 +68,7 @@ logger = logging.getLogger(__name__)
 BUILTIN_MODELS = {
     "single-link": "single_link.py",
     "two-link": "two_link.py",
+    "laval-rotor": "laval_rotor.py",
 }
 
 #: A drive's motion must satisfy ``|motion(t + T) - motion(t)| <=`` this times
@@ -302,6 +304,9 @@ class BuiltModel:
     drive_indices : ndarray, shape (n_drives, 2)
         ODE2 indices of each drive's markers ``(i0, i1)``; ``-1`` for a ground
         coordinate.
+    drive_turns : tuple of int
+        Whole turns ``k`` each drive's motion advances per period (0: T-periodic;
+        :func:`drive_turns`).
     """
 
     definition: ModelDefinition
@@ -310,6 +315,7 @@ class BuiltModel:
     mbs: Any = field(repr=False)
     drives: tuple
     drive_indices: np.ndarray
+    drive_turns: tuple = ()
 
     @property
     def period(self) -> float:
@@ -347,17 +353,41 @@ def _marker_index(mbs: Any, marker: int, drive: str) -> int:
     return int(ltg[c])
 
 
-def check_periodic(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> None:
-    """Raise :class:`ModelFileError` unless ``drive.motion`` is ``period``-periodic."""
+def drive_turns(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> int:
+    """The whole turns ``k`` by which ``drive.motion`` advances per period (0: T-periodic).
+
+    A motion is accepted when ``motion(t + T) = motion(t) + (2 pi k, 0, 0)`` with an integer
+    ``k`` at the test times (:data:`PERIODICITY_TOLERANCE`, relative to ``1 + |motion(t)|``):
+    a coordinate that turns at constant mean speed (``(Omega t, Omega, 0)``) is periodic up to
+    whole turns, its rate and acceleration periodic.
+
+    Raises
+    ------
+    ModelFileError
+        If the motion is neither T-periodic nor periodic up to the same whole number of turns
+        at every test time.
+    """
+    turns = None
     for phase in _PERIODICITY_PHASES:
         t = phase * period
         a = np.array(drive.evaluate(t))
         b = np.array(drive.evaluate(t + period))
-        if np.any(np.abs(b - a) > tol * (1.0 + np.abs(a))):
+        k = int(round((b[0] - a[0]) / (2.0 * math.pi)))
+        expected = a + np.array([2.0 * math.pi * k, 0.0, 0.0])
+        if np.any(np.abs(b - expected) > tol * (1.0 + np.abs(a) + np.abs(b))) or (turns is not None and k != turns):
             raise ModelFileError(
-                f"drive {drive.name!r}: motion is not T-periodic (T = 2 pi/omega = {period:.6g} s): "
+                f"drive {drive.name!r}: motion is not T-periodic, nor periodic up to whole turns "
+                f"(T = 2 pi/omega = {period:.6g} s; needs motion(t + T) = motion(t) + (2 pi k, 0, 0), k integer): "
                 f"motion({t:.4g}) = {a.tolist()} but motion(t + T) = {b.tolist()}"
             )
+        turns = k
+    return int(turns or 0)
+
+
+def check_periodic(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> None:
+    """Raise :class:`ModelFileError` unless ``drive.motion`` is ``period``-periodic, possibly up to whole
+    turns (:func:`drive_turns`)."""
+    drive_turns(drive, period, tol)
 
 
 def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool = False) -> BuiltModel:
@@ -429,12 +459,13 @@ def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool 
         if i0 == i1:
             raise ModelFileError(f"{where}: drive {d.name!r}: both markers address the same coordinate")
     period = 2.0 * math.pi / omega
+    turns = []
     for d in drives:
         try:
-            check_periodic(d, period)
+            turns.append(drive_turns(d, period))
         except ModelFileError as exc:
             raise ModelFileError(f"{where}: {exc}") from None
     logger.debug("built %s at omega=%g: %d ODE2, %d AE, drives %s", model.name, omega,
                  mbs.systemData.ODE2Size(), mbs.systemData.AEsize(), names)
     return BuiltModel(definition=model, omega=omega, system_container=sc, mbs=mbs, drives=drives,
-                      drive_indices=idx)
+                      drive_indices=idx, drive_turns=tuple(turns))

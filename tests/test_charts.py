@@ -1,4 +1,4 @@
-"""Stability charts: serial vs Dask equality, resumable sweeps, bad input (issue 5, item 4)."""
+"""Stability charts: serial vs Dask equality, resumable sweeps, bad input."""
 from __future__ import annotations
 
 import json
@@ -87,7 +87,7 @@ def test_exudyn_gain_chart_points_equal_exudyn_floquet(tmp_path):
 
 
 def test_chart_names_identify_grid_and_ranges(tmp_path, capsys):
-    """A coarse chart into the same folder must not overwrite the finer one (issue 13, item 4)."""
+    """A coarse chart into the same folder must not overwrite the finer one."""
     base = ["chart", "--omega-points", "3", "--out", str(tmp_path), "--json", "--no-taguchi"]
     assert cli_main(base + ["--grid", "4"]) == 0
     first = json.loads(capsys.readouterr().out)

@@ -1,4 +1,4 @@
-"""User configuration files (issue 5, item 5) and CLI option parsing."""
+"""User configuration files and CLI option parsing."""
 from __future__ import annotations
 
 import json

@@ -138,7 +138,7 @@ def test_propagator_step_convergence_and_lead_engine(orbit2):
 
 
 def test_mesh_independence_8_vs_16_elements():
-    """Issue 4 acceptance: 8 and 16 elements agree to 0.5 % on the dominant multiplier."""
+    """8 and 16 elements agree to 0.5 % on the dominant multiplier."""
     r8 = exudyn_floquet(kp=KP, kd=KD, elements=8, samples=16, n_steps=64, verify_orbit=False)
     r16 = exudyn_floquet(kp=KP, kd=KD, elements=16, samples=16, n_steps=64, verify_orbit=False)
     assert r16.dominant_mode == r8.dominant_mode == "hub"

@@ -237,7 +237,7 @@ def test_single_link_multipliers_equal_hand_derived_route():
     """Dominant (hub) multiplier of the generic path = the hand route's, Omega = 2 pi, Table 3 gains.
 
     Both with the exponential-midpoint product at 4096 steps (step-doubling
-    estimate < 1e-7 relative for both at 2 elements); 1e-6 as in issue 9.
+    estimate < 1e-7 relative for both at 2 elements); the agreement required is 1e-6.
     """
     from linearize import linearize_along_orbit
     from linearize.analysis import analyze

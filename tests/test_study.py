@@ -1,4 +1,4 @@
-"""The one-command study: report tables, paper claims, runs and resuming (issues 5 and 13)."""
+"""The one-command study: report tables, paper claims, runs and resuming."""
 from __future__ import annotations
 
 import json
@@ -18,7 +18,7 @@ from mbs_models.parameters import ManipulatorParameters
 
 from _model_bounds import model_difference_bound  # tests/ helper
 
-#: A user's own link (issue 13, item 2): not the paper's, so no printed value applies to it.
+#: A user's own link: not the paper's, so no printed value applies to it.
 USER_LINK = ManipulatorParameters(length=0.6, tip_mass=0.3)
 
 

@@ -189,7 +189,7 @@ def test_script_quick_writes_figures_and_json(tmp_path):
 
 
 def test_caption_matches_the_plotted_periods_and_quotes_no_rounding_noise():
-    """Issue 13, item 10: captions name plotted vs integrated periods; rho2 below the floor is a bound."""
+    """Captions name plotted vs integrated periods; rho2 below the floor is a bound."""
     from flexstab.transients import QUICK, _caption, paper_case_pair, run_case
 
     unc, ctl = paper_case_pair(2)

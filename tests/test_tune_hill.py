@@ -1,4 +1,4 @@
-"""``flexstab tune --model two-link``: the Hill path and ``--robust`` end to end (review S8/S9), 1 element per link.
+"""``flexstab tune --model two-link``: the Hill path and ``--robust`` end to end, 1 element per link.
 
 Oracles: the independent re-check that ``tune`` itself runs at the tuned gains (the streamed
 exponential-midpoint product, no Hill code) and, for ``--robust``, the frozen-modal magnus2 product
@@ -67,7 +67,7 @@ class _Falling:
 
 @pytest.mark.parametrize("pool", [False, True])
 def test_fallback_records_come_back_from_workers(pool):
-    """review4 H3: a run's fallback record is made in the worker's copy of the plant; tune's executor wrapper
+    """A run's fallback record is made in the worker's copy of the plant; tune's executor wrapper
     returns it with the value (once each, also in-process), and the values are unchanged."""
     import concurrent.futures as cf
     import multiprocessing

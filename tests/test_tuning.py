@@ -1,4 +1,4 @@
-"""Iterative Taguchi tuning of the PD gains (issue 3; paper Sec. 4, Table 3, Eq. 34)."""
+"""Iterative Taguchi tuning of the PD gains (paper Sec. 4, Table 3, Eq. 34)."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""The two-link model file through the generic path (orbit, linearisation, labelled Floquet), issue 11.
+"""The two-link model file through the generic path (orbit, linearisation, labelled Floquet).
 
 Oracle: a rigid two-link arm written here by hand (Lagrange's equations of
 the same masses, inertias, gravity, joint damping and PD gains, linearised by

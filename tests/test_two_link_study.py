@@ -95,7 +95,7 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
 def test_stale_cache_parts_are_ignored_with_a_note(tmp_path):
     """The script's merge keeps each stage's keys; the study uses a part only if its keys equal its own
     (code hash, mesh, ranges, rho_d) and names what differs otherwise.  Rejects a cache read whatever
-    code or inputs produced it (review S10).  No orbit: the merge and the key rule only."""
+    code or inputs produced it.  No orbit: the merge and the key rule only."""
     import importlib.util
     import json
     from pathlib import Path
@@ -136,7 +136,7 @@ def test_mode_title_shows_the_measured_modulus_and_its_method():
 
 
 def test_cache_keys_cover_the_stage_arguments_and_the_script(tmp_path):
-    """Review4 L4: the keys were the package hash, mesh, ranges and rho_d only, so the robust stage resumed a
+    """The keys were the package hash, mesh, ranges and rho_d only, so the robust stage resumed a
     file whose other Omegas' rows used another ``--grid`` / ``--robust-iterations``, and a change of the
     script's own constants (MESH, the direct stage's 2 elements; ``scripts/`` is not a hashed package) kept
     old parts in use.  Now each stage's keys carry its arguments and the script's SHA-256."""

@@ -5,6 +5,8 @@ import argparse
 import logging
 import math
 import sys
+
+import numpy as np
 from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.config import load_config
@@ -21,7 +23,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
+__all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
            "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
@@ -319,6 +321,40 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
         tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
 
+def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
+    """The closed loop's largest multiplier at the centre of the gain ranges, when it belongs to a mode
+    no drive can move (:func:`linearize.analysis.drive_movable`): PD gains cannot bring the spectral
+    radius below it, and the tuning works on the dominant multiplier of the modes the drives move.
+
+    Returns
+    -------
+    dict or None
+        ``modulus``, ``mode`` (label), ``drive_shares``, ``gains`` (the range centre), ``tuned_mode`` and
+        ``tuned_modulus`` (the dominant multiplier the tuning works on), and a one-line ``message``;
+        ``None`` when the largest multiplier is a mode a drive moves.
+    """
+    from linearize.analysis import analyze, drive_movable
+
+    centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
+    n = len(orbit.drive_names)
+    kp, kd = centre[0::2], centre[1::2]
+    r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
+    top = r.modes[0] if r.modes else None
+    if top is None or drive_movable(top, orbit.drive_names):
+        return None
+    j = int(np.argmin(np.abs(np.asarray(r.floquet.multipliers) - r.dominant_multiplier)))
+    tuned = r.modes[j]
+    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.get("drive_shares", {}).items())
+    gains = ", ".join(f"{name} = {v:.4g}" for name, v in zip(tcfg.names, centre))
+    msg = (f"note: at the range centre ({gains}) the closed loop's largest multiplier |rho| = "
+           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top['mode']}', a mode no drive moves "
+           f"(drive shares {shares}): PD gains cannot bring max|rho| below it; tuning the dominant multiplier "
+           f"of the modes the drives move ('{tuned['mode']}', |rho| = {abs(r.dominant_multiplier):.5g})")
+    return {"modulus": float(r.floquet.spectral_radius), "mode": top["mode"],
+            "drive_shares": dict(top.get("drive_shares", {})), "gains": centre[: 2 * n],
+            "tuned_mode": tuned["mode"], "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
     from flexstab.executor import make_executor
@@ -357,6 +393,11 @@ def tune_report(args: argparse.Namespace) -> dict:
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
         choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
+        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
+        if unreachable is not None:
+            print(f"flexstab tune: {unreachable['message']}", file=sys.stderr, flush=True)
+    else:
+        unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
@@ -379,6 +420,9 @@ def tune_report(args: argparse.Namespace) -> dict:
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)
     out.update(res.to_dict())
+    if model_file:
+        out["unreachable_mode"] = None if unreachable is None else {k: v for k, v in unreachable.items()
+                                                                    if k != "message"}
     if passes:  # every pass's Floquet evaluations, and the step-doubling history
         out["evaluations"] = sum(p["evaluations"] for p in passes)
         out["propagator_passes"] = passes
