@@ -6,8 +6,8 @@ whole closed loop's spectral radius is an axial mesh mode (0.557 at 2 elements p
 
 * what :func:`flexstab.plants.whole_spectrum` reports (the tune JSON's ``spectral_radius``,
   ``spectral_radius_all*``) against an independent propagation of the same orbit: the adaptive
-  frozen-modal solve with the non-nested check (:func:`linearize.analysis.analyze`, ``n_steps=None``),
-  within the two results' own estimates of that multiplier;
+  frozen-modal solve at a step count of another family (:func:`linearize.analysis.analyze`, 432 steps
+  against 128), within the two results' own estimates of that multiplier;
 * the error estimate printed beside it is that pair's own (well below the largest over all moduli,
   0.86, which the field held before);
 * the words of :func:`flexstab.plants.response_note` name both numbers and the mode;
@@ -32,15 +32,17 @@ KP, KD = list(GAINS[0::2]), list(GAINS[1::2])
 @pytest.fixture(scope="module")
 def arm():
     orbit = two_link_orbit(2 * math.pi, 2)
+    # the reference: 432 extrapolated steps (ratio 3: a step family that shares nothing with the 128 of
+    # whole_spectrum; the adaptive solve cannot reach its 1e-9 here: 3.8e-9 at 18432 steps)
     return orbit, whole_spectrum(orbit, 2 * math.pi, KP, KD), analyze(None, 2 * math.pi, kp=KP, kd=KD, orbit=orbit,
-                                                                      n_steps=None)
+                                                                      n_steps=432)
 
 
 def test_whole_loop_spectral_radius_is_the_axial_mode(arm):
     orbit, w, ref = arm
     rho, est = w["spectral_radius_all"], w["spectral_radius_all_error_estimate"]
     v = ref.verdict
-    # independent propagation (adaptive, checked): agreement within both own estimates
+    # another propagation (432 steps, ratio 3): agreement within both own estimates
     assert abs(rho - v.spectral_radius) <= est * rho + v.spectral_radius_error
     assert w["spectral_radius_all_mode"].startswith("axial") and v.spectral_radius_label.startswith("axial")
     assert 2.0e4 < w["spectral_radius_all_frequency_hz"] < 2.5e4
