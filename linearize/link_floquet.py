@@ -239,8 +239,9 @@ class ExudynFloquetResult:
 
     @property
     def undamped_count(self) -> int:
-        """Number of multipliers on the unit circle (undamped structural modes)."""
-        return sum(1 for m in self.modes if m["undamped"])
+        """Number of practically undamped multipliers: the count of the verdict rule
+        (:mod:`stability.verdict`: ``|rho| + error > exp(-1/1000)``, not growing)."""
+        return len(self.verdict.undamped)
 
     def summary(self) -> dict:
         """JSON-ready keys added to the Floquet output (CLI ``--model exudyn``)."""

@@ -170,7 +170,7 @@ def _table(d: dict) -> str:
     elif d["model"] == "exudyn":
         lines += [
             f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
-            f" ({d['dominant_mode']}); {d['undamped_multipliers']} multipliers of undamped structural modes",
+            f" ({d['dominant_mode']}); {d['undamped_multipliers']} practically undamped multipliers (verdict rule)",
             f"orbit residual {d['orbit_residual']:.1e}, {d['samples']} samples, {d['elements']} elements",
         ]
     return "\n".join(lines)
