@@ -172,7 +172,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     from taguchi.tuning import TuningConfig
 
     t0, c0 = time.perf_counter(), _cpu()
-    definition, options = resolve_model_definition(model, cfg, opts.elements)
+    damping = getattr(cfg, "damping", None)
+    definition, options = resolve_model_definition(model, cfg, opts.elements,
+                                                   **(damping.build_options() if damping is not None else {}))
     out = ensure_out_dir(opts.out)
     for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
         (out / f).unlink(missing_ok=True)

@@ -362,7 +362,14 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     # --quick: 16 collocation samples per period (32 in the full study; at 4 elements and 2pi the
     # dominant multipliers at the reference, zero and tuned gains agree to 1e-9 between the two)
     samples = 16 if opts.quick else 32
-    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples)
+    damp = {}
+    if getattr(cfg.damping, "given", False):  # [study] damping / --damping: the beams' structural damping
+        from mbs_models.damping import material_damping_values
+
+        b, a = material_damping_values(cfg.damping.material, cfg.manipulator.bending_stiffness,
+                                       cfg.manipulator.axial_stiffness, cfg.damping.bending, cfg.damping.axial)
+        damp = {"bending_damping": b, "axial_damping": a}
+    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples, **damp)
     # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
     # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
     plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
@@ -416,11 +423,14 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
         text(f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic "
-             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`; the reference-gain and whole-loop values in the frozen-modal frame, the Taguchi "
-             "loop's in the linearisation's own coordinates). 'dominant' = largest "
-             "multiplier of the modes the reduced model has (hub, first bending); the axial and higher bending "
-             "modes are undamped (no structural damping) and sit on the unit circle. Reference gains: "
-             f"{source}."),
+             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`; the reference-gain and "
+             "whole-loop values in the frozen-modal frame, the Taguchi loop's in the linearisation's own "
+             "coordinates). 'dominant' = largest multiplier of the modes the reduced model has (hub, first "
+             "bending); "
+             + (f"structural damping of the beams: {cfg.damping.describe()}. " if damp else
+                "the axial and higher bending modes are undamped (no structural damping) and sit on the unit "
+                "circle. ")
+             + f"Reference gains: {source}."),
         table(["Ω", "uncontrolled: dominant |ρ|", "reference kp, kd", "reference gains: Exudyn dominant |ρ|",
                "reference gains: reduced max|ρ|", "all modes max|ρ|", "Taguchi on Exudyn: kp, kd",
                "Taguchi on Exudyn: dominant |ρ|", "evals"],

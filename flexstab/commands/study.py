@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from flexstab.config import load_config
-from flexstab.options import omega_type
+from flexstab.options import add_damping_option, omega_type, resolve_damping
 
 __all__ = ["register", "run"]
 
@@ -37,6 +37,7 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=None, help="--model: collocation samples per period (default 32)")
     p.add_argument("--elements", type=int, default=None,
                    help="--model: ANCF elements of a built-in model (default: its own; single-link: --config's)")
+    add_damping_option(p)
     p.set_defaults(func=run)
 
 
@@ -82,7 +83,10 @@ def _report_exit_code(res) -> int:
 def run(args: argparse.Namespace) -> int:
     from flexstab.study import StudyOptions, run_study
 
+    import dataclasses
+
     cfg = load_config(args.config)
+    cfg = dataclasses.replace(cfg, damping=resolve_damping(args, cfg))  # --damping over [study] damping
     if args.model is not None:
         return run_model(args, cfg)
     for flag in ("omega", "samples", "elements"):
