@@ -773,8 +773,6 @@ def _prepare_out(out: Path) -> None:
 #: several processes (``jobs >= 2``): the Exudyn chain (``validation`` reads the gains ``exudyn``
 #: tuned) and the independent two-link section.  Only those processes import Exudyn.
 EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link", "sensitivity"))
-#: Every stage of :data:`EXUDYN_CHAINS`.
-EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
 #: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
 FULL_ONLY = ("two_link",)
 
@@ -803,8 +801,7 @@ def _preload(stages: Sequence[str]) -> None:
         from taguchi.arrays import available_arrays
 
         available_arrays()  # loads and verifies the catalogue (imports pydoe -> scipy.stats) once
-    # the compiled Floquet kernel (numba's on-disk cache, ~1 s CPU to load): every stage's reduced-model
-    # and small-system Floquet runs use it; loaded once here instead of once per process
+    # the Floquet engine's modules, imported and run once here instead of once per process
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

@@ -279,5 +279,24 @@ class ExudynSystem:
                 out.extend(ltg[3:6])
         return np.array(sorted(out), dtype=int)
 
+    def rotation_parameters(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """3D nodes whose rotation coordinates are not angles: ``(node type, ODE2 indices, reference
+        values)`` of the Euler parameters of ``RigidBodyEP`` nodes and the rotation vectors of
+        ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
+        sign and a rotation vector passes its singular length 2 pi: no orbit periodic up to whole turns
+        exists in these coordinates (:func:`linearize.periodic_orbit.whole_turn_shift` says so)."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            node = mbs.GetNode(j)
+            kind = str(node.get("nodeType"))
+            ltg = np.array([int(i) for i in mbs.systemData.GetNodeLTGODE2(j)], dtype=int)
+            ref = np.asarray(node.get("referenceCoordinates", []), dtype=float)
+            if kind == "RigidBodyEP" and ltg.size == 7:
+                out.append((kind, ltg[3:7], ref[3:7]))
+            elif kind.startswith("RigidBodyRotVec") and ltg.size == 6:
+                out.append((kind, ltg[3:6], ref[3:6]))
+        return out
+
     def describe(self) -> dict[str, Any]:
         return {"ode2": self.n, "constraints": self.m, "drives": [d.name for d in self.built.drives]}

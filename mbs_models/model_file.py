@@ -17,8 +17,17 @@ A *model file* is a plain Python module with a function::
   exactly as Exudyn's ``CoordinateConstraint`` / ``CoordinateSpringDamper``
   read their two markers (Exudyn's ODE2 coordinates, i.e. displacements from
   the node's reference coordinates), and ``motion`` is its T-periodic
-  reference, ``T = 2 pi / omega``.  An empty sequence is valid (a system
-  excited only by its own rheonomic constraints or periodic loads).
+  reference, ``T = 2 pi / omega`` -- or periodic up to whole turns,
+  ``motion(t + T) = motion(t) + (2 pi k, 0, 0)`` with an integer ``k`` (a hub
+  turning at constant speed: ``(omega t, omega, 0)``; :func:`drive_turns`).
+  An empty sequence is valid (a system excited only by its own rheonomic
+  constraints or periodic loads).
+* Machines that turn: the orbit may be periodic up to whole turns of angle
+  coordinates (``NodeRigidBody2D`` angles, ``NodeRigidBodyRxyz`` angles),
+  ``q(t + T) = q(t) + 2 pi k``.  The turns are read off one simulated period
+  of the model with its drives prescribed (drives, rheonomic constraints with
+  an offset ``omega t``, free angles that follow them); nothing is declared in
+  the file (see ``docs/rotating-machines.md``).
 * The package, not the file, adds the control.  For the periodic orbit each
   drive's coordinate follows ``motion`` exactly (its constraint reaction is the
   feed-forward torque ``tau_ff``); for the closed loop the drive is released

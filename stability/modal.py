@@ -998,8 +998,6 @@ class CollapsedModalSystem:
         return self.frame.trace_integral()
 
 
-#: Step-count ratio between the solves of the extrapolation (``N / 4``, ``N / 2``, ``N``).
-EXTRAPOLATION_LEVELS = 3
 #: Range of ``d2 / d1`` (change of the extrapolated multiplier over two doublings / over the last
 #: one) in which the last change ``d1`` is trusted as the estimate (:func:`_extrapolated`):
 #: ``d2 = d1 + d0`` with ``d0 / d1`` = 4 (order 2) .. 32 (order 5).

@@ -523,9 +523,6 @@ def recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[
     return (lo, hi)
 
 
-_recentre = recentre  # former private name, kept for callers on other branches
-
-
 class _Guarded:
     """``point -> (response, None)``, or ``(nan, "ErrorType: message")`` when the objective raises one of
     :data:`RUN_FAILURES` (picklable if the objective is)."""

@@ -26,6 +26,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_models.py"
 TABLE3_RESOLUTION = 1e-4
 
 
+@pytest.mark.slow
 def test_compare_models_fast_reduced_vs_table3_and_exudyn_vs_direct(tmp_path):
     spec = importlib.util.spec_from_file_location("compare_models", SCRIPT)
     mod = importlib.util.module_from_spec(spec)

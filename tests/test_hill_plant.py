@@ -30,6 +30,7 @@ def arm():
     return orbit, linearize_orbit(orbit, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_hill_response_matches_streamed_magnus2(arm):
     orbit, lin = arm
     g = GAINS
@@ -107,6 +108,7 @@ def _modal_reference(lin, g, near, *, by_modulus=False):
     return ref, 4.0 / 3.0 * abs(abs(ref) - abs(out[0][1])), float(np.min(np.abs(others - abs(ref))))
 
 
+@pytest.mark.slow
 def test_kd2_zero_corners_of_the_first_l9_experiment(arm):
     """``measure`` at the three kd2 = 0 runs against the
     frozen-modal magnus2 product.  Tolerance: the reference's bound plus Hill's H vs H/2 estimate (derived in
@@ -126,6 +128,7 @@ def test_kd2_zero_corners_of_the_first_l9_experiment(arm):
         assert abs(abs(m.estimate) - abs(ref)) > 10 * tol  # so would the unrefined magnus2 estimate
 
 
+@pytest.mark.slow
 def test_far_landing_outside_the_magnus2_spectrum_is_rejected(arm, monkeypatch):
     """A Hill refinement that lands on a main mode from afar is accepted only if a magnus2 multiplier lies
     within MATCH_TOLERANCE of it.  Constructed: Hill is made to return a spurious value (labelled ``elbow`` through
@@ -175,6 +178,7 @@ def test_far_landing_outside_the_magnus2_spectrum_is_rejected(arm, monkeypatch):
     assert any("frozen-modal" in r.getMessage() for r in records)
 
 
+@pytest.mark.slow
 def test_near_miss_landing_is_rejected(arm, monkeypatch):
     """A refinement that lands from afar 1.2x above its candidate's own magnus2 estimate (labelled
     ``elbow`` through the genuine Floquet vector) is within the former MATCH_TOLERANCE (log 1.2 = 0.18 < 0.25) of a
@@ -260,6 +264,7 @@ def test_truncated_hill_is_flagged_and_replaced(arm):
     assert abs(h4.multipliers[0] - good.dominant) > plant.budget(abs(good.dominant))
 
 
+@pytest.mark.slow
 def test_modal_fallback_meets_the_budget_or_fails_the_run(arm, monkeypatch):
     """At (5, 1, 3, 0.5) the frozen-modal fallback at its former fixed 64 steps carries an error
     estimate above the run budget (tolerance 3e-4 / 4; its value was also 1.3e-3 off Hill at
@@ -384,6 +389,7 @@ def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
     assert plant.fallback_runs[0]["error_estimate"] <= plant.budget(y)
 
 
+@pytest.mark.slow
 def test_gain_slices_hill_layout_against_the_modal_product(arm):
     """``flexstab.two_link.gain_slices_hill``: rows are kd, columns kp, the other drive at
     ``fixed``.  Two off-diagonal entries (a transposed or swapped slice would put another gain point there) against

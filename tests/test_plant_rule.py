@@ -49,6 +49,7 @@ def _stub_study_tail(monkeypatch):
     monkeypatch.setattr(vm, "validate_model_multipliers", stub)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["two-link", "single-link"])
 def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatch, capsys):
     import flexstab.model_study as ms

@@ -124,6 +124,7 @@ def test_table_checks_reject_a_split_heading():
         check_html_tables(bad_html)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["study", "user_study"])
 def test_every_table_row_has_as_many_cells_as_headings(which, request):
     res = request.getfixturevalue(which)
@@ -307,6 +308,7 @@ def test_percent_has_no_negative_zero():
 
 
 # ----------------------------------------------------------------------------- one Omega per study
+@pytest.mark.slow
 def test_study_omega_is_used_by_every_stage(tmp_path):
     """[study] omega = 4pi for a user's link: every table row is at 4pi, none at the paper's other Omegas."""
     cfg = StudyConfig(manipulator=USER_LINK, omega=4 * math.pi)

@@ -22,6 +22,7 @@ def _run(capsys, argv):
     return rc, json.loads(out), err
 
 
+@pytest.mark.slow
 def test_tune_two_link_hill_path(monkeypatch, capsys):
     """One L9 experiment with Hill's response; the harmonics cannot meet an impossible tolerance (1e-14 / 20,
     below Hill's round-off), which must warn and show as ``harmonics_converged: false`` in the JSON."""

@@ -90,6 +90,7 @@ def test_drive_mode_multiplier_against_rigid_two_link(orbit_2pi, gains):
     assert abs(flexible - no_gravity) > ELASTIC_TOLERANCE * rigid
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("noise", [{"tip_mass": 0.2, "omega_scale": 1.1, "youngs_modulus_scale": 0.95},
                                    {"tip_mass": 0.05, "omega_scale": 0.9, "youngs_modulus_scale": 1.05}])
 def test_noise_plant_of_the_robust_design_against_rigid_two_link(noise):

@@ -26,6 +26,7 @@ def test_dominant_damped_skips_the_unit_circle():
     assert dominant_damped([1.0, 0.9999]) == pytest.approx(1.0)  # nothing off the circle: the largest
 
 
+@pytest.mark.slow
 def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp_path):
     """The study's two-link stage (quick: 2 pi) with a cached script result whose mesh part has this
     study's keys and whose tuning part was computed by other code (its gains 30 % off: ignored, with a

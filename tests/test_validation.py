@@ -126,6 +126,7 @@ def test_linear_prediction_decays_with_the_multiplier(controlled):
     np.testing.assert_allclose(controlled.stroboscopic[1:], s[1:], rtol=_nonlinear_bound(controlled))
 
 
+@pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_is_left(uncontrolled_floquet):
     r = validate_closed_loop(omega=TWO_PI, elements=ELEMENTS, periods=3, perturbation=1e-4,
                              exudyn_result=uncontrolled_floquet)
@@ -164,6 +165,7 @@ def test_uncontrolled_paper_perturbation_leaves_linear_range_without_raising(unc
     assert np.max(np.abs(r.hub_error)) > 1.0  # large motion, reported not raised
 
 
+@pytest.mark.slow
 def test_absurd_perturbation_is_reported_as_divergence(controlled):
     r = validate_closed_loop(omega=TWO_PI, kp=KP3, kd=KD3, elements=ELEMENTS, periods=3, perturbation=1e7,
                              exudyn_result=controlled.exudyn)

@@ -260,9 +260,6 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
 RESTART_WIDTH = 0.25
 
 
-_pairs = gain_pairs  # former private name
-
-
 def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
                      progress: bool = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
@@ -334,7 +331,10 @@ def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
         ``None`` when the largest multiplier is a mode a drive moves.
     """
     from linearize.analysis import analyze, drive_movable
+    from linearize.periodic_orbit import PeriodicOrbit
 
+    if not isinstance(orbit, PeriodicOrbit):
+        return None  # a plant without a model-file orbit (e.g. a stand-in): nothing to label
     centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
     n = len(orbit.drive_names)
     kp, kd = centre[0::2], centre[1::2]
@@ -391,9 +391,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
+        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
-        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         if unreachable is not None:
             print(f"flexstab tune: {unreachable['message']}", file=sys.stderr, flush=True)
     else:
