@@ -71,8 +71,7 @@ def test_eight_pi_hub_frame_product_is_rejected(eight_pi):
 @pytest.mark.parametrize("elements", [8, 16])
 def test_two_pi_critical_at_every_converged_mesh(elements):
     kp, kd = TABLE3_GAINS[2]
-    fl = analyze("single-link", 2 * math.pi, kp=kp, kd=kd, elements=elements, params=ManipulatorParameters(),
-                 n_steps=None)
+    fl = analyze("single-link", 2 * math.pi, kp=kp, kd=kd, elements=elements, params=ManipulatorParameters())
     v = fl.verdict
     # converged: the spectral radius' own estimate is far below its distance from the threshold
     assert v.spectral_radius_error < 1e-3 * (v.spectral_radius - v.threshold)
