@@ -156,7 +156,7 @@ def _table(d: dict) -> str:
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
-        f"verdict          {d['verdict_detail']['message']}",
+        *([f"verdict          {d['verdict_detail']['message']}"] if d.get("verdict_detail") else []),
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",

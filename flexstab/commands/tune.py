@@ -560,14 +560,15 @@ def run(args: argparse.Namespace) -> int:
         gains = f"kp = {d['gains'][0]:.6g}   kd = {d['gains'][1]:.6g}"
         if d.get("drives"):
             gains = f"drive {d['drives'][0]}: {gains}"
-        print(f"{gains}   {_response_name(d)} = {d['tuned_response']:.6g} "
+        print(f"{gains}   {_response_name(d)} = {d.get('tuned_response', d['spectral_radius']):.6g} "
               f"(re-checked: {d['verified_spectral_radius']:.6g})")
     else:
         for j, drive in enumerate(d.get("drives") or [f"{j + 1}" for j in range(len(names) // 2)]):
             print(f"drive {drive}: {names[2 * j]} = {d['gains'][2 * j]:.6g}   "
                   f"{names[2 * j + 1]} = {d['gains'][2 * j + 1]:.6g}")
-        print(f"{_response_name(d)} = {d['tuned_response']:.6g} (re-checked: {d['verified_spectral_radius']:.6g})")
-    if d.get("spectral_radius") is not None:
+        print(f"{_response_name(d)} = {d.get('tuned_response', d['spectral_radius']):.6g} "
+              f"(re-checked: {d['verified_spectral_radius']:.6g})")
+    if d.get("spectral_radius") is not None and d.get("verdict_detail"):
         freq = d.get("spectral_radius_frequency_hz")
         err = d.get("spectral_radius_error_estimate")
         mode = d.get("spectral_radius_mode")
