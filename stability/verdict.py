@@ -196,7 +196,7 @@ def _named(label: Optional[str], freq: Optional[float]) -> str:
         return ""
     if freq is not None and math.isfinite(freq) and freq > 0:
         f = f"{freq / 1e3:.3g} kHz" if freq >= 1e3 else f"{freq:.3g} Hz"
-        return f"{label} ({f})"
+        return f"{label} at {f}"
     return str(label)
 
 
