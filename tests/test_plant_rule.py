@@ -26,6 +26,7 @@ RANGES = ["--kp-range", "0", "30", "--kd-range", "0", "10"]
 
 def _stub_tune_after_checks(monkeypatch):
     import flexstab.commands.tune as tune
+    import flexstab.plants as plants
     import flexstab.two_link as tl
 
     class Check:
@@ -34,7 +35,7 @@ def _stub_tune_after_checks(monkeypatch):
         hill_error_estimate = 0.0
 
     monkeypatch.setattr(tune, "whole_spectrum", lambda *a, **k: {})
-    monkeypatch.setattr(tune, "mesh_dependence", lambda *a, **k: [])
+    monkeypatch.setattr(plants, "mesh_dependence", lambda *a, **k: [])
     monkeypatch.setattr(tl, "check_multiplier", lambda *a, **k: Check())
 
 
