@@ -2,7 +2,7 @@
 
 Three lines a reader needs first -- *uncontrolled*, *tuned*, *nonlinear check* -- in words and
 numbers, each from the JSON file of the stage that computed it (``table2.json``, ``exudyn.json``,
-``validation.json``, ``sensitivity.json``) and each consistent with the verdict rule of
+``validation.json``, ``sensitivity.json``, and the two-link arm's ``two_link.json``) and each consistent with the verdict rule of
 :mod:`stability.verdict` (asymptotically stable only if every multiplier of the whole closed loop
 decays by ``e`` within 1000 periods, beyond its own error estimate).  A stage that did not run
 (or failed) gives "not computed" instead of a guess.
@@ -85,6 +85,25 @@ def verdict_summary(out: Path, omega: float, computed: Optional[set] = None) -> 
                  "spectral_radius_error": v["spectral_radius_error"], "undamped_count": v["undamped_count"],
                  "kp": ex["tuned_kp"], "kd": ex["tuned_kd"], "words": words}
     summary["tuned"] = tuned
+    # the two-link arm (its own stage): the tuned drive-mode response beside the whole loop's spectral radius
+    two = (_rows(out, "two_link.json") or [None])[0] if ok("two_link") else None
+    whole = ((two or {}).get("tuned") or {}).get("whole_spectrum") or {}
+    if whole.get("verdict_detail"):
+        from flexstab.plants import MODEL_RESPONSE_MODES, response_note
+
+        v = whole["verdict_detail"]
+        resp = float(two["tuned"]["dominant_modulus"])
+        note = response_note(resp, MODEL_RESPONSE_MODES, v)
+        summary["two_link_tuned"] = {
+            "verdict": v["verdict"], "elements_per_link": two.get("elements"), "tuned_response": resp,
+            "tuned_response_modes": MODEL_RESPONSE_MODES, "spectral_radius": v["spectral_radius"],
+            "spectral_radius_mode": v["spectral_radius_mode"],
+            "spectral_radius_frequency_hz": v["spectral_radius_frequency_hz"],
+            "spectral_radius_error": v["spectral_radius_error"], "gains": two.get("tuned_gains"),
+            "words": (f"{two.get('elements')} elements per link, gains "
+                      + ", ".join(f"{g:.5g}" for g in two.get("tuned_gains") or []) + f": {v['message']}"
+                      + (f". In words: {note}, set by the mesh and by structural damping the model does not have"
+                         if note else ""))}
     # nonlinear check
     chk: dict[str, Any] = {"verdict": None, "words": "not computed (stage validation did not run)"}
     val = (_rows(out, "validation.json") or [None])[0] if ok("validation") else None
@@ -116,7 +135,10 @@ def verdict_blocks(summary: dict) -> list:
         v = d.get("verdict") or "not computed"
         return [f"**{title}**", v, d.get("words", "")]
 
-    rows = [line("uncontrolled", "uncontrolled"), line("tuned", "tuned"), line("nonlinear_check", "nonlinear check")]
+    rows = [line("uncontrolled", "uncontrolled"), line("tuned", "tuned")]
+    if summary.get("two_link_tuned"):
+        rows.append(line("two_link_tuned", "tuned (two-link arm)"))
+    rows.append(line("nonlinear_check", "nonlinear check"))
     blocks = [
         text("Verdict rule: asymptotically stable only if every Floquet multiplier of the whole closed loop "
              "(every mode of the model, not only the tuned ones) decays by a factor e within 1000 periods, beyond "

@@ -37,6 +37,23 @@ def test_block_in_words_and_numbers(tmp_path):
     assert [r[1] for r in table["rows"]] == ["unstable", "critical", "confirmed"]
 
 
+def test_two_link_row_states_response_and_spectral_radius(tmp_path):
+    """The two-link arm at its four-gain optimum: drive-mode response 0.300 beside the whole loop's 0.557
+    (axial 9, 22.1 kHz) -- values of the two_link stage's JSON, said in words."""
+    v = judge([0.5573, 0.5573, 0.3001, 0.3001], [2.5e-5] * 4, labels=["axial 9", "axial 9", "shoulder", "shoulder"],
+              frequencies=[22100.0, 22100.0, 0.5, 0.5]).to_dict()
+    _write(tmp_path, "two_link.json", [{"elements": 2, "tuned_gains": [15.0, 8.9355, 7.1387, 1.4443],
+                                        "tuned": {"dominant_modulus": 0.3001, "whole_spectrum": {"verdict_detail": v}}}])
+    s = verdict_summary(tmp_path, OMEGA)
+    t = s["two_link_tuned"]
+    assert t["tuned_response"] == 0.3001 and t["spectral_radius"] == 0.5573 and t["spectral_radius_mode"] == "axial 9"
+    assert "decay at 0.3 per period" in t["words"] and "axial 9 at 22.1 kHz decays at 0.557" in t["words"]
+    rows = verdict_blocks(s)[1]["rows"]
+    assert [r[0] for r in rows] == ["**uncontrolled**", "**tuned**", "**tuned (two-link arm)**", "**nonlinear check**"]
+    # a two-link stage that did not run in this study gives no row
+    assert "two_link_tuned" not in verdict_summary(tmp_path, OMEGA, computed={"exudyn"})
+
+
 def test_block_does_not_guess(tmp_path):
     _write(tmp_path, "exudyn.json", [_exudyn_row(tuned_rho=0.3, whole=(0.3, 0.2, 0.1))])
     _write(tmp_path, "validation.json", [{"diverged": False, "agrees": False, "multipliers": [{}]}])
