@@ -515,9 +515,7 @@ def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
         text(f"The verdict of the whole closed loop (every multiplier, rule of `docs/verdicts.md`) at the reference "
              f"gains ({source}: kp = {kp:.4f}, kd = {kd:.4f}) for {', '.join(map(str, meshes))} ANCF elements, "
              f"without structural damping and with a Kelvin-Voigt loss time β (bendingDamping = β EI, "
-             f"axialDamping = β EA; `--damping`). Without damping the mesh modes of the link stay on the unit "
-             "circle up to their weak coupling with the hub and the verdict is critical at every mesh; with "
-             "damping they decay and the hub sets the spectral radius."),
+             f"axialDamping = β EA; `--damping`). " + _sensitivity_words(rows)),
         table(["elements", "damping", "verdict", "spectral radius (mode)", "undamped multipliers",
                "dominant |ρ| (hub, bending 1)"],
               [[r["elements"], r["damping"], r["verdict"], f"{r['spectral_radius']:.10g} ({r['spectral_radius_mode']})",
@@ -525,6 +523,22 @@ def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
     ]
     return {"json": "sensitivity.json", "title": f"Verdict sensitivity to mesh and damping at Ω = {_w(cfg.omega)}",
             "blocks": blocks}
+def _sensitivity_words(rows: list) -> str:
+    """What the sensitivity table shows, per damping, from its rows (never a claim the numbers do not make)."""
+    parts = []
+    for damping in dict.fromkeys(r["damping"] for r in rows):
+        sub = [r for r in rows if r["damping"] == damping]
+        verdicts = {r["verdict"] for r in sub}
+        where = ", ".join(f"{r['elements']}" for r in sub)
+        if len(verdicts) == 1:
+            parts.append(f"damping {damping}: {sub[0]['verdict']} at {where} elements")
+        else:
+            parts.append(f"damping {damping}: " + "; ".join(
+                f"{r['verdict']} at {r['elements']} elements ({r['spectral_radius_mode']}, "
+                f"|ρ| = {r['spectral_radius']:.6g})" for r in sub) + " -- the verdict depends on the mesh")
+    return "Measured: " + "; ".join(parts) + "."
+
+
 # ----------------------------------------------------------------------------- end of verdicts
 
 
