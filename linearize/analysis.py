@@ -130,6 +130,15 @@ class ModelFloquetResult:
     def orbit_residual(self) -> float:
         return float(self.orbit.residual)
 
+    @property
+    def verdict(self) -> Any:
+        """The closed loop's verdict (:func:`stability.verdict.judge_floquet`: every multiplier with its own
+        error estimate, the practically undamped and growing ones counted with their mode labels)."""
+        from stability.verdict import judge_floquet
+
+        return judge_floquet(self.floquet, labels=[m["mode"] for m in self.modes],
+                             frequencies=[m["frequency_hz"] for m in self.modes])
+
     def summary(self) -> dict:
         d = self.dominant_multiplier
         return {
@@ -149,6 +158,7 @@ class ModelFloquetResult:
             "error_estimate": float(self.floquet.error_estimate),
             "dominant_error_estimate": float(self.dominant_error_estimate),
             "frame": self.frame,
+            "verdict_detail": self.verdict.to_dict(),
         }
 
 

@@ -80,9 +80,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-VERDICT_STABLE = "asymptotically stable"
-VERDICT_UNSTABLE = "unstable"
-VERDICT_CRITICAL = "critical"
+# the verdict rule lives in stability.verdict (one rule for every route; re-exported here)
+from stability.verdict import VERDICT_CRITICAL, VERDICT_STABLE, VERDICT_UNSTABLE, verdict_band  # noqa: E402
 
 DEFAULT_METHOD = "magnus6"
 #: Upper limit on sub-intervals before the adaptive methods give up refining.
@@ -136,9 +135,12 @@ class FloquetResult:
     spectral_radius : float
         ``max |rho_i|``.
     verdict : str
-        ``"asymptotically stable"``, ``"unstable"`` or ``"critical"``.
+        ``"asymptotically stable"``, ``"unstable"`` or ``"critical"``: the rule of
+        :mod:`stability.verdict` on the spectral radius and its band (stable only if
+        ``rho + tol <= exp(-1/1000)``, unstable only if ``rho - tol > 1``); with mode labels,
+        :func:`stability.verdict.judge_floquet`.
     stability_tolerance : float
-        The band ``|rho_max - 1| <= tol`` called critical (the requested
+        The absolute error band of the spectral radius (the requested
         tolerance, widened to the estimated error when that is larger).
     liouville_residual : float
         ``|det Phi(T) / exp(int_0^T tr P dt) - 1|`` in log form,
@@ -377,11 +379,8 @@ def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> f
 
 
 def _verdict(rho: float, tol: float) -> str:
-    if rho > 1.0 + tol:
-        return VERDICT_UNSTABLE
-    if rho < 1.0 - tol:
-        return VERDICT_STABLE
-    return VERDICT_CRITICAL
+    """The verdict rule of :mod:`stability.verdict` on the spectral radius and its band ``tol``."""
+    return verdict_band(rho, tol)
 
 
 def _log_abs_det(matrices: np.ndarray) -> float:

@@ -5,8 +5,8 @@ import argparse
 import math
 import sys
 
-from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, gains_as_lists,
-                              non_negative_float, result_output)
+from flexstab.options import (add_damping_option, add_model_options, check_model_arg, dump_json, gain_list,
+                              gains_as_lists, non_negative_float, resolve_damping, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -31,10 +31,11 @@ def register(sub) -> None:
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    add_damping_option(p)
     p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
-                   help="structural bending damping of the ANCF elements (Exudyn's bendingDamping; default 0)")
+                   help="added to --damping: Exudyn's bendingDamping of the ANCF elements (N m^2 s; default 0)")
     p.add_argument("--axial-damping", type=non_negative_float, default=0.0,
-                   help="structural axial damping of the ANCF elements (Exudyn's axialDamping; default 0)")
+                   help="added to --damping: Exudyn's axialDamping of the ANCF elements (N s; default 0)")
     p.add_argument("--small-multipliers", choices=["flag", "qr"], default="flag",
                    help="multipliers below the rounding floor of the product: flag them (default) or "
                         "compute their moduli accurately by QR sweeps (log_moduli)")
@@ -67,10 +68,10 @@ def floquet_report(args: argparse.Namespace) -> dict:
         return _model_file_report(args, cfg, omega, method)
     args.kp, args.kd = args.kp[0], args.kd[0]
     out: dict = {"model": args.model}
+    damping = resolve_damping(args, cfg)
     if args.model == "reduced":
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
-                                                ("--bending-damping", args.bending_damping != 0.0),
-                                                ("--axial-damping", args.axial_damping != 0.0)) if given]
+                                                ("--damping", damping.given)) if given]
         if exudyn_only:
             raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only")
         from mbs_models.reduced import ReducedModel
@@ -81,12 +82,17 @@ def floquet_report(args: argparse.Namespace) -> dict:
     else:
         from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
 
+        from mbs_models.damping import material_damping_values
+
         elements = args.elements if args.elements is not None else cfg.elements
-        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
-                            bending_damping=args.bending_damping, axial_damping=args.axial_damping)
+        p = cfg.manipulator
+        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
+                                                 damping.bending, damping.axial)
+        ex = exudyn_floquet(p, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
+                            bending_damping=bending, axial_damping=axial)
         res = ex.floquet
         out.update(ex.summary())
-        out.update({"bending_damping": args.bending_damping, "axial_damping": args.axial_damping})
+        out.update({"bending_damping": bending, "axial_damping": axial, "damping": damping.to_dict()})
     out.update(
         {
             "omega": omega,
@@ -96,6 +102,10 @@ def floquet_report(args: argparse.Namespace) -> dict:
         }
     )
     out.update(res.to_dict())
+    if "verdict_detail" not in out:  # the reduced model: no mode labels
+        from stability.verdict import judge_floquet
+
+        out["verdict_detail"] = judge_floquet(res).to_dict()
     return out
 
 
@@ -105,8 +115,8 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from flexstab.options import resolve_model_definition
 
-    model, options = resolve_model_definition(args.model, cfg, args.elements, bending_damping=args.bending_damping,
-                                              axial_damping=args.axial_damping)
+    damping = resolve_damping(args, cfg)
+    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
                   small_multipliers=args.small_multipliers, **options)
@@ -114,6 +124,7 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
     out.update(res.summary())
     out["model"] = args.model
     out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
+    out["damping"] = damping.to_dict()
     out.update(res.floquet.to_dict())
     return out
 
@@ -153,6 +164,7 @@ def _table(d: dict) -> str:
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
+        *([f"verdict          {d['verdict_detail']['message']}"] if d.get("verdict_detail") else []),
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
@@ -169,7 +181,7 @@ def _table(d: dict) -> str:
     elif d["model"] == "exudyn":
         lines += [
             f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
-            f" ({d['dominant_mode']}); {d['undamped_multipliers']} multipliers of undamped structural modes",
+            f" ({d['dominant_mode']}); {d['undamped_multipliers']} practically undamped multipliers (verdict rule)",
             f"orbit residual {d['orbit_residual']:.1e}, {d['samples']} samples, {d['elements']} elements",
         ]
     return "\n".join(lines)
