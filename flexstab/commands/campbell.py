@@ -47,7 +47,7 @@ def register(sub) -> None:
                     "Omega, modes tracked by MAC and an optimal assignment; PNG, JSON and CSV in --out.",
     )
     p.add_argument("--model", required=True, metavar="MODEL",
-                   help="a built-in model file (laval-rotor, single-link, two-link) or a model file PATH.py")
+                   help="a built-in model file (laval-rotor, slider-crank, single-link, two-link) or a model file PATH.py")
     p.add_argument("--omega-range", required=True, type=parse_omega_range, metavar="A,B",
                    help="speeds from A to B (rad/s or like 2pi), A < B")
     p.add_argument("--points", type=int, default=DEFAULT_POINTS, help=f"number of speeds (default {DEFAULT_POINTS})")
