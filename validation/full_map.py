@@ -460,7 +460,11 @@ def compare_full_map(result: FullMapResult, predicted: Sequence[complex], labels
     partners, unmatched, unresolved = [], [], []
     if ms and P.size:
         M = np.array([m.modulus if m.resolved else abs(m.levels[-1]) for m in ms])
-        r, c = linear_sum_assignment(np.abs(M[:, None] - P[None, :]))
+        B = np.array([m.error_bar for m in ms])
+        diff = np.abs(M[:, None] - P[None, :])
+        # as many partners within the bars as possible, then the closest ones
+        outside = diff > B[:, None] + E[None, :]
+        r, c = linear_sum_assignment(outside.astype(float) + 1e-3 * diff / (1.0 + diff))
         pair = dict(zip(r, c))
     else:
         pair = {}
@@ -672,3 +676,29 @@ def measure_model_full_map(
                 "samples": samples}
         result = measure_full_map(images, runner.norm, config, info=info)
     return result, runner
+
+
+def predicted_spectrum(analysis: Any) -> tuple[np.ndarray, list, np.ndarray]:
+    """Every predicted multiplier of a :class:`linearize.analysis.ModelFloquetResult` with its label and
+    absolute error estimate (``|mu| 10^-reliable_digits``; 0 where the result has none)."""
+    res = analysis.floquet
+    mu = np.asarray(res.multipliers, dtype=complex)
+    labels = [m["mode"] for m in analysis.modes]
+    digits = getattr(res, "reliable_digits", None)
+    if digits is None:
+        err = np.zeros(mu.size)
+    else:
+        err = np.abs(mu) * 10.0 ** -np.asarray(digits, dtype=float)
+    return mu, labels, np.nan_to_num(err, nan=0.0)
+
+
+def full_map_report(result: FullMapResult, analysis: Any, *, omit: Sequence[str] = ()) -> dict:
+    """JSON block ``full_map`` of ``flexstab validate``: the measurement and its comparison with ``analysis``
+    (modes whose label is in ``omit`` removed from the prediction)."""
+    mu, labels, err = predicted_spectrum(analysis)
+    keep = [i for i, lab in enumerate(labels) if lab not in set(omit)]
+    cmp = compare_full_map(result, mu[keep], [labels[i] for i in keep], err[keep])
+    d = result.to_dict()
+    d.update({"partners": cmp.partners, "unmatched": cmp.unmatched, "unresolved": cmp.unresolved,
+              "agrees": cmp.agrees, "omitted_modes": list(omit)})
+    return json_ready(d)
