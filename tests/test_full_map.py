@@ -139,3 +139,72 @@ def test_failing_run_is_reported_not_raised():
     res = measure_full_map(images, norm, FullMapConfig(step=0.1, amplitude=1e-2))
     assert res.diverged and "Newton failed" in res.reason and not res.multipliers
     assert not compare_full_map(res, [0.3], ["x"]).agrees
+
+
+# --------------------------------------------------------------------------- nonlinear runs (Exudyn)
+def _oracles():
+    import importlib.util
+    from pathlib import Path
+
+    here = Path(__file__).parent
+    spec = importlib.util.spec_from_file_location("_cl_oracles_fm", here / "test_constrained_linearisation.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+OMEGA_K, AMP_K = 80.0, 0.05  # Kapitza pendulum: support amplitude 5 cm at 80 rad/s, upright
+
+
+@pytest.fixture(scope="module")
+def kapitza():
+    from validation.full_map import measure_model_full_map
+
+    o = _oracles()
+    T_k = 2 * math.pi / OMEGA_K
+    res, runner = measure_model_full_map(o.PENDULUM, OMEGA_K, config=FullMapConfig(step=T_k / 128, refinements=2),
+                                         amplitude=AMP_K, inverted=True)
+    return res, runner, o
+
+
+@pytest.mark.slow
+def test_kapitza_pendulum_full_map_against_mathieu(kapitza):
+    # oracle: the damped Mathieu equation (scipy DOP853, independent of Exudyn and of the package)
+    res, runner, o = kapitza
+    ref = o.mathieu_multipliers(OMEGA_K, AMP_K, o._pend.DAMPING, True)
+    assert runner.rheonomic and "generalised-alpha" in res.integrator  # the driven support: index 3
+    assert not res.diverged and res.state_dimension == 2 == res.n_perturbations
+    assert len(res.multipliers) == 2
+    for m in res.multipliers:
+        assert m.resolved
+        # rho_inf = 0.9 damps the resolved pair at O(h^2): the levels converge with the law's ratio 4
+        assert m.observed_ratio == pytest.approx(4.0, rel=0.05)
+        assert abs(abs(m.levels[0]) - abs(ref[0])) > 10 * m.error_bar  # the coarsest level alone is off
+        assert abs(m.modulus - abs(ref[0])) <= m.error_bar
+    assert compare_full_map(res, ref, ["pendulum", "pendulum"]).agrees
+    # rejected: a prediction without the pair, and Mathieu's pair for 10 % more joint damping (only moduli
+    # are compared: a complex pair's modulus is sqrt(det Phi), which the support amplitude does not change)
+    assert compare_full_map(res, [], []).unmatched
+    wrong = o.mathieu_multipliers(OMEGA_K, AMP_K, 1.1 * o._pend.DAMPING, True)
+    assert abs(abs(wrong[0]) - abs(ref[0])) < 1e-3  # a small difference, far beyond the bars
+    assert not compare_full_map(res, wrong, ["pendulum", "pendulum"]).agrees
+
+
+@pytest.mark.slow
+def test_cli_full_map_json_and_exit_code(capsys):
+    import json
+
+    from flexstab.cli import main
+
+    o = _oracles()
+    rc = main(["validate", "--model", str(o.PENDULUM), "--omega", str(OMEGA_K), "--full-map", "--workers", "1",
+               "--step", str(2 * math.pi / OMEGA_K / 128), "--full-map-step", str(2 * math.pi / OMEGA_K / 128),
+               "--json"])
+    d = json.loads(capsys.readouterr().out)
+    fm = d["full_map"]
+    for key in ("multipliers", "error_bars", "unmatched", "n_perturbations", "steps", "partners", "agrees"):
+        assert key in fm
+    # the model file's default: the hanging pendulum on the vibrating support, against Mathieu
+    ref = o.mathieu_multipliers(OMEGA_K, o._pend.AMPLITUDE, o._pend.DAMPING, False)
+    assert fm["agrees"] and not fm["unmatched"] and rc == 0
+    assert all(abs(m - abs(ref[0])) <= e for m, e in zip(fm["multipliers"], fm["error_bars"]))

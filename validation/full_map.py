@@ -80,6 +80,10 @@ __all__ = [
     "compare_full_map",
     "measure_full_map",
     "extrapolate_modulus",
+    "full_map_from_maps",
+    "full_map_report",
+    "measure_model_full_map",
+    "predicted_spectrum",
     "random_perturbations",
 ]
 
@@ -121,6 +125,10 @@ class FullMapConfig:
         Random generator seed of the directions.
     floor : float
         Moduli below this are not reported.
+    amplitude_check : bool
+        Repeat the finest level with half the amplitude: the one-sided images err by ``c a``, so
+        the value at ``a`` is ``2 |mu(a) - mu(a/2)|`` off; that is added to each bar
+        (``amplitude_error``).  Costs one more finest level.
     """
 
     step: Optional[float] = None
@@ -130,6 +138,7 @@ class FullMapConfig:
     slowest: int = 6
     seed: int = 0
     floor: float = FULL_MAP_FLOOR
+    amplitude_check: bool = True
 
     def __post_init__(self) -> None:
         for name in ("refinements", "slowest", "seed"):
@@ -181,6 +190,8 @@ class FullMapMultiplier:
     observed_ratio : float
         Ratio of the last two changes of ``1/ln|mu_h|`` (4: the trapezoidal law).
     resolved : bool
+    amplitude_error : float
+        Part of ``error_bar`` from the amplitude check (0 without one).
     """
 
     modulus: float
@@ -189,9 +200,11 @@ class FullMapMultiplier:
     levels: np.ndarray
     observed_ratio: float
     resolved: bool
+    amplitude_error: float = 0.0
 
     def to_dict(self) -> dict:
         return json_ready({"modulus": self.modulus, "error_bar": self.error_bar, "phase": self.phase,
+                           "amplitude_error": self.amplitude_error,
                            "levels": [[float(z.real), float(z.imag)] for z in self.levels],
                            "observed_ratio": self.observed_ratio, "resolved": self.resolved})
 
@@ -237,6 +250,7 @@ class FullMapResult:
             "phases": [m.phase for m in self.multipliers],
             "resolved": [m.resolved for m in self.multipliers],
             "observed_ratio": [m.observed_ratio for m in self.multipliers],
+            "amplitude_error": [m.amplitude_error for m in self.multipliers],
             "levels": [[[float(z.real), float(z.imag)] for z in m.levels] for m in self.multipliers],
             "n_perturbations": self.n_perturbations,
             "state_dimension": self.state_dimension,
@@ -314,18 +328,22 @@ def _modulus_interval(y: float, b: float) -> tuple[float, float]:
     return value, max(abs(e - value) for e in ends)
 
 
-def _track(maps: Sequence[np.ndarray], floor: float) -> list:
-    """Eigenvalues of the finest map above ``floor`` and their partners at every coarser level."""
+def _track(maps: Sequence[np.ndarray], floor: float, reference: int = -1) -> list:
+    """Eigenvalues of ``maps[reference]`` (default the last, the finest) above ``floor`` and their partners
+    in every other map (assignment on eigenvector overlaps), in the order of ``maps``."""
     from scipy.optimize import linear_sum_assignment
 
     eig = [np.linalg.eig(A) for A in maps]
-    vals_f, vecs_f = eig[-1]
+    ref = reference % len(maps)
+    vals_f, vecs_f = eig[ref]
     vecs_f = vecs_f / np.linalg.norm(vecs_f, axis=0)
     keep = [i for i in range(vals_f.size) if abs(vals_f[i]) >= floor]
     tracks = {i: [None] * len(maps) for i in keep}
     for i in keep:
-        tracks[i][-1] = vals_f[i]
-    for j, (vals, vecs) in enumerate(eig[:-1]):
+        tracks[i][ref] = vals_f[i]
+    for j, (vals, vecs) in enumerate(eig):
+        if j == ref:
+            continue
         vecs = vecs / np.linalg.norm(vecs, axis=0)
         mac = np.abs(vecs_f.conj().T @ vecs)
         r, c = linear_sum_assignment(-mac)
@@ -392,23 +410,54 @@ def measure_full_map(
         maps.append(A)
         resid.append(float(np.linalg.norm(A @ Z0 - Z1) / max(np.linalg.norm(Z1), 1e-300)))
         timings[f"step {h:g}"] = time.perf_counter() - t1
+    half = None
+    if maps and not diverged and config.amplitude_check:
+        t1 = time.perf_counter()
+        try:
+            X1h = 2.0 * np.asarray(images(config.steps[len(maps) - 1], 0.5 * D), dtype=float)
+            At = np.linalg.lstsq(Z0.T, norm.transform(X1h).T, rcond=None)[0]
+            half = At.T
+        except Exception as exc:  # the simulator's own error types
+            diverged, reason = True, f"half-amplitude run failed: {exc}"
+        timings["amplitude check"] = time.perf_counter() - t1
     if diverged:
         logger.warning("full-map measurement diverged: %s", reason)
+    info = dict(info or {})
+    info["timings"] = {**info.get("timings", {}), **timings, "full_map": time.perf_counter() - tic}
+    return full_map_from_maps(maps, config.steps[:len(maps)], config, p, n2, resid, diverged, reason, integrator,
+                              info, half_amplitude_map=half)
+
+
+def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], config: FullMapConfig,
+                       n_perturbations: int, state_dimension: int, fit_residual: Sequence[float] = (),
+                       diverged: bool = False, reason: str = "",
+                       integrator: str = "Newmark (beta = 1/4, gamma = 1/2, trapezoidal), index-2 constraints",
+                       info: Optional[dict] = None, half_amplitude_map: Optional[np.ndarray] = None) -> FullMapResult:
+    """Steps 3-5 of the module docstring on fitted maps (one per step level, coarse to fine): tracked,
+    extrapolated, the ``config.slowest`` largest kept.  Lets a measurement made level by level (e.g. stored
+    between sessions) be assembled without repeating the runs."""
     mults: list = []
     if maps and not diverged:
-        for lv in _track(maps, config.floor):
+        from validation.multipliers import MEASURED_FRACTION
+
+        tracks = _track(list(maps) + ([half_amplitude_map] if half_amplitude_map is not None else []), config.floor,
+                        reference=len(maps) - 1)
+        for lv in tracks:
+            amp_err = 0.0
+            if half_amplitude_map is not None:
+                lv, amp_err = lv[:-1], 2.0 * abs(abs(lv[-1]) - abs(lv[-2]))
             value, bar, q, ok = extrapolate_modulus(lv)
+            bar += amp_err
+            ok = ok and bar <= MEASURED_FRACTION * max(value, 1e-300)
             mults.append(FullMapMultiplier(modulus=value, error_bar=bar, phase=float(np.angle(lv[-1])),
-                                           levels=lv, observed_ratio=q, resolved=ok))
+                                           levels=lv, observed_ratio=q, resolved=ok, amplitude_error=amp_err))
         # unresolved ones by the finest level (the trapezoidal law: an upper bound of the modulus)
         mults.sort(key=lambda m: -(m.modulus if m.resolved else abs(m.levels[-1])))
         mults = [m for m in mults if (m.modulus if m.resolved else abs(m.levels[-1])) >= config.floor]
         mults = mults[:config.slowest]
-    info = dict(info or {})
-    info["timings"] = {**info.get("timings", {}), **timings, "full_map": time.perf_counter() - tic}
-    return FullMapResult(multipliers=tuple(mults), steps=tuple(config.steps[:len(maps)]), n_perturbations=p,
-                         state_dimension=n2, maps=tuple(maps), fit_residual=tuple(resid), diverged=diverged,
-                         reason=reason, integrator=integrator, config=config, info=info)
+    return FullMapResult(multipliers=tuple(mults), steps=tuple(steps), n_perturbations=int(n_perturbations),
+                         state_dimension=int(state_dimension), maps=tuple(maps), fit_residual=tuple(fit_residual),
+                         diverged=diverged, reason=reason, integrator=integrator, config=config, info=dict(info or {}))
 
 
 @dataclass(frozen=True)
@@ -511,6 +560,18 @@ def newmark_settings(t0: float, t1: float, h: float, integrator: str = "newmark"
     return s
 
 
+#: Generalised-alpha ``rho_inf`` of the runs when the model has rheonomic constraints (see
+#: :func:`measure_model_full_map`).
+RHEONOMIC_SPECTRAL_RADIUS = 0.9
+
+
+def integrator_name(integrator: str) -> str:
+    """Human-readable name of a :class:`ClosedLoopSpec` integrator."""
+    if integrator == "newmark":
+        return "Newmark (beta = 1/4, gamma = 1/2, trapezoidal), index-2 constraints"
+    return f"generalised-alpha, spectralRadius = {float(integrator):g}, index-3 constraints"
+
+
 @dataclass(frozen=True)
 class ClosedLoopSpec:
     """What a worker needs to rebuild the closed loop (picklable when ``model`` is a name or a path)."""
@@ -564,6 +625,17 @@ class ClosedLoopRunner:
         self.constraints = ExudynSystem(build_model(definition, spec.omega))
         self._ini = exu.ConfigurationType.Initial
 
+    @property
+    def rheonomic(self) -> bool:
+        """Whether a constraint depends on time explicitly: ``C(q0, t) != C(q0, 0)`` at some of eight times in
+        the period (beyond round-off of coordinates of size ``max|q0|``)."""
+        if not self.constraints.m:
+            return False
+        c0 = self.constraints.constraints(self.q0, 0.0)
+        tol = 1e-12 * (1.0 + float(np.max(np.abs(self.q0))))
+        return any(float(np.max(np.abs(self.constraints.constraints(self.q0, t) - c0))) > tol
+                   for t in np.arange(1, 8) * self.period / 8.0)
+
     def run(self, x: np.ndarray, h: float) -> np.ndarray:
         """State at ``T`` of the run from the orbit state perturbed by ``x`` at ``t = 0`` (constraint-consistent)."""
         from validation.multipliers import _consistent_state
@@ -607,7 +679,7 @@ def measure_model_full_map(
     executor: Any = None,
     chunks: Optional[int] = None,
     quiet: bool = True,
-    integrator: str = "newmark",
+    integrator: str = "auto",
     **options: Any,
 ) -> tuple[FullMapResult, Any]:
     """Measure the full one-period map of a model file's nonlinear closed loop.
@@ -629,6 +701,16 @@ def measure_model_full_map(
     chunks : int, optional
         Chunks per step level (default: 1 without an executor, else 2).
     quiet : bool
+    integrator : {"auto", "newmark"} or a string holding a float
+        ``"newmark"``: Newmark ``beta = 1/4, gamma = 1/2`` with index-2 constraints (no numerical damping);
+        a number: generalised-alpha (index 3) at that ``rho_inf``.  ``"auto"`` (default): Newmark unless a
+        constraint depends on time explicitly, then ``rho_inf =`` :data:`RHEONOMIC_SPECTRAL_RADIUS`.  Why:
+        Exudyn's index-2 velocity constraint of a ``CoordinateConstraint`` takes its rate from
+        ``offsetUserFunction_t``, which a model file need not define; without it the driven support of the
+        Kapitza pendulum (``tests/models/vertical_pendulum.py``) stands still at velocity level and the
+        measured map is that of the unstabilised pendulum (1.509 and 0.650 against Mathieu's pair of modulus
+        0.990468), while generalised-alpha at 0.9 gives 0.9904676 (levels at T/128 ... T/512 converging
+        with ratio 3.98, the O(h^2) of its numerical damping).
     **options
         Keyword options of the model's ``build``.
 
@@ -654,8 +736,12 @@ def measure_model_full_map(
         n_drives = len(orbit.drive_names)
         kp_t = tuple(np.resize(np.atleast_1d(np.asarray(kp, dtype=float)), n_drives).tolist()) if n_drives else ()
         kd_t = tuple(np.resize(np.atleast_1d(np.asarray(kd, dtype=float)), n_drives).tolist()) if n_drives else ()
-        spec = ClosedLoopSpec(model, omega, kp_t, kd_t, samples, tuple(sorted(options.items())), integrator)
+        spec = ClosedLoopSpec(model, omega, kp_t, kd_t, samples, tuple(sorted(options.items())),
+                              "newmark" if integrator == "auto" else integrator)
         runner = ClosedLoopRunner(spec, orbit=orbit)
+        if integrator == "auto" and runner.rheonomic:
+            spec = replace(spec, integrator=str(RHEONOMIC_SPECTRAL_RADIUS))
+            runner = ClosedLoopRunner(spec, orbit=orbit)
         T = runner.period
         if config.amplitude is None:
             config = replace(config, amplitude=MODEL_AMPLITUDE)
@@ -674,7 +760,7 @@ def measure_model_full_map(
 
         info = {"model": runner.definition.name, "omega": omega, "period": T, "kp": list(kp_t), "kd": list(kd_t),
                 "samples": samples}
-        result = measure_full_map(images, runner.norm, config, info=info)
+        result = measure_full_map(images, runner.norm, config, info=info, integrator=integrator_name(spec.integrator))
     return result, runner
 
 
