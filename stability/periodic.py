@@ -24,7 +24,6 @@ __all__ = [
     "PeriodicMatrixFunction",
     "SecondOrderPeriodicSystem",
     "first_order_matrix",
-    "evaluate_periodic_matrix",
     "check_period",
 ]
 
@@ -276,9 +275,3 @@ class PeriodicMatrixFunction:
         else:
             P = np.array([self._as_real(self.func(t), "P(t)") for t in times])
         return self._check(P, "P(t)")
-
-
-def evaluate_periodic_matrix(P: Any, times: np.ndarray, period: Optional[float] = None) -> np.ndarray:
-    """Evaluate a periodic matrix at ``times`` (shape ``(m, n, n)``), validated."""
-    wrapped = P if isinstance(P, PeriodicMatrixFunction) else PeriodicMatrixFunction(P, period)
-    return wrapped.evaluate(times)

@@ -86,6 +86,7 @@ def _hub_multiplier(lin, floquet_result):
     return next(complex(mu) for mu, m in zip(floquet_result.multipliers, modes) if m["mode"] == "hub")
 
 
+@pytest.mark.slow
 def test_table3_exudyn_agrees_with_reduced_model_and_direct_exudyn_monodromy():
     """Omega = 2 pi, Table 3 gains.
 
