@@ -22,6 +22,8 @@ from validation.full_map import (
 )
 from validation.multipliers import energy_norm
 
+from test_multipliers import _oracles  # tests/ module: the pendulum model and its Mathieu oracle
+
 T = 1.0
 #: (decay sigma in 1/s, angular frequency in rad/s) per oscillator: a slow lightly damped fast mode
 #: (|mu| = exp(-0.585) = 0.557, the two-link's axial pair at a smaller frequency), a strongly damped
@@ -142,17 +144,6 @@ def test_failing_run_is_reported_not_raised():
 
 
 # --------------------------------------------------------------------------- nonlinear runs (Exudyn)
-def _oracles():
-    import importlib.util
-    from pathlib import Path
-
-    here = Path(__file__).parent
-    spec = importlib.util.spec_from_file_location("_cl_oracles_fm", here / "test_constrained_linearisation.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 OMEGA_K, AMP_K = 80.0, 0.05  # Kapitza pendulum: support amplitude 5 cm at 80 rad/s, upright
 
 

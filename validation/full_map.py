@@ -168,9 +168,9 @@ class FullMapConfig:
     @property
     def steps(self) -> tuple:
         """``h, h/2, ...`` (empty while ``step`` is None)."""
-        if self.step is None:
-            return ()
-        return tuple(self.step / 2**j for j in range(self.refinements + 1))
+        from validation.multipliers import step_halvings
+
+        return step_halvings(self.step, self.refinements)
 
 
 @dataclass(frozen=True)
