@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Optional
 from flexstab.config import load_config
 from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
 # the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
+from flexstab.plants import (HILL_HARMONICS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
                              plant_for, propagator_steps, whole_spectrum)
 
 if TYPE_CHECKING:
@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
 
@@ -367,7 +367,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
-        # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
+        # the one plant rule of tune, study and chart --model: Hill where the engine rule says so (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
         choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
