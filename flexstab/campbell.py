@@ -4,9 +4,11 @@ Per speed ``Omega`` (:class:`CampbellPointTask`, picklable, so the points can ru
 :func:`flexstab.executor.make_executor`'s executors): the model's periodic orbit, its linearisation and
 the monodromy matrix (:func:`linearize.analysis.analyze`), then the modes of the point
 (:func:`stability.campbell.floquet_modes`): the principal frequency of each mode by the harmonic content of
-its Floquet solution read in the model's own (Exudyn ODE2) displacement coordinates, propagated in a
-frozen-modal frame of the linearisation (where the stiff part is nearly constant), and the mode shape for
-tracking (displacements ``dq = N(0) z`` at ``t = 0``).  The modes are then tracked across the speeds by MAC
+its Floquet solution read in the linearisation's independent displacement coordinates ``z`` (which co-rotate
+with the bodies, as the package's mode labels do), in a window of harmonics centred on the frozen-time modal
+frequency of the mode (so that a structural mode far above ``Omega`` is not aliased), propagated in a
+frozen-modal frame of the linearisation (where the stiff part is nearly constant); the mode shape for
+tracking are the displacements ``dq = N(0) z`` at ``t = 0`` in Exudyn's coordinates.  The modes are then tracked across the speeds by MAC
 and an optimal assignment (:func:`stability.campbell.campbell`).
 """
 from __future__ import annotations
@@ -21,15 +23,24 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-__all__ = ["CampbellPointTask", "point_modes", "plot_campbell", "campbell_tables", "PRINCIPAL_RULE"]
+__all__ = ["CampbellPointTask", "point_modes", "plot_campbell", "campbell_tables", "PRINCIPAL_RULE",
+           "MIN_RELIABLE_DIGITS"]
 
 logger = logging.getLogger(__name__)
 
 #: The frequency rule, as the JSON output states it.
 PRINCIPAL_RULE = ("principal frequency: Im(log(rho)/T) + k* Omega, k* the harmonic of Omega carrying the largest "
-                  "share of the Floquet solution's periodic part, read in the model's displacement coordinates; "
+                  "share of the Floquet solution's periodic part, read in the linearisation's independent "
+                  "displacement coordinates (co-rotating with the bodies) over 64 harmonics centred on the "
+                  "frozen-time modal frequency; "
                   "one mode per conjugate pair (the member with positive frequency); damping ratio "
                   "-Re(lambda)/|lambda| of that representative; 'harmonics' maps k - k* to its share")
+
+
+#: Modes whose multiplier the Floquet engine resolves to fewer digits (``reliable_digits``: a multiplier below
+#: the product's rounding floor, e.g. a strongly PD-damped mode) are left out of the diagram: their
+#: exponents, hence frequency and damping, are rounding noise.  The count is stated per speed.
+MIN_RELIABLE_DIGITS = 1.0
 
 
 @dataclass(frozen=True)
@@ -77,6 +88,7 @@ class CampbellPointTask:
         out = {
             "omega": float(omega),
             "modes": modes,
+            "unresolved_modes": _pairs(res.floquet.multipliers) - len(modes),
             "orbit_residual": float(res.orbit.residual),
             "shooting_residual": float(res.orbit.shooting_residual),
             "spectral_radius": float(res.floquet.spectral_radius),
@@ -88,6 +100,15 @@ class CampbellPointTask:
             "stage_cpu_seconds": dict(res.cpu_timings),
         }
         return out
+
+
+def _pairs(multipliers) -> int:
+    """Modes of a spectrum: one per conjugate pair, one per real multiplier."""
+    from stability.campbell import REAL_MULTIPLIER_TOLERANCE
+
+    mu = np.asarray(multipliers)
+    real = np.abs(mu.imag) <= REAL_MULTIPLIER_TOLERANCE * np.abs(mu)
+    return int(np.sum(real) + np.sum(~real & (mu.imag > 0)))
 
 
 def point_modes(res: Any) -> list:
@@ -124,16 +145,23 @@ def point_modes(res: Any) -> list:
     Phi = np.asarray(res.floquet.monodromy)
     mu_eig = np.linalg.eigvals(Phi)
     mults = np.asarray(res.floquet.multipliers)
-    labels = []
-    for m in mu_eig:  # the label of the analysed multiplier nearest each eigenvalue (eig order)
+    labels, centres = [], []
+    for m in mu_eig:  # label and frozen-mode frequency of the analysed multiplier nearest each eigenvalue
         j = int(np.argmin(np.abs(mults - m)))
         labels.append(res.modes[j]["mode"] if j < len(res.modes) else "")
+        centres.append(2 * math.pi * res.modes[j]["frequency_hz"] if j < len(res.modes) else 0.0)
+    z_rows = np.eye(2 * r)[:r]
     fm = floquet_modes(propagate, Phi, period=T, shape_map=displacements(np.zeros(1))[0], labels=labels,
-                       basis=basis, output=displacements)
+                       centres=centres, basis=basis,
+                       output=lambda t: np.broadcast_to(z_rows, (np.size(t), r, 2 * r)))
     out = []
+    digits = np.asarray(res.floquet.reliable_digits, dtype=float)
     for j in range(len(fm)):
         lam = fm.exponents[j]
         mu = fm.multipliers[j]
+        near = int(np.argmin(np.abs(mults - mu)))
+        if not digits[near] >= MIN_RELIABLE_DIGITS:
+            continue  # below the rounding floor of the product: its exponent (frequency, damping) is noise
         out.append({
             "frequency": float(fm.frequencies[j]),
             "frequency_hz": float(fm.frequencies[j] / (2 * math.pi)),

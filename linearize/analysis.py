@@ -13,6 +13,7 @@ import scipy.linalg
 from linearize.constrained import linearize_orbit
 from linearize.periodic_orbit import DEFAULT_SAMPLES, PeriodicOrbit, StageClock, find_orbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.frozen import frozen_result
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
@@ -67,6 +68,7 @@ UNDAMPED_TOLERANCE = 2e-3
 DRIVE_SHARE_THRESHOLD = 1e-8
 
 
+@frozen_result
 @dataclass(frozen=True)
 class ModelFloquetResult:
     """Floquet analysis of a model file about its periodic orbit.

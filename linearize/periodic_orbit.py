@@ -126,6 +126,10 @@ SHOOTING_STEPS_PER_SAMPLE = 16
 #: harmonics the orbit keeps (<= 16 omega) have omega h <= 2 pi / 32, i.e. an
 #: error <= 3e-3 of their amplitude; 1e-2 leaves a factor of 3.
 SHOOTING_TOLERANCE = 1e-2
+#: The defect is relative to the orbit's variation, but to no less than this times the size of its
+#: coordinates and rates: Exudyn's Newton tolerance in these runs (:data:`NEWTON_RELATIVE_TOLERANCE`)
+#: resolves the state no better.
+SHOOTING_FLOOR = 1e-6
 
 
 #: Newton tolerances of Exudyn's integrator in the guess and shooting runs.  The
@@ -980,6 +984,8 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
     """
     n = system.n
     s = np.zeros(n)
+    if advance is not None:
+        _check_rotation_parameters(system, built, np.asarray(advance, dtype=float))
     rot = system.rotation_coordinates()
     if advance is not None and rot.size:
         a = np.asarray(advance, dtype=float)[rot]
@@ -1006,6 +1012,28 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
         logger.info("orbit periodic up to whole turns: %s", {system.coordinate_labels()[i] + f"[{i}]":
                                                               int(round(s[i] / (2 * math.pi))) for i in np.flatnonzero(s)})
     return s
+
+
+def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> None:
+    """Raise :class:`ModelFileError` when a node with Euler parameters or a rotation vector makes a whole
+    turn in the simulated period (``advance = q(T) - q(0)``): its parameters come back with the opposite
+    sign (Euler parameters) or pass the singular length 2 pi (rotation vector), so no smooth orbit periodic
+    up to whole turns exists in its coordinates -- Newton would otherwise settle on another orbit (e.g.
+    the body at rest)."""
+    q0 = np.asarray(system.q_initial, dtype=float)
+    for kind, idx, ref in system.rotation_parameters():
+        p0, pT = q0[idx] + ref, q0[idx] + advance[idx] + ref
+        if kind == "RigidBodyEP":
+            turned = float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0))
+            what = "its Euler parameters come back with the opposite sign"
+        else:
+            turned = float(np.linalg.norm(pT - p0)) >= math.pi
+            what = "its rotation vector passes the singular length 2 pi"
+        if turned:
+            raise ModelFileError(
+                f"model {built.definition.name}: a {kind} node turns by a whole turn per period ({what}); an "
+                f"orbit periodic up to whole turns needs the turning angle as a coordinate: use "
+                f"NodeRigidBodyRxyz (its angles advance by 2 pi k) or NodeRigidBody2D for the turning body")
 
 
 #: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
@@ -1133,7 +1161,10 @@ def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.
     x0 = np.concatenate([Q[0] + s, V[0]])
     xT = np.concatenate([qT, vT])
     P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
-    variation = max(float(np.max(np.abs(P - P[0]))), float(np.max(np.abs(V - V[0]))), 1e-300)
+    # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
+    # part, e.g. a rotor spinning steadily, has no variation to compare with)
+    floor = SHOOTING_FLOOR * max(1.0, float(np.max(np.abs(Q))), float(np.max(np.abs(V))))
+    variation = max(float(np.max(np.abs(P - P[0]))), float(np.max(np.abs(V - V[0]))), floor)
     # coordinates and rates are compared in their own units: the defect relative to
     # the largest excursion of either along the orbit
     return float(np.max(np.abs(xT - x0)) / variation)

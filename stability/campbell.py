@@ -114,6 +114,9 @@ class HarmonicContent:
     samples : int
     steps : int
         Magnus-4 steps per period.
+    offset : ndarray of int, shape (r,)
+        Harmonic on which each vector's window is centred (0 without ``centre``): column ``i`` of ``shares``
+        is harmonic ``harmonics[i] + offset``.
     """
 
     harmonics: np.ndarray
@@ -122,6 +125,7 @@ class HarmonicContent:
     closure: np.ndarray
     samples: int
     steps: int
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
 def _propagate(P: PeriodicMatrixFunction, Y0: np.ndarray, samples: int, steps_per_sample: int) -> np.ndarray:
@@ -146,7 +150,8 @@ def _propagate(P: PeriodicMatrixFunction, Y0: np.ndarray, samples: int, steps_pe
 def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, period: Optional[float] = None,
                      samples: int = HARMONIC_SAMPLES, steps_per_sample: int = STEPS_PER_SAMPLE,
                      basis: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-                     output: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> HarmonicContent:
+                     output: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+                     centre: Optional[np.ndarray] = None) -> HarmonicContent:
     """Fourier content of each Floquet solution's periodic part (the rule of the module docstring).
 
     Parameters
@@ -170,6 +175,13 @@ def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, pe
     output : callable, optional
         ``times -> (m, p, N)``: the output ``y = C(t) x`` whose harmonics are counted (e.g. the
         displacements in the model's coordinates); default the state.
+    centre : ndarray, shape (r,), optional
+        A prior frequency per vector (rad/s, e.g. the frozen-time modal frequency): the window of
+        ``samples`` harmonics is centred on the harmonic nearest it instead of on ``log(rho) / T``.  With
+        ``S`` samples harmonics ``S`` apart cannot be told apart (aliasing); a mode far above ``S Omega / 2``
+        (a stiff structural mode of a slowly turning machine) needs this to be assigned its own window.
+        :attr:`HarmonicContent.harmonics` stay relative to ``log(rho) / T`` plus the window's offset,
+        :attr:`HarmonicContent.principal` includes the offset.
 
     Returns
     -------
@@ -207,7 +219,12 @@ def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, pe
     closure = np.linalg.norm(X[S] - X[0] * mu[None, :], axis=0) / np.where(norm0 > 0, norm0, 1.0)
     Y = X if output is None else np.einsum("mpi,mir->mpr", np.asarray(output(times)), X)
     lam0 = np.log(mu) / T
-    periodic = Y[:S] * np.exp(-np.outer(times[:S], lam0))[:, None, :]
+    Om = 2.0 * math.pi / T
+    offset = np.zeros(mu.size, dtype=int)
+    if centre is not None:
+        offset = np.rint((np.asarray(centre, dtype=float) - lam0.imag) / Om).astype(int)
+    lam_b = lam0 + 1j * Om * offset
+    periodic = Y[:S] * np.exp(-np.outer(times[:S], lam_b))[:, None, :]
     c = np.fft.fft(periodic, axis=0) / S  # (S, p, r); row k: harmonic k (mod S)
     power = np.sum(np.abs(c) ** 2, axis=1).T  # (r, S)
     k = np.fft.fftfreq(S, d=1.0 / S).astype(int)
@@ -215,14 +232,14 @@ def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, pe
     k, power = k[order], power[:, order]
     total = power.sum(axis=1, keepdims=True)
     shares = power / np.where(total > 0, total, 1.0)
-    principal = k[np.argmax(shares, axis=1)]
+    principal = k[np.argmax(shares, axis=1)] + offset
     worst = float(np.max(closure)) if closure.size else 0.0
     if worst > CLOSURE_WARNING:
         warnings.warn(f"harmonic content: the propagation reproduces the multipliers only to {worst:.1e} "
                       f"(relative); the harmonic shares may be blurred (raise steps_per_sample or propagate "
                       f"in a frozen-modal frame)", RuntimeWarning, stacklevel=2)
     return HarmonicContent(harmonics=k, shares=shares, principal=principal, closure=closure, samples=S,
-                           steps=S * int(steps_per_sample))
+                           steps=S * int(steps_per_sample), offset=offset)
 
 
 @dataclass(frozen=True)
@@ -287,7 +304,8 @@ def _conjugate_pairs(mu: np.ndarray) -> tuple[list, list]:
 
 def floquet_modes(P: Any, monodromy: np.ndarray, *, period: Optional[float] = None,
                   shape_map: Optional[np.ndarray] = None, labels: Optional[Sequence[str]] = None,
-                  min_share: float = 0.01, **harmonic_options: Any) -> FloquetModes:
+                  centres: Optional[Sequence[float]] = None, min_share: float = 0.01,
+                  **harmonic_options: Any) -> FloquetModes:
     """Modes of one Campbell point from a monodromy matrix (rules in the module docstring).
 
     Parameters
@@ -303,6 +321,10 @@ def floquet_modes(P: Any, monodromy: np.ndarray, *, period: Optional[float] = No
         rows in the model's coordinates); default the whole vector.
     labels : sequence of str, optional
         One name per eigenvalue of ``monodromy`` in ``numpy.linalg.eig`` order (kept per mode).
+    centres : sequence of float, optional
+        A prior frequency (rad/s, >= 0) per eigenvalue in the same order, e.g. the frozen-time modal
+        frequency the mode resembles: the ``centre`` of :func:`harmonic_content` (for the member of a
+        conjugate pair with ``Im rho > 0``; see there).
     min_share : float
         Harmonics with a smaller share are left out of :attr:`FloquetModes.harmonics`.
     **harmonic_options
@@ -321,12 +343,14 @@ def floquet_modes(P: Any, monodromy: np.ndarray, *, period: Optional[float] = No
             v = Xk[:, col]
             v = v * np.exp(-1j * np.angle(v[np.argmax(np.abs(v))]))
             Xk[:, col] = v.real
-    hc = harmonic_content(P, Xk, mu[keep], period=T, **harmonic_options)
+    prior = None if centres is None else np.abs(np.asarray(centres, dtype=float))[keep]
+    hc = harmonic_content(P, Xk, mu[keep], period=T, centre=prior, **harmonic_options)
     lam = np.log(mu[keep]) / T + 1j * Om * hc.principal
     shapes = Xk.T if shape_map is None else (np.asarray(shape_map) @ Xk).T
     harmonics = []
     for col, i in enumerate(keep):
-        share = {int(k - hc.principal[col]): float(s) for k, s in zip(hc.harmonics, hc.shares[col]) if s >= min_share}
+        share = {int(k + hc.offset[col] - hc.principal[col]): float(s) for k, s in zip(hc.harmonics, hc.shares[col])
+                 if s >= min_share}
         if lam[col].imag < 0:  # report the conjugate: its principal frequency is the positive one
             lam[col] = np.conj(lam[col])
             shapes[col] = np.conj(shapes[col])

@@ -58,6 +58,7 @@ from stability.magnus import (
     ordered_product,
     ordered_product_soa,
 )
+from stability.frozen import frozen_result
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
 from stability.serialization import json_ready
@@ -117,6 +118,7 @@ TRACE_MIN_POINTS = 64
 TRACE_RTOL = 1e-13
 
 
+@frozen_result
 @dataclass(frozen=True)
 class FloquetResult:
     """Floquet analysis of ``x' = P(t) x`` over one period.

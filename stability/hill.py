@@ -56,6 +56,8 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from stability.frozen import frozen_result
+
 __all__ = ["HillResult", "HillError", "hill_multipliers", "fourier_coefficients", "DEFAULT_HARMONICS",
            "RESIDUAL_LIMIT", "TAIL_LIMIT", "pair_error_estimate"]
 
@@ -97,6 +99,7 @@ class HillError(ArithmeticError):
     """No eigenvalue found near a target (or the shifted matrix is singular)."""
 
 
+@frozen_result
 @dataclass(frozen=True)
 class HillResult:
     """Multipliers near the targets by Hill's method.

@@ -142,3 +142,84 @@ def test_tune_and_validate_on_the_released_hub_agree_with_the_hand_reference(cap
         mu = complex(*m["measured"])
         assert min(abs(mu - e) for e in expected) <= m["error_bar"]
         assert min(abs(mu - e) for e in wrong) > 10 * m["error_bar"]
+
+
+def _rotor_reference(omega, kp, kd, gyroscopic=1.0):
+    """Multipliers ``exp(lambda T)`` of the rigid rotor's constant-coefficient linearisation in a frame fixed
+    in space (hand-derived: translations, spin under PD, tilts with the gyroscopic coupling J_p Omega)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("rigid_rotor_constants",
+                                                  Path(MODEL).with_name("rigid_rotor_rxyz.py"))
+    rr = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rr)
+    m, Jp, Jt, a, k, kx, c = rr.MASS, rr.J_POLAR, rr.J_TRANSVERSE, rr.A, rr.K, rr.KX, rr.C
+    blocks = [np.array([[0.0, 1.0], [-2 * kk / m, -2 * c / m]]) for kk in (kx, k, k)]
+    blocks.append(np.array([[0.0, 1.0], [-kp / Jp, -kd / Jp]]))
+    G = gyroscopic * Jp * omega
+    tilt = np.array([[0, 0, 1, 0], [0, 0, 0, 1], [-2 * k * a * a / Jt, 0, -2 * c * a * a / Jt, -G / Jt],
+                     [0, -2 * k * a * a / Jt, G / Jt, -2 * c * a * a / Jt]])
+    lam = np.concatenate([np.linalg.eigvals(b) for b in blocks] + [np.linalg.eigvals(tilt)])
+    return np.exp(lam * 2 * math.pi / omega)
+
+
+@pytest.mark.parametrize("omega", [30.0, 80.0])
+def test_rxyz_rotor_spinning_whole_turns_matches_the_constant_coefficient_oracle(omega):
+    """A 3D rotor whose Tait-Bryan spin angle is a drive ``(Omega t, Omega, 0)``: its multipliers are
+    ``exp(lambda T)`` of the fixed-frame constant-coefficient system (to 1e-8); without the gyroscopic
+    term (a wrong answer) they are not."""
+    rotor = str(Path(MODEL).with_name("rigid_rotor_rxyz.py"))
+    res = analyze(rotor, omega, kp=5.0, kd=0.5, n_steps=None)
+    assert np.round(res.orbit.shift / (2 * math.pi)).astype(int).tolist() == [0, 0, 0, 1, 0, 0]
+    assert _distance(res.floquet.multipliers, _rotor_reference(omega, 5.0, 0.5)) <= TOLERANCE
+    assert _distance(res.floquet.multipliers, _rotor_reference(omega, 5.0, 0.5, gyroscopic=0.0)) > 1e-2
+
+
+@pytest.mark.parametrize("node, words", [("EP", "Euler parameters come back with the opposite sign"),
+                                         ("RV", "rotation vector passes the singular length 2 pi")])
+def test_turning_ep_and_rotation_vector_nodes_are_refused_not_solved_at_rest(node, words):
+    """A free-spinning rotor with an Euler-parameter or rotation-vector node: no orbit periodic up to whole
+    turns exists in those coordinates.  Refused with the reason and the remedy (Rxyz) -- before, Newton
+    converged silently to the rotor at rest (residual 0) and reported its multipliers."""
+    with pytest.raises(ModelFileError, match=words) as err:
+        find_orbit(str(Path(MODEL).with_name("turning_rotor_ep.py")), 30.0, node=node)
+    assert "NodeRigidBodyRxyz" in str(err.value)
+
+
+def test_a_model_that_changes_after_a_turn_is_refused(tmp_path):
+    """A torsion spring from the ground to the turning hub angle: the forces after a whole turn differ,
+    so the turn is no symmetry of the model: refused by the invariance check (one line)."""
+    src = Path(MODEL).read_text().replace(
+        "    if form == \"constraint\":",
+        "    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[mg, mh[2]], stiffness=0.5))\n"
+        "    if form == \"constraint\":")
+    bad = tmp_path / "blade_with_ground_spring.py"
+    bad.write_text(src)
+    with pytest.raises(ModelFileError, match="not the same after those turns") as err:
+        find_orbit(str(bad), OMEGA, form="constraint")
+    assert len(str(err.value).splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_an_orbit_at_an_intermediate_continuation_omega_is_never_reported_as_best(monkeypatch):
+    """When Newton fails at omega, the message's "best" is the best residual *at omega*; an orbit that
+    converged at a lower continuation omega is reported as that, not as a residual of 1e-16."""
+    import linearize.periodic_orbit as po
+
+    real = po._newton
+
+    def failing_at_target(col, X, tol, max_iterations, early_give_up=False, second_guess=None):
+        Xn, hist, ok, tb = real(col, X, tol, max_iterations, early_give_up, second_guess)
+        if abs(col.built.omega - OMEGA) < 1e-12:  # fail at omega itself, after real iterations
+            return Xn, [1e-2 + h for h in hist], False, tb
+        return Xn, hist, ok, tb
+
+    monkeypatch.setattr(po, "_newton", failing_at_target)
+    monkeypatch.setattr(po, "_growing_coordinates", lambda col: "")
+    with pytest.raises(OrbitConvergenceError) as err:
+        find_orbit(MODEL, OMEGA, form="constraint")
+    msg = str(err.value)
+    best = float(msg.split("best at this omega ")[1].split(",")[0])
+    assert best >= 1e-2  # every residual at omega was >= 1e-2; the converged lower-omega ones are not "best"
+    assert "converged up to" in msg and "omega only" in msg
+    assert min(err.value.residuals) < 1e-6  # the history does hold the lower-omega convergence

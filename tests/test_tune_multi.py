@@ -128,7 +128,9 @@ def test_one_drive_model_file_keeps_kp_kd(tmp_path, capsys):
                    "--kd-range", "0", "5", "--json"])
     d = json.loads(capsys.readouterr().out)
     assert rc == 0 and d["converged"] and d["drives"] == ["joint"] and d["names"] == ["kp", "kd"]
-    assert isinstance(d["kp"], float) and isinstance(d["kd"], float)
+    # the JSON typing rule: one value per drive, a list also for one drive (as floquet --json)
+    assert isinstance(d["kp"], list) and isinstance(d["kd"], list) and len(d["kp"]) == len(d["kd"]) == 1
+    d["kp"], d["kd"] = d["kp"][0], d["kd"][0]
 
     def rho(kp, kd):
         J = 0.1 + 1.0 * 0.5**2  # inertia about the pivot (COM 0.5 m away)

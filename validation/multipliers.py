@@ -103,6 +103,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from stability.frozen import frozen_result
 from stability.serialization import json_ready
 
 __all__ = [
@@ -268,6 +269,7 @@ def energy_norm(M: np.ndarray, K: np.ndarray) -> EnergyNorm:
     return EnergyNorm(Lk=Lk, Lm=Lm, hub_mass=float(M[0, 0]))
 
 
+@frozen_result
 @dataclass(frozen=True)
 class Prediction:
     """Multipliers under test with their right / left Floquet vectors.
@@ -443,6 +445,7 @@ class GrowthResult:
         return json_ready(dict(self.__dict__))
 
 
+@frozen_result
 @dataclass(frozen=True)
 class MultiplierValidation:
     """Measured against predicted multipliers (see the module docstring).
@@ -790,6 +793,8 @@ def measure_multipliers(
                 Ah = np.linalg.solve(W.T @ (0.5 * D), W.T @ X1h)
                 amp_change = np.abs(_eigs_matched(Ah, pred) - levels[j])
             timings[f"step {h:g}"] = time.perf_counter() - t1
+            logger.info("measured the one-period map at step %d/%d (h = %g s) in %.1f s", j + 1, len(config.steps),
+                        h, timings[f"step {h:g}"])
     except _Diverged as exc:
         diverged, at, reason = True, exc.at, exc.reason
         logger.warning("multiplier measurement diverged: %s", reason)
@@ -876,6 +881,7 @@ def measure_growth(
     diverged, at, reason = False, None, ""
     for kk in range(periods):
         t0 = kk * period
+        logger.info("growth run: period %d/%d", kk + 1, periods)
         new = []
         for name, x in zip(("perturbed +", "perturbed -", "reference"), xs):
             try:
@@ -1109,6 +1115,7 @@ def validate_link_multipliers(
         ex = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, samples=samples, orbit=orbit)
         orbit = ex.orbit
         timings["prediction"] = time.perf_counter() - t1
+        logger.info("prediction (orbit, linearisation, multipliers) in %.1f s", timings["prediction"])
         tested = ex
         if (pkp, pkd) != (kp, kd) or predict_reference != "periodic":
             ref_orbit = orbit if predict_reference == "periodic" else None
@@ -1140,6 +1147,8 @@ def validate_link_multipliers(
                                      k_eff, LINK_COMPARED_MODES, h_min)
                 alts.append(p)
         timings["alternatives"] = time.perf_counter() - t1 - timings["prediction"]
+        logger.info("alternative predictions in %.1f s; measuring at %d steps", timings["alternatives"],
+                    len(config.steps))
         lin = ex.linearization
         norm = energy_norm(lin.M[0], lin.K[0])
         n = lin.size
@@ -1437,6 +1446,7 @@ def validate_model_multipliers(
     with exudyn_console(quiet):
         ex = analyze(definition, omega, kp=kp, kd=kd, samples=samples)
         timings["prediction"] = time.perf_counter() - tic
+        logger.info("prediction (orbit, linearisation, multipliers) in %.1f s", timings["prediction"])
         lin, orbit = ex.linearization, ex.orbit
         if config.amplitude is None:
             config = replace(config, amplitude=MODEL_AMPLITUDE)
