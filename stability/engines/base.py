@@ -17,7 +17,6 @@ Rules for an implementer of an engine (a subclass of :class:`Engine`):
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, ClassVar, Optional
 
@@ -120,10 +119,3 @@ def _sorted(multipliers: np.ndarray) -> np.ndarray:
     m = np.asarray(multipliers, dtype=complex)
     return m[np.argsort(-np.abs(m), kind="stable")]
 
-
-def _finite_or_nan(x: Any) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return math.nan
-    return v if math.isfinite(v) else math.nan
