@@ -3,10 +3,12 @@
 A model file's response (:data:`MODEL_RESPONSE`) is the modulus of the dominant labelled
 multiplier (drive modes and the first bending mode).  How it is evaluated depends on the model:
 
-* the built-in models of :data:`HILL_MODELS` (the two-link arm, whose stiff undamped axial modes
-  make time-stepping products converge erratically in their step count): Hill's method,
-  :class:`linearize.hill_plant.HillModelPlant`, its harmonic count chosen once at the centre of the
-  tuning ranges (:func:`hill_plant`);
+* a model whose linearisation the engine rule :func:`stability.engines.rule.choose_method` gives to
+  Hill's method (stiff modes whose frozen frequencies change so much over the period that the
+  frozen-modal product would need more than its step budget for the tuning tolerance -- the
+  two-link arm, whose elbow couples the links' axial and bending modes differently along the
+  period): :class:`linearize.hill_plant.HillModelPlant`, its harmonic count chosen once at the
+  centre of the tuning ranges (:func:`hill_plant`);
 * every other model: the Richardson-extrapolated exponential midpoint in the frozen-modal frame,
   :class:`linearize.analysis.ModelPlant`, its step count chosen once at the centre of the tuning
   ranges (:func:`propagator_steps`) unless given.
@@ -25,26 +27,23 @@ import dataclasses
 import logging
 import math
 import warnings
-from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
 from linearize.analysis import ModelPlant
 from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.engines.rule import choose_method, system_properties
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
-           "hill_plant", "hill_choice", "StepsChoice", "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum",
+__all__ = ["HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice",
+           "relative_tolerance", "response_method", "uses_hill", "hill_plant", "hill_choice", "StepsChoice",
+           "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum",
            "mesh_dependence", "response_note"]
 
 logger = logging.getLogger(__name__)
 
-#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
-#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
-HILL_MODELS = ("two-link",)
-
-#: Hill harmonic counts tried (fewest first) for a model of :data:`HILL_MODELS`; see
+#: Hill harmonic counts tried (fewest first) for a model evaluated by Hill's method; see
 #: :func:`linearize.hill_plant.select_harmonics`.
 HILL_HARMONICS = (8, 12, 16, 24, 32)
 
@@ -59,20 +58,23 @@ MODEL_RESPONSE_MODES = "drive modes and bending 1"
 Plant = Union[HillModelPlant, ModelPlant]
 
 
-def is_hill_model(definition: Any) -> bool:
-    """Whether ``definition`` (a :class:`~mbs_models.model_file.ModelDefinition`) is a built-in model of
-    :data:`HILL_MODELS` -- by name *and* file, so a user's file that happens to be called ``two-link.py``
-    is not."""
-    from mbs_models.model_file import BUILTIN_MODELS
+def relative_tolerance(config: Optional[TuningConfig]) -> float:
+    """The relative accuracy a tuning response needs: a quarter of the tuning tolerance over rho_d (the
+    fraction the step and harmonic choices meet), ``2.5e-4`` for the default configuration."""
+    config = config if config is not None else TuningConfig()
+    return 0.25 * config.effective_tolerance / abs(config.target)
 
-    name = getattr(definition, "name", None)
-    source = getattr(definition, "source", None)
-    if name not in HILL_MODELS or name not in BUILTIN_MODELS or not source:
-        return False
-    import mbs_models.model_file as mf
 
-    builtin = Path(mf.__file__).with_name("builtin") / BUILTIN_MODELS[name]
-    return Path(source).resolve() == builtin.resolve()
+def response_method(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> str:
+    """The engine rule (:func:`stability.engines.rule.choose_method`) applied to the linearisation at gains 0
+    with the tuning's relative accuracy: ``"hill"``, ``"modal"`` or ``"magnus"`` (the last two are both
+    evaluated by the time-stepping :class:`ModelPlant`)."""
+    return choose_method(system_properties(lin), rtol=relative_tolerance(config))
+
+
+def uses_hill(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> bool:
+    """Whether a model's tuning response is Hill's: it has drives and :func:`response_method` says so."""
+    return bool(lin.B is not None and lin.B.shape[-1]) and response_method(lin, config) == "hill"
 
 
 def _centre(config: TuningConfig) -> tuple[list, list]:
@@ -183,7 +185,7 @@ class PlantChoice:
 def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
                      config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantChoice:
     """:func:`plant_for` with the record of the harmonic choice (``tune --model`` reports it)."""
-    if lin.B is not None and lin.B.shape[-1] and is_hill_model(definition):
+    if uses_hill(lin, config):
         if steps is not None:
             raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
                              "chosen at the centre of the gain ranges): there are no propagator steps to set")
@@ -207,7 +209,7 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
     Parameters
     ----------
     definition : ModelDefinition
-        The model (decides the method: :func:`is_hill_model`).
+        The model (its name is used in messages only: the method is decided by :func:`uses_hill`).
     orbit, lin
         Its periodic orbit and linearisation (gains 0) at the Omega.
     config : TuningConfig or None

@@ -13,7 +13,7 @@ from flexstab.options import (add_damping_option, add_model_options, check_model
 
 #: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
 #: there), imported on first use so that parsing the command line imports no numerical package.
-_PLANTS_NAMES = ("HILL_HARMONICS", "HILL_MODELS", "MAX_TUNING_STEPS", "MODEL_RESPONSE", "plant_choice_for",
+_PLANTS_NAMES = ("HILL_HARMONICS", "MAX_TUNING_STEPS", "MODEL_RESPONSE", "plant_choice_for",
                  "plant_for", "propagator_steps", "whole_spectrum")
 
 
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 __all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
-           "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
+           "propagator_steps", "MAX_TUNING_STEPS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
 
@@ -415,7 +415,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
-        # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
+        # the one plant rule of tune, study and chart --model: Hill where the engine rule says so (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
         unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         choice = sys.modules[__name__].plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
