@@ -133,7 +133,15 @@ def _table(d: dict) -> str:
         if modes:
             m = modes[i - 1]
             label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
-        lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
+        if re is None or im is None:  # phase unknown (below the rounding floor): the modulus only
+            re_s, im_s = f"{'?':>14}", f"{'?':>14}"
+            label += "  phase unknown"
+        else:
+            re_s, im_s = f"{re:>14.8g}", f"{im:>14.8g}"
+        certified = d.get("certified")
+        if certified and not certified[i - 1] and lg is not None and mod != 0.0 and re is not None:
+            label += "  (not certified)"
+        lines.append(f"{i:>3}  {re_s}  {im_s}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
     phase_est = d.get("phase_error_estimate")
     phase = "n/a" if phase_est is None else f"{phase_est:.1e}"
