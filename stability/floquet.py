@@ -340,6 +340,10 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
 MATCH_MAX_N = 1500
 
 
+_ARANGE = np.arange(64)
+_ARANGE.flags.writeable = False
+
+
 def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     """``b`` reordered so that ``b[i]`` is the counterpart of ``a[i]`` (two refinements of one spectrum).
 
@@ -353,6 +357,11 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
+    with np.errstate(all="ignore"):
+        near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
+    if np.array_equal(near, _ARANGE[:n] if n <= _ARANGE.size else np.arange(n)) \
+            and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
+        return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
     from scipy.optimize import linear_sum_assignment
 
     la, lb = a.log_moduli, b.log_moduli
@@ -473,13 +482,18 @@ def _observed_order(Ns: Sequence[int], d1: np.ndarray, d2: np.ndarray, p: float)
     Na, Nb, Nc = (float(N) for N in Ns)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         ratio = np.asarray(d1, float) / np.asarray(d2, float)
+        if abs(Nb / Na - Nc / Nb) <= 1e-12 * (Nc / Nb):  # equal ratios: (Nb / Na)^q
+            q = np.log(ratio) / math.log(Nb / Na)
+            q = np.where(ratio > 1.0, q, 0.0)
+            return np.where(np.isfinite(q), np.minimum(q, 3.0 * p), 0.0)
+    la, lb, lc = math.log(Na), math.log(Nb), math.log(Nc)
 
     def g(q):
-        return (Na**-q - Nb**-q) / (Nb**-q - Nc**-q)
+        return (np.exp(-q * la) - np.exp(-q * lb)) / (np.exp(-q * lb) - np.exp(-q * lc))
 
     lo = np.full(ratio.shape, 1e-6)
     hi = np.full(ratio.shape, 3.0 * p)
-    for _ in range(60):
+    for _ in range(40):
         mid = 0.5 * (lo + hi)
         up = g(mid) < ratio
         lo = np.where(up, mid, lo)
@@ -532,11 +546,11 @@ def _matrix_estimate(levels: Sequence["_Solve"], p: float) -> tuple[np.ndarray, 
     changes), its 2-norm ``eta`` (at least ``floor``) and the rounding level ``floor`` of the product."""
     Ns = [lv.n_steps for lv in levels]
     Phi = levels[-1].monodromy
-    norm = float(np.linalg.norm(Phi, 2))
+    norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
     floor = 10.0 * math.sqrt(Ns[-1]) * np.finfo(float).eps * norm * Phi.shape[0]
     change = Phi - levels[-2].monodromy
-    d2 = np.array([float(np.linalg.norm(change, 2))])
-    d1 = np.array([float(np.linalg.norm(levels[-2].monodromy - levels[-3].monodromy, 2))]) \
+    d2 = np.array([float(np.linalg.norm(change))])
+    d1 = np.array([float(np.linalg.norm(levels[-2].monodromy - levels[-3].monodromy))]) \
         if len(levels) >= 3 else None
     est, _ = _extrapolated_estimate(Ns, d1, d2, p, np.array([floor / ORDER_NOISE]))
     eta = float(est[0]) if np.isfinite(est[0]) else math.inf
@@ -544,11 +558,11 @@ def _matrix_estimate(levels: Sequence["_Solve"], p: float) -> tuple[np.ndarray, 
     return E, max(eta, floor), floor
 
 
-#: Two multipliers closer than this many times ``sqrt(eta ||Phi||)`` (``eta`` the matrix error
-#: estimate) are examined as a possibly defective or clustered group (:func:`_cluster_bounds`):
-#: a Jordan block of size 2 moves its eigenvalues by about ``sqrt(eta nu)``, so a computed pair of
-#: a defective multiplier sits that close, while first-order perturbation theory holds for
-#: eigenvalues much farther apart than their perturbation.
+#: Two multipliers closer than this many times the sum of their changes over the last refinement
+#: are examined as a possibly defective or clustered group (:func:`_cluster_bounds`): a Jordan
+#: block of size 2 moves its eigenvalues by about ``sqrt(eta nu)`` between refinements, as far as
+#: its computed pair lies apart, while first-order perturbation theory holds for eigenvalues much
+#: farther apart than they move.
 CLUSTER_RADIUS = 10.0
 
 
@@ -566,6 +580,8 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
         return math.inf
     if eta <= 0.0:
         return 0.0
+    if m == 2:
+        return 0.5 * (eta + math.sqrt(eta * eta + 4.0 * eta * nu))
 
     def excess(d):
         return eta * sum(nu**k / d ** (k + 1) for k in range(m)) - 1.0
@@ -573,7 +589,7 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
     lo, hi = eta, eta + max(nu, eta) + eta ** (1.0 / m) * max(1.0, nu) ** (1.0 - 1.0 / m) + 1.0
     while excess(hi) > 0:
         hi *= 2.0
-    for _ in range(100):
+    for _ in range(60):
         mid = math.sqrt(lo * hi)
         if excess(mid) > 0:
             lo = mid
@@ -610,13 +626,18 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float) -> tu
     bounds = np.full(n, math.nan)
     if n < 2 or len(levels) < 2 or n > MATCH_MAX_N:
         return bounds, (), False
-    E, eta, floor = _matrix_estimate(levels, p)
-    Phi = levels[-1].monodromy
-    norm = float(np.linalg.norm(Phi, 2))
     lam = spec.values
     dist = np.abs(lam[:, None] - lam[None, :])
-    near = dist <= CLUSTER_RADIUS * (math.sqrt(eta * norm) + eta)
+    moved = np.abs(lam - _match(spec, levels[-2].spectrum).values)  # change over the last refinement
+    near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
     np.fill_diagonal(near, False)
+    if not near.any():
+        return bounds, (), False
+    E, eta, floor = _matrix_estimate(levels, p)
+    Phi = levels[-1].monodromy
+    # only multipliers the estimate covers: modulus >= ESTIMATE_FLOOR of the largest, above rounding
+    covered = (spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)) & (np.abs(lam) > 100.0 * floor)
+    near &= covered[:, None] & covered[None, :]
     if not near.any():
         return bounds, (), False
     from scipy.linalg import eig, schur
@@ -698,18 +719,21 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     fine = levels[-1]
     spec = fine.spectrum
     Ns = [lv.n_steps for lv in levels[-3:]]
-    norm = float(np.linalg.norm(fine.monodromy, 2))
+    norm = float(np.linalg.norm(fine.monodromy))  # Frobenius: >= ||Phi||_2
     noise = _rounding_levels(spec, norm, fine.n_steps)
-    d2 = _select_changes(spec, levels[-2].spectrum, accuracy)
-    ph2 = _phase_changes(spec, levels[-2].spectrum)
-    if len(levels) >= 3:
-        mid = _match(spec, levels[-2].spectrum)
-        d1 = _select_changes(mid, levels[-3].spectrum, accuracy)
-        ph1 = _phase_changes(mid, levels[-3].spectrum)
-    else:
-        d1 = ph1 = None
-    est, q_obs = _extrapolated_estimate(Ns, d1, d2, p, noise)
-    phase, _ = _extrapolated_estimate(Ns, ph1, ph2, p, noise)
+
+    def changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
+        """Rows: what ``accuracy`` measures, the phase (``b`` already paired with ``a``)."""
+        dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
+        dph = np.abs(np.angle(a.values * np.conj(b.values)))
+        d = np.stack([dmod if accuracy in ("moduli", "dominant") else np.maximum(dmod, dph), dph])
+        return np.where(np.isfinite(d), d, np.inf)
+
+    mid = _match(spec, levels[-2].spectrum)
+    d2 = changes(spec, mid)
+    d1 = changes(mid, _match(mid, levels[-3].spectrum)) if len(levels) >= 3 else None
+    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noise[None, :])
+    est, phase, q_obs = both[0], both[1], q_both[0]
     bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
         rel = bounds * np.exp(-spec.log_moduli)
@@ -1135,7 +1159,7 @@ def _gauss_times(nodes: tuple, period: float, Ns: tuple) -> np.ndarray:
 
 def _magnus_solves_small(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, Ns: list[int], keep_factors: bool,
-    strict: bool,
+    strict: bool, optional_first: bool = False,
 ) -> list[_Solve]:
     """:func:`_magnus_solve` for ``n <= SMALL_N``, for several step counts in one batch.
 
@@ -1143,7 +1167,8 @@ def _magnus_solves_small(
     exponent and one exponential pass for all the solves (the step length is
     a vector along the stack), then one product per solve.  The exponentials
     are the degree-16 Taylor polynomial with scaling and squaring
-    (:func:`~stability.expm.expm_soa`, no linear solves).
+    (:func:`~stability.expm.expm_soa`, no linear solves).  ``optional_first``: the first
+    (coarsest) count is dropped from the result, not an error, when it does not resolve ``P``.
     """
     q = len(scheme.nodes)
     n = wrapped.n
@@ -1153,6 +1178,12 @@ def _magnus_solves_small(
     Ntot = sum(Ns)
     P = wrapped.evaluate(times)
     if USE_COMPILED and not keep_factors and scheme.order in (4, 6):
+        if optional_first and len(Ns) > 1:
+            try:
+                return _compiled_solves(scheme, P[:q * Ns[0]].reshape(Ns[0], q, n, n), Ns[:1], hs[:1], strict) \
+                    + _compiled_solves(scheme, P[q * Ns[0]:].reshape(Ntot - Ns[0], q, n, n), Ns[1:], hs[1:], strict)
+            except _Unresolved:
+                return _compiled_solves(scheme, P[q * Ns[0]:].reshape(Ntot - Ns[0], q, n, n), Ns[1:], hs[1:], strict)
         return _compiled_solves(scheme, P.reshape(Ntot, q, n, n), Ns, hs, strict)
     Pg = np.ascontiguousarray(P.reshape(Ntot, q, n, n).transpose(1, 2, 3, 0))  # (q, n, n, Ntot)
     h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
@@ -1164,7 +1195,14 @@ def _magnus_solves_small(
                 mean = 0.5 * (Pg[0] + Pg[1])
             else:
                 mean = (5.0 * Pg[0] + 8.0 * Pg[1] + 5.0 * Pg[2]) / 18.0
-            corr = float(np.abs(Om - h * mean).sum(axis=0).max())
+            column = np.abs(Om - h * mean).sum(axis=0).max(axis=0)  # per sub-interval
+            if optional_first and len(Ns) > 1 and not float(column[:Ns[0]].max()) <= COMMUTATOR_LIMIT:
+                # the coarsest level does not resolve P: drop it (the caller refines further)
+                keep = slice(Ns[0], Ntot)
+                Om, column, h = Om[:, :, keep], column[keep], h[keep]
+                Ns, hs = Ns[1:], hs[1:]
+                label = "/".join(str(N) for N in Ns)
+            corr = float(column.max())
             if not corr <= COMMUTATOR_LIMIT:
                 raise _Unresolved(
                     f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
@@ -1310,14 +1348,22 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
             evaluations += q * N
             return _magnus_solve(scheme, wrapped, period, N, keep_factors, strict, third)
 
-        def solve_many(Ns: list[int], strict: bool = True) -> list[_Solve]:
-            """Solves with each of ``Ns`` sub-intervals (one batch for small systems)."""
+        def solve_many(Ns: list[int], strict: bool = True, optional_first: bool = False) -> list[_Solve]:
+            """Solves with each of ``Ns`` sub-intervals (one batch for small systems); with
+            ``optional_first`` the first one is left out where it does not resolve ``P``."""
             nonlocal evaluations
             if wrapped.n > SMALL_N or pieces:
-                return [solve(N, strict) for N in Ns]
+                out = []
+                for i, N in enumerate(Ns):
+                    try:
+                        out.append(solve(N, strict))
+                    except _Unresolved:
+                        if not (optional_first and i == 0):
+                            raise
+                return out
             _memory_check(scheme, sum(Ns), wrapped.n)
             evaluations += q * sum(Ns)
-            return _magnus_solves_small(scheme, wrapped, period, list(Ns), keep_factors, strict)
+            return _magnus_solves_small(scheme, wrapped, period, list(Ns), keep_factors, strict, optional_first)
 
         fixed = None
         if n_steps is not None:
@@ -1473,12 +1519,9 @@ def _adaptive(solve, solve_many, estimate, rtol: float, max_steps: int, scheme: 
     if 2 * N0 <= max_steps:
         Ns = ([N0 // 2] if N0 >= 4 else []) + [N0, 2 * N0]
         try:
-            levels = list(solve_many(Ns))
+            levels = list(solve_many(Ns, optional_first=N0 >= 4))
         except _Unresolved:
-            try:
-                levels = list(solve_many([N0, 2 * N0]))
-            except _Unresolved:
-                levels = []
+            levels = []
     if not levels:
         levels = [_first_resolved(solve, N0, max_steps, scheme)]
     while True:
