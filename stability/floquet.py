@@ -357,8 +357,7 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
-    with np.errstate(all="ignore"):
-        near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
+    near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
     if np.array_equal(near, _ARANGE[:n] if n <= _ARANGE.size else np.arange(n)) \
             and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
         return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
@@ -448,6 +447,9 @@ def _estimate(changes: np.ndarray, fine: _Spectrum, factor: float, accuracy: str
 #: (2^(p-1) - 1) <= 2.15``).  Measured without it: the estimate fell below the error in half of
 #: the smooth literature cases, by up to 0.7 %.
 ESTIMATE_SAFETY = 2.0
+#: An observed order above ``p`` + this is taken for an accidental agreement of the last two
+#: levels (the expansion in even powers has no such term), see :func:`_extrapolated_estimate`.
+ACCIDENTAL_ORDER_EXCESS = 2.0
 #: Lowest order the extrapolation assumes: a change that shrinks more slowly than this over a
 #: doubling (or grows) is not converging, and its estimate is the change times ``1 / (2^0.5 - 1)``.
 MIN_ORDER = 0.5
@@ -467,8 +469,7 @@ def _rounding_levels(spec: _Spectrum, norm: float, steps: int) -> np.ndarray:
     """Relative rounding level of each multiplier of a product of ``steps`` factors:
     ``10 sqrt(steps) eps ||Phi|| / |rho_i|`` (random accumulation of one rounding per factor,
     relative to the multiplier; the absolute floor of a small multiplier is set by ``||Phi||``)."""
-    with np.errstate(over="ignore", divide="ignore", under="ignore"):
-        level = 10.0 * math.sqrt(max(steps, 1)) * np.finfo(float).eps * norm * np.exp(-spec.log_moduli)
+    level = 10.0 * math.sqrt(max(steps, 1)) * np.finfo(float).eps * norm * np.exp(-spec.log_moduli)
     return np.where(np.isfinite(level), level, np.inf)
 
 
@@ -480,12 +481,11 @@ def _observed_order(Ns: Sequence[int], d1: np.ndarray, d2: np.ndarray, p: float)
     bisection on ``[0, 3 p]``; ``0`` where ``d2 >= d1`` (no convergence).
     """
     Na, Nb, Nc = (float(N) for N in Ns)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ratio = np.asarray(d1, float) / np.asarray(d2, float)
-        if abs(Nb / Na - Nc / Nb) <= 1e-12 * (Nc / Nb):  # equal ratios: (Nb / Na)^q
-            q = np.log(ratio) / math.log(Nb / Na)
-            q = np.where(ratio > 1.0, q, 0.0)
-            return np.where(np.isfinite(q), np.minimum(q, 3.0 * p), 0.0)
+    ratio = np.asarray(d1, float) / np.asarray(d2, float)
+    if abs(Nb / Na - Nc / Nb) <= 1e-12 * (Nc / Nb):  # equal ratios: (Nb / Na)^q
+        q = np.log(ratio) / math.log(Nb / Na)
+        q = np.where(ratio > 1.0, q, 0.0)
+        return np.where(np.isfinite(q), np.minimum(q, 3.0 * p), 0.0)
     la, lb, lc = math.log(Na), math.log(Nb), math.log(Nc)
 
     def g(q):
@@ -521,11 +521,11 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     """Error estimate of the finest level from the changes ``d1`` (coarsest pair) and ``d2`` (finest).
 
     ``q = min(p, observed order)`` (clipped to ``[MIN_ORDER, p]``; ``p`` where the changes are at
-    the rounding level ``noise``), then
-    ``ESTIMATE_SAFETY * max(d2 / (r2^q - 1), d1 / ((r1^q - 1) r2^q))``: the finest error
-    extrapolated from the last change, and the error predicted for it from the change before
-    (which covers an accidental agreement of the last two levels).  With two levels only,
-    ``q = p`` and the first term.  Returns ``(estimates, observed orders)`` (NaN where unobserved).
+    the rounding level ``noise``), then ``ESTIMATE_SAFETY * d2 / (r2^q - 1)``, the finest error
+    extrapolated from the last change; where the observed order exceeds ``p`` by more than
+    :data:`ACCIDENTAL_ORDER_EXCESS` (an accidental agreement of the last two levels) the larger of
+    that and the error predicted for the finest level from the change before,
+    ``ESTIMATE_SAFETY * d1 / ((r1^q - 1) r2^q)``.  With two levels only, ``q = p``.  Returns ``(estimates, observed orders)`` (NaN where unobserved).
     """
     r2 = Ns[-1] / Ns[-2]
     if d1 is None or len(Ns) < 3:
@@ -535,8 +535,11 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     q_obs = _observed_order(Ns[-3:], d1, d2, p)
     informative = (d2 > ORDER_NOISE * noise) & (d1 > ORDER_NOISE * noise)
     q = np.where(informative, np.clip(q_obs, MIN_ORDER, p), float(p))
-    with np.errstate(over="ignore", invalid="ignore"):
-        est = ESTIMATE_SAFETY * np.maximum(d2 / (r2**q - 1.0), d1 / ((r1**q - 1.0) * r2**q))
+    last = d2 / (r2**q - 1.0)
+    # an observed order above p + 2 is no term of the (even) error expansion: the last two levels
+    # agree by accident (the error changes sign between them), so the previous change decides
+    accidental = informative & (q_obs > p + ACCIDENTAL_ORDER_EXCESS)
+    est = ESTIMATE_SAFETY * np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
     return est, np.where(informative, q_obs, math.nan)
 
 
@@ -735,8 +738,7 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noise[None, :])
     est, phase, q_obs = both[0], both[1], q_both[0]
     bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore", under="ignore"):
-        rel = bounds * np.exp(-spec.log_moduli)
+    rel = bounds * np.exp(-spec.log_moduli)
     has = np.isfinite(bounds)
     est = np.where(has, np.maximum(est, rel), est)
     phase = np.where(has, np.maximum(phase, rel), phase)

@@ -171,6 +171,10 @@ class SecondOrderPeriodicSystem:
         Whether the three callables accept arrays of times.
     name : str
         A label carried into results.
+    breakpoints : tuple of float
+        Times in ``[0, T)`` where ``M, C, K`` or a derivative jump (switching times, the corners of
+        a trapezoidal velocity profile); :func:`stability.floquet.floquet` lands its steps on them
+        so that each smooth piece converges at the method's order.  Default: none (smooth).
 
     Notes
     -----
@@ -184,9 +188,17 @@ class SecondOrderPeriodicSystem:
     stiffness: MatrixFunction
     vectorized: bool = False
     name: str = "second-order system"
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "period", check_period(self.period))
+        try:
+            points = tuple(float(b) for b in self.breakpoints)
+        except (TypeError, ValueError):
+            raise ValueError(f"breakpoints must be a sequence of times, got {self.breakpoints!r}") from None
+        if not all(math.isfinite(b) and 0.0 <= b < self.period for b in points):
+            raise ValueError(f"breakpoints must be finite times in [0, period), got {self.breakpoints!r}")
+        object.__setattr__(self, "breakpoints", points)
 
     def matrices(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(M, C, K)`` stacked over ``times`` (shape ``(m, f, f)`` each)."""
