@@ -139,6 +139,10 @@ class StudyConfig:
         Initial search ranges of the PD gains (non-negative, low < high).
     elements : int
         ANCF elements of the Exudyn model (>= 1).
+    rtol : float
+        The accuracy contract of printed multipliers (``docs/accuracy.md``): every multiplier with
+        modulus ``>= 1e-6`` of the largest is certified to this relative error or reported with the
+        reason (``--rtol`` overrides it; default 1e-6).
     """
 
     manipulator: ManipulatorParameters = field(default_factory=ManipulatorParameters)
@@ -148,6 +152,7 @@ class StudyConfig:
     kd_range: tuple[float, float] = (0.0, 40.0)
     elements: int = 8
     robust: RobustSettings = field(default_factory=RobustSettings)
+    rtol: float = 1e-6
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.omega) and self.omega > 0):
@@ -158,6 +163,9 @@ class StudyConfig:
         object.__setattr__(self, "kd_range", check_gain_range(self.kd_range, "kd_range"))
         if isinstance(self.elements, bool) or not isinstance(self.elements, int) or self.elements < 1:
             raise ValueError(f"elements must be an integer >= 1, got {self.elements!r}")
+        if isinstance(self.rtol, bool) or not isinstance(self.rtol, (int, float)) \
+                or not (math.isfinite(self.rtol) and 0.0 < self.rtol < 1.0):
+            raise ValueError(f"rtol must be a number in (0, 1), got {self.rtol!r}")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "StudyConfig":

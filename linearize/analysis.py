@@ -13,6 +13,7 @@ import scipy.linalg
 from linearize.constrained import linearize_orbit
 from linearize.periodic_orbit import DEFAULT_SAMPLES, PeriodicOrbit, StageClock, find_orbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.floquet import CONTRACT_RTOL, recertify
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
@@ -320,6 +321,8 @@ def analyze(
     verify_orbit: bool = True,
     small_multipliers: str = "flag",
     frame: str = "modal",
+    rtol: float = CONTRACT_RTOL,
+    refine: bool = True,
     **options: Any,
 ) -> ModelFloquetResult:
     """Orbit, constraint-correct linearisation and labelled Floquet multipliers of a model.
@@ -360,6 +363,13 @@ def analyze(
         Shooting check of the orbit in Exudyn.
     small_multipliers : {"flag", "qr"}
         Passed to :func:`stability.floquet`.
+    rtol : float
+        The accuracy contract (``docs/accuracy.md``): every multiplier with modulus
+        ``>= 1e-6`` of the largest is certified to this relative error
+        (:attr:`~stability.floquet.FloquetResult.certified`), or reported with the reason.
+    refine : bool
+        When the fixed-step solve misses ``rtol`` on a covered multiplier: solve again
+        adaptively to ``rtol`` (:func:`_refine_to_contract`) and keep the better-certified result.
     **options
         Keyword options of the model's ``build``.
 
@@ -399,6 +409,9 @@ def analyze(
         res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
     else:
         res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
+    res = recertify(res, rtol)
+    if refine and method != "paper" and not res.all_certified:
+        res = _refine_to_contract(lin, res, rtol, sm)
     lap("floquet")
     modes = label_multipliers(lin, orbit, res)
     lap("labels")
@@ -442,6 +455,51 @@ def analyze(
     return ModelFloquetResult(floquet=res, modes=modes, dominant_multiplier=dom, orbit=orbit, linearization=lin,
                               kp=tuple(lin.kp), kd=tuple(lin.kd), timings=timings,
                               cpu_timings=cpu_timings, dominant_error_estimate=dom_est, frame_check=frame_check)
+
+
+#: Largest first-order system refined by the adaptive Magnus-6 engine in the model's own coordinates
+#: (:func:`_refine_to_contract`); larger (stiff, flexible) ones by the adaptive frozen-modal solve.
+REFINE_MAGNUS6_MAX_N = 16
+
+
+def _refine_to_contract(lin: Any, res: Any, rtol: float, small_multipliers: str) -> Any:
+    """A result that meets the accuracy contract ``rtol`` where ``res`` does not, or the better one.
+
+    Small systems (``<= REFINE_MAGNUS6_MAX_N`` states): :func:`stability.floquet` adaptive, 6th order,
+    in the linearisation's coordinates, to ``rtol / 10`` (its estimate is order-checked and carries a
+    safety factor; the margin keeps the refinement off the boundary).  Larger ones: the adaptive
+    extrapolated frozen-modal solve with its non-nested check (:func:`stability.modal.modal_floquet`)
+    to ``rtol``.  The new result replaces ``res`` when it certifies at least as many multipliers;
+    a ``FloquetError`` of the refinement keeps ``res`` (logged).
+    """
+    from stability import floquet
+    from stability.floquet import FloquetError
+    from stability.modal import modal_floquet
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # the kept result's own warnings follow
+            if 2 * lin.size <= REFINE_MAGNUS6_MAX_N:
+                new = floquet(lin, method="magnus6", rtol=0.1 * rtol, accuracy="moduli",
+                              small_multipliers=small_multipliers)
+            else:
+                new = modal_floquet(lin, method="magnus2", n_steps=None, accuracy="moduli", rtol=rtol,
+                                    small_multipliers=small_multipliers, check=True, extrapolate=True)
+    except FloquetError as exc:
+        logger.info("refinement to the accuracy contract failed: %s", exc)
+        return res
+    new = recertify(new, rtol)
+    if int(np.sum(new.certified)) >= int(np.sum(res.certified)):
+        logger.info("refined to the accuracy contract: %d -> %d steps (%s), %d of %d certified", res.n_steps,
+                    new.n_steps, new.method, int(np.sum(new.certified)), len(new.certified))
+        res = new
+    if not res.all_certified:
+        missed = [f"{i + 1}: {r}" for i, r in enumerate(res.uncertified_reasons)
+                  if r and not r.startswith("modulus below")]
+        if missed:
+            warnings.warn(f"multipliers not certified to rtol {rtol:.0e}: " + "; ".join(missed), RuntimeWarning,
+                          stacklevel=3)
+    return res
 
 
 def _pick_frame(dom: complex, est: float, alt_dom: complex, alt_est: float) -> tuple:

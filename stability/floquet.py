@@ -77,6 +77,7 @@ __all__ = [
     "DOMINANT_SAFETY",
     "dominant_mask",
     "CONTRACT_RTOL",
+    "recertify",
 ]
 
 logger = logging.getLogger(__name__)
@@ -340,10 +341,6 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
 MATCH_MAX_N = 1500
 
 
-_ARANGE = np.arange(64)
-_ARANGE.flags.writeable = False
-
-
 def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     """``b`` reordered so that ``b[i]`` is the counterpart of ``a[i]`` (two refinements of one spectrum).
 
@@ -357,10 +354,15 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
-    near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
-    if np.array_equal(near, _ARANGE[:n] if n <= _ARANGE.size else np.arange(n)) \
-            and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
-        return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
+    if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
+        av, bv = a.values.tolist(), b.values.tolist()
+        if all(abs(x - bv[i]) <= min(abs(x - y) for y in bv) for i, x in enumerate(av)) \
+                and all(abs(x - y) < 0.5 for x, y in zip(a.log_moduli.tolist(), b.log_moduli.tolist())):
+            return b
+    else:
+        near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
+        if np.array_equal(near, np.arange(n)) and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
+            return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
     from scipy.optimize import linear_sum_assignment
 
     la, lb = a.log_moduli, b.log_moduli
@@ -601,7 +603,8 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
     return hi
 
 
-def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float) -> tuple[np.ndarray, tuple, bool]:
+def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
+                    previous: Optional[_Spectrum] = None) -> tuple[np.ndarray, tuple, bool]:
     """Absolute error bounds of multipliers in defective or clustered groups (NaN elsewhere).
 
     Which multipliers form a group: the estimated error matrix ``E`` (:func:`_matrix_estimate`)
@@ -631,7 +634,8 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float) -> tu
         return bounds, (), False
     lam = spec.values
     dist = np.abs(lam[:, None] - lam[None, :])
-    moved = np.abs(lam - _match(spec, levels[-2].spectrum).values)  # change over the last refinement
+    previous = _match(spec, levels[-2].spectrum) if previous is None else previous
+    moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
     np.fill_diagonal(near, False)
     if not near.any():
@@ -737,7 +741,7 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     d1 = changes(mid, _match(mid, levels[-3].spectrum)) if len(levels) >= 3 else None
     both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noise[None, :])
     est, phase, q_obs = both[0], both[1], q_both[0]
-    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p)
+    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid)
     rel = bounds * np.exp(-spec.log_moduli)
     has = np.isfinite(bounds)
     est = np.where(has, np.maximum(est, rel), est)
@@ -2005,6 +2009,45 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
             f"not certified (FloquetResult.uncertified_reasons)",
             RuntimeWarning, stacklevel=4)
     return certified, tuple(reasons)
+
+
+def recertify(result: FloquetResult, rtol: Optional[float] = None) -> FloquetResult:
+    """``result`` with :attr:`~FloquetResult.certified`, ``uncertified_reasons`` and ``phase_known``
+    recomputed from its own per-multiplier estimates (``10^-reliable_digits``) against ``rtol``
+    (default: ``result.rtol``, else :data:`CONTRACT_RTOL`).
+
+    For results whose multipliers and estimates were replaced after the engine produced them
+    (Richardson-extrapolated or checked frozen-modal solves, :mod:`stability.modal`).  A
+    multiplier is certified when its modulus is ``>= ESTIMATE_FLOOR`` of the largest, above
+    ``100 * noise_floor``, and its estimate is ``<= rtol``; a result without an estimate
+    (``error_estimate`` NaN) certifies nothing.
+    """
+    from dataclasses import replace
+
+    if rtol is None:
+        rtol = result.rtol if math.isfinite(result.rtol) else CONTRACT_RTOL
+    logs = np.asarray(result.log_moduli, float)
+    n = logs.size
+    covered = logs >= logs[0] + math.log(ESTIMATE_FLOOR)
+    with np.errstate(under="ignore", over="ignore"):
+        known = np.exp(logs) > 100.0 * result.noise_floor
+        est = 10.0 ** -np.asarray(result.reliable_digits, float)
+    has_estimate = math.isfinite(float(result.error_estimate))
+    certified = covered & known & (est <= rtol) & has_estimate
+    reasons = []
+    for i in range(n):
+        if certified[i]:
+            reasons.append("")
+        elif not covered[i]:
+            reasons.append(f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)")
+        elif not known[i]:
+            reasons.append("below the rounding floor of the formed product: phase (sign) unknown")
+        elif not has_estimate:
+            reasons.append("no error estimate")
+        else:
+            reasons.append(f"error estimate {est[i]:.1e} > rtol {rtol:.1e} (after {result.n_steps} steps)")
+    return replace(result, rtol=float(rtol), certified=certified, uncertified_reasons=tuple(reasons),
+                   phase_known=known)
 
 
 def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference, accuracy,

@@ -38,21 +38,38 @@ def register(sub) -> None:
     p.add_argument("--small-multipliers", choices=["flag", "qr"], default="flag",
                    help="multipliers below the rounding floor of the product: flag them (default) or "
                         "compute their moduli accurately by QR sweeps (log_moduli)")
+    p.add_argument("--rtol", type=_rtol_type, default=None, metavar="R",
+                   help="accuracy contract: every multiplier with modulus >= 1e-6 of the largest is certified "
+                        "to this relative error, refined until it is, or reported as not certified with the "
+                        "reason (default: [study] rtol of --config, else 1e-6; see docs/accuracy.md)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
+
+
+def _rtol_type(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--rtol must be a number, got {text!r}") from None
+    if not (math.isfinite(value) and 0.0 < value < 1.0):
+        raise argparse.ArgumentTypeError(f"--rtol must be in (0, 1), got {text!r}")
+    return value
 
 
 def floquet_report(args: argparse.Namespace) -> dict:
     """Compute the Floquet analysis requested by ``args`` and return the JSON-ready dict."""
     from stability import DEFAULT_METHOD, METHODS, floquet
 
+    from stability.floquet import recertify
+
     cfg = load_config(args.config)
     omega = args.omega if args.omega is not None else cfg.omega
+    rtol = args.rtol if getattr(args, "rtol", None) is not None else cfg.rtol
     method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     if args.model not in ("reduced", "exudyn"):
-        return _model_file_report(args, cfg, omega, method)
+        return _model_file_report(args, cfg, omega, method, rtol)
     if len(args.kp) != 1 or len(args.kd) != 1:
         raise ValueError(f"--model {args.model} has one drive (the hub): give one --kp and one --kd value")
     args.kp, args.kd = args.kp[0], args.kd[0]
@@ -68,7 +85,8 @@ def floquet_report(args: argparse.Namespace) -> dict:
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        res = floquet(model, method=method, small_multipliers=args.small_multipliers)
+        # the engine refines to min(its default 1e-9, rtol); certified against rtol
+        res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(1e-9, rtol))
         out["constants"] = args.constants
     else:
         from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
@@ -87,11 +105,11 @@ def floquet_report(args: argparse.Namespace) -> dict:
             "kd": args.kd,
         }
     )
-    out.update(res.to_dict())
+    out.update(recertify(res, rtol).to_dict())
     return out
 
 
-def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str) -> dict:
+def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str, rtol: float) -> dict:
     """Floquet analysis of a model file (``--model PATH.py`` or a built-in model file)."""
     from linearize.analysis import analyze
     from linearize.periodic_orbit import DEFAULT_SAMPLES
@@ -101,7 +119,7 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str)
                                               axial_damping=args.axial_damping)
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
-                  small_multipliers=args.small_multipliers, **options)
+                  small_multipliers=args.small_multipliers, rtol=rtol, **options)
     out = {"model": args.model}
     out.update(res.summary())
     out["model"] = args.model
@@ -157,6 +175,12 @@ def _table(d: dict) -> str:
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
     ]
+    if d.get("certified") is not None and d.get("rtol") is not None:
+        reasons = [(i, r) for i, r in enumerate(d.get("uncertified_reasons") or [], 1)
+                   if r and not r.startswith("modulus below")]
+        lines.append(f"accuracy         rtol {d['rtol']:.0e}: "
+                     + ("every multiplier >= 1e-6 of the largest certified" if not reasons else
+                        "NOT certified: " + "; ".join(f"#{i} {r}" for i, r in reasons)))
     if "drives" in d:
         lines += [
             f"drives: {', '.join(d['drives']) or '(none)'}; dominant multiplier |rho| = {d['dominant_modulus']:.8g}",
