@@ -532,7 +532,7 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     """Error estimate of the finest level from the changes ``d1`` (coarsest pair) and ``d2`` (finest).
 
     ``q = min(p, observed order)`` (clipped to ``[MIN_ORDER, p]``; ``p`` where the changes are at
-    the rounding level ``noise``), then ``ESTIMATE_SAFETY * d2 / (r2^q - 1)``, the finest error
+    the rounding level ``noise``; at most 1 when below ``LOW_ORDER_FRACTION p``), then ``ESTIMATE_SAFETY * d2 / (r2^q - 1)``, the finest error
     extrapolated from the last change; where the observed order exceeds ``p`` by more than
     :data:`ACCIDENTAL_ORDER_EXCESS` (an accidental agreement of the last two levels) the larger of
     that and the error predicted for the finest level from the change before,
@@ -546,6 +546,10 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     q_obs = _observed_order(Ns[-3:], d1, d2, p)
     informative = (d2 > ORDER_NOISE * noise) & (d1 > ORDER_NOISE * noise)
     q = np.where(informative, np.clip(q_obs, MIN_ORDER, p), float(p))
+    # well below the scheme's order there is no error expansion to extrapolate (a jump of P inside a
+    # step: the error depends on where the jump falls in the grid, not smoothly on N): first order,
+    # the order of a step across a jump, or the observed one if lower
+    q = np.where(q < LOW_ORDER_FRACTION * p, np.minimum(q, 1.0), q)
     last = d2 / (r2**q - 1.0)
     # an observed order above p + 4 is no leading term of the (even) error expansion: the last two
     # levels agree by accident (the error changes sign between them), so the previous change decides
@@ -1562,7 +1566,11 @@ def _adaptive(solve, solve_many, estimate, rtol: float, max_steps: int, scheme: 
         if info is not None and info.order_checked and math.isfinite(est) and est > 0:
             order = info.observed_order if math.isfinite(info.observed_order) else p
             order = min(max(order, 1.0), p)
-            grow = min(max((est / (SAFETY * rtol)) ** (1.0 / order), 1.25), MAX_REFINE_RATIO)
+            wanted = (est / (SAFETY * rtol)) ** (1.0 / order)
+            grow = min(max(wanted, 1.25), MAX_REFINE_RATIO)
+            if order < LOW_ORDER_FRACTION * p and fine.n_steps * wanted > max_steps:
+                # at a low observed order rtol is out of reach: straight to the best the limit gives
+                grow = max_steps / fine.n_steps
         else:
             grow = 2.0  # not enough levels yet: classical doubling
         N_next = min(int(math.ceil(fine.n_steps * grow)), max_steps)
