@@ -412,6 +412,7 @@ def analyze(
     res = recertify(res, rtol)
     if refine and method != "paper" and not res.all_certified:
         res = _refine_to_contract(lin, res, rtol, sm)
+    res = _declared_breakpoints(orbit, res)
     lap("floquet")
     modes = label_multipliers(lin, orbit, res)
     lap("labels")
@@ -500,6 +501,30 @@ def _refine_to_contract(lin: Any, res: Any, rtol: float, small_multipliers: str)
             warnings.warn(f"multipliers not certified to rtol {rtol:.0e}: " + "; ".join(missed), RuntimeWarning,
                           stacklevel=3)
     return res
+
+
+def _declared_breakpoints(orbit: PeriodicOrbit, res: Any) -> Any:
+    """``res`` uncertified, with the reason, when a drive of the model declares breakpoints.
+
+    The linearisation is sampled on the orbit and interpolated trigonometrically
+    (:class:`~linearize.system.LinearizedPeriodicSystem`): a smooth ``P(t)`` whatever the motion, so a
+    declared non-smooth motion is not represented to the accuracy the estimates speak of (they see the
+    propagator's error on the interpolant, not the interpolant's).  Warns (``RuntimeWarning``).
+    """
+    from dataclasses import replace
+
+    from mbs_models.model_file import build_model
+
+    drives = build_model(orbit.model, orbit.omega).drives
+    declared = {d.name: d.breakpoints for d in drives if d.breakpoints}
+    if not declared:
+        return res
+    which = ", ".join(f"{name} at t = {', '.join(f'{b:.4g}' for b in bps)}" for name, bps in declared.items())
+    reason = (f"the drive motion is non-smooth ({which}); the sampled linearisation is smooth (trigonometric "
+              f"interpolation) and does not represent it")
+    warnings.warn(f"multipliers not certified: {reason}", RuntimeWarning, stacklevel=3)
+    return replace(res, certified=np.zeros(len(res.certified), bool),
+                   uncertified_reasons=tuple(r or reason for r in res.uncertified_reasons))
 
 
 def _pick_frame(dom: complex, est: float, alt_dom: complex, alt_est: float) -> tuple:

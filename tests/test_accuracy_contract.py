@@ -335,3 +335,39 @@ def test_rigid_two_link_meets_the_contract_by_default(capsys):
     old_err = np.abs(np.abs(_sorted(old.floquet.multipliers)) / np.abs(exact) - 1.0)
     assert np.max(old_err) > CONTRACT_RTOL  # the old default output misses the contract ...
     assert not old.floquet.all_certified  # ... and now says so
+
+
+def test_drive_breakpoints_are_validated():
+    from mbs_models.model_file import Drive, ModelFileError
+
+    d = Drive.coerce({"name": "hub", "markers": (0, 1), "motion": lambda t: (0.0, 0.0, 0.0), "breakpoints": [0.25]})
+    assert d.breakpoints == (0.25,)
+    assert Drive("hub", (0, 1), lambda t: (0.0, 0.0, 0.0)).breakpoints == ()
+    for bad in ([-1.0], [math.nan], "ab", 3.0):
+        with pytest.raises(ModelFileError, match="breakpoints"):
+            Drive("hub", (0, 1), lambda t: (0.0, 0.0, 0.0), breakpoints=bad)
+
+
+@pytest.mark.slow
+def test_declared_drive_breakpoints_leave_the_model_file_result_uncertified():
+    """The sampled, trigonometrically interpolated linearisation cannot represent a non-smooth motion:
+    a drive that declares breakpoints gets its multipliers reported as not certified, with the reason."""
+    import importlib.util
+    from pathlib import Path
+
+    from linearize.analysis import analyze
+
+    spec = importlib.util.spec_from_file_location("rigid_two_link", Path(__file__).parent / "models" /
+                                                  "rigid_two_link.py")
+    m = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(m)
+
+    def build(mbs, omega):
+        drives = m.build(mbs, omega)
+        drives[0]["breakpoints"] = (0.25, 0.75)
+        return drives
+
+    with pytest.warns(RuntimeWarning, match="non-smooth"):
+        res = analyze(build, 2 * math.pi, verify_orbit=False)
+    assert not res.floquet.certified.any()
+    assert "shoulder at t = 0.25, 0.75" in res.floquet.uncertified_reasons[0]
