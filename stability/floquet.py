@@ -4,12 +4,14 @@ Public entry point: :func:`floquet`.  Methods live in the registry
 :data:`METHODS`:
 
 ``"magnus6"`` (default)
-    6th-order Magnus exponential propagator on ``N`` equal sub-intervals,
-    vectorised.  Adaptive: the first ``N`` from the size of the commutator
-    terms, a pilot pair ``N, 2N``, then one refinement pass sized by the error
-    model ``err ~ C N^-6`` until the Richardson error estimate of the moduli
-    (or, with ``accuracy="multipliers"``, of the complex multipliers) is
-    below ``rtol``.  Exact for constant ``P`` and
+    6th-order Magnus exponential propagator on ``N`` equal sub-intervals (equal
+    on each smooth piece between declared breakpoints), vectorised.  Adaptive: the
+    first ``N`` from the size of the commutator terms, a pilot ``N/2, N, 2N``, then
+    refinement passes sized by the error model ``err ~ C N^-q`` (``q`` the observed
+    order, at most 6) until the estimate of the moduli (or, with
+    ``accuracy="multipliers"``, of the complex multipliers) is below ``rtol``
+    (:func:`_level_estimates`: pairing by assignment, the observed order, a safety
+    factor, Henrici bounds for defective groups).  Exact for constant ``P`` and
     unconditionally stable for stiff, strongly damped systems (each
     sub-interval propagator is a matrix exponential).
 ``"magnus4"``
@@ -134,6 +136,23 @@ TRACE_RTOL = 1e-13
 class FloquetResult:
     """Floquet analysis of ``x' = P(t) x`` over one period.
 
+    The accuracy contract (``docs/accuracy.md``): every multiplier with modulus ``>=
+    ESTIMATE_FLOOR`` (1e-6) of the largest is within ``rtol`` relative of the exact multiplier of
+    ``P`` -- in modulus, and in phase too with ``accuracy="multipliers"`` -- when
+    :attr:`certified` says so; the adaptive engine refines until it does, or stops at the step
+    limit / the rounding level and says for each multiplier that missed it why
+    (:attr:`uncertified_reasons`, a ``RuntimeWarning``).  ``rtol`` is the call's (default
+    :data:`DEFAULT_RTOL`; the CLI certifies :data:`CONTRACT_RTOL`, 1e-6, unless ``--rtol``).  The
+    estimates behind it are bounds by rule, not Richardson values alone: the spectra of the
+    refinement levels are paired by assignment; the order of convergence is observed over three
+    levels and the extrapolation uses it when it is lower than the scheme's (a non-smooth ``P``
+    without declared :attr:`breakpoints` shows as a low :attr:`observed_order`); a safety factor
+    :data:`ESTIMATE_SAFETY`; defective or clustered multipliers get Henrici's (square-root) bound
+    with a warning naming them; nothing is claimed below the rounding level of the product.  A
+    multiplier below the rounding floor has its modulus (``log_moduli``, exact with
+    ``small_multipliers="qr"``) but no phase or sign (:attr:`phase_known` False; ``to_dict`` prints
+    ``null`` for it and :attr:`exponents` a NaN imaginary part).
+
     Attributes
     ----------
     multipliers : ndarray, complex, shape (n,)
@@ -173,7 +192,7 @@ class FloquetResult:
         ``int_0^T tr P dt`` (closed form when the model supplies it,
         otherwise the periodic trapezoidal rule on ``TRACE_POINTS`` points).
     error_estimate : float
-        Richardson estimate of the largest relative error, over the
+        Estimate (by the rules above) of the largest relative error, over the
         multipliers with moduli ``>= ESTIMATE_FLOOR * spectral_radius``, of
         what ``accuracy`` names: the moduli (default) or the multipliers
         (moduli and phases); with ``"dominant"`` the moduli of
@@ -183,8 +202,7 @@ class FloquetResult:
         formed monodromy matrix are rounding noise (a lower bound: non-normal
         monodromy matrices amplify it by the eigenvalue condition number).
     reliable_digits : ndarray, shape (n,)
-        Per multiplier, ``-log10`` of its own refinement error estimate
-        (the Richardson estimate of the last pair of solves, capped at 16),
+        Per multiplier, ``-log10`` of its own error estimate (by the rules above, capped at 16),
         further capped by the noise floor; 0 means the value is noise.
     method : str
     n_steps : int
@@ -206,6 +224,25 @@ class FloquetResult:
         error of the multiplier's direction) from the same refinement; it is
         reported whatever ``accuracy`` is, but the refinement drives it below
         ``rtol`` only with ``accuracy="multipliers"``.  NaN when not computed.
+    rtol : float
+        The relative accuracy :attr:`certified` is judged against.
+    certified : ndarray of bool, shape (n,)
+        Per multiplier: modulus ``>= ESTIMATE_FLOOR`` of the largest, above the rounding floor,
+        covered by ``accuracy``, and estimated error (``10^-reliable_digits``) ``<= rtol``.
+    uncertified_reasons : tuple of str
+        Per multiplier, ``""`` when certified, otherwise why not (outside the contract's range,
+        phase unknown below the rounding floor, estimate above ``rtol`` with its cause: a
+        defective group, a low observed order, the step limit, the rounding level).
+    phase_known : ndarray of bool, shape (n,)
+        ``False`` where the multiplier is below ``100 * noise_floor``: its phase (a real
+        multiplier's sign) is rounding noise.
+    observed_order : float
+        Smallest order of convergence observed over the last three refinement levels among the
+        covered multipliers (NaN when the changes were at the rounding level or fewer than
+        three levels ran).  Well below the method's order: ``P`` is non-smooth inside the period.
+    breakpoints : tuple of float
+        The times in ``(0, T)`` the sub-intervals landed on (``floquet(breakpoints=...)`` or
+        ``P.breakpoints``).
     companion_steps, companion_monodromies : tuple
         ``magnus2`` with a fixed ``n_steps = N`` (a multiple of 3) on a system
         larger than ``SMALL_N`` with ``error_estimate``: the step counts
