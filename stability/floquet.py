@@ -2000,7 +2000,7 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
     certified = np.zeros(n, bool)
     p = prop.scheme_order
     low = math.isfinite(p) and math.isfinite(prop.observed_order) and prop.observed_order < LOW_ORDER_FRACTION * p
-    if low:
+    if low and adaptive:  # with a fixed n_steps the steps may simply be pre-asymptotic: reported, not warned
         warnings.warn(
             f"{method}: convergence order {prop.observed_order:.2g} observed, the method's is {p:g}: P(t) or "
             f"its derivatives are probably non-smooth inside the period; declare those times "
