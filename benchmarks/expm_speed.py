@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Matrix exponentials of the single link's frozen-modal Magnus exponents: block diagonalisation vs scipy.
 
-Issue 12 (the dense Floquet stage at 64 elements is mostly ``scipy.linalg.expm`` of
-``h P_hat``, 516 x 516).  For each mesh: the periodic orbit, the Table 3 linearisation and the
+Why: the dense Floquet stage at 64 elements is mostly ``scipy.linalg.expm`` of
+``h P_hat``, 516 x 516.  For each mesh: the periodic orbit, the Table 3 linearisation and the
 frozen-modal frames (:func:`stability.modal.modal_system`, as ``benchmarks/scale.py --frame
 modal`` builds them), then the magnus2 exponents ``h P_hat(t_k + h/2)`` with ``h = T / steps``
 at ``--samples`` midpoints spread over the period, balanced as :func:`stability.floquet`

@@ -4,7 +4,7 @@
 One case (default Omega = 2 pi, Table 3 gains, 8 elements), measured in one
 run: periodic orbit + finite-difference linearisation + Floquet multipliers,
 against the direct monodromy from 2n + 1 one-period Exudyn simulations, and
-the agreement of their dominant multipliers.  Targets (issue 4): the
+the agreement of their dominant multipliers.  Targets: the
 linearisation route < 10 s and >= 5x faster than the direct monodromy at
 equal accuracy on the dominant multiplier.
 """

@@ -23,9 +23,6 @@ paper's procedure at rtol 1e-11 -- DOP853, or Radau where P is stiff; its
 agreement with the default is reported too).  A baseline run that is already
 slower than the best accepted one is abandoned (tighter tolerances are only
 slower), which keeps the search affordable without changing its outcome.
-With numba installed (optional extra ``fast``) the default call runs the
-compiled Magnus kernel; the same call with it switched off (the numpy path) is
-timed too, so that the kernel's gain is measured in the same run.
 
 Usage::
 
@@ -145,7 +142,6 @@ class CaseResult:
     best_max_rel_error: Optional[float]
     ratio: Optional[float]
     tried: list
-    numpy_path_ms: Optional[float] = None  # the default call without the compiled kernel (numba)
 
 
 def _moduli(Phi: np.ndarray) -> np.ndarray:
@@ -211,21 +207,6 @@ def _time_default(model: ReducedModel, min_repeats: int, min_seconds: float, **o
     return statistics.median(times), len(times), res
 
 
-def _time_numpy_path(model: ReducedModel, quick: bool) -> Optional[float]:
-    """Median CPU time of the default call with the optional compiled kernel switched off (None if
-    numba is not installed: then the default *is* the numpy path)."""
-    from stability import _compiled
-
-    fq = sys.modules["stability.floquet"]
-    if not fq.USE_COMPILED:
-        return None
-    fq.USE_COMPILED = False
-    try:
-        return _time_default(model, min_repeats=5, min_seconds=0.0 if quick else 0.5)[0]
-    finally:
-        fq.USE_COMPILED = _compiled.AVAILABLE
-
-
 def _best_baseline(model, ref, methods, rtols, repeats, log):
     best = None  # (seconds, method, rtol, err)
     tried = []
@@ -282,7 +263,6 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         d_s, d_rep, d_res = _time_default(model, min_repeats=5, min_seconds=0.0 if quick else 0.5)
         d_err = _max_rel_error(d_res.moduli, np.abs(ref))
         m_s, _, m_res = _time_default(model, min_repeats=3, min_seconds=0.0, accuracy="multipliers")
-        np_s = _time_numpy_path(model, quick)
         m_err = _max_rel_multiplier_error(m_res.multipliers, ref)
         log(f"  default magnus6: {d_s * 1e3:.3f} ms (N={d_res.n_steps}, moduli err={d_err:.1e}, "
             f"est={d_res.error_estimate:.1e}); accuracy='multipliers': {m_s * 1e3:.3f} ms "
@@ -297,7 +277,6 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
             best_method=best[1] if best else None, best_rtol=best[2] if best else None,
             best_ms=best[0] * 1e3 if best else None, best_max_rel_error=best[3] if best else None,
             ratio=(best[0] / d_s) if best else None, tried=tried,
-            numpy_path_ms=None if np_s is None else np_s * 1e3,
         ))
     timed = [r for r in results if r.best_ms is not None]
     total_ratio = (sum(r.best_ms for r in timed) / sum(r.default_ms for r in timed)) if timed else None
@@ -311,7 +290,6 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         "rtols": rtols,
         "methods": IVP_METHODS,
         "total_ratio": total_ratio,
-        "compiled_kernel": bool(sys.modules["stability.floquet"].USE_COMPILED),
         "clock": CLOCK_NAME,
         "cases": [asdict(r) for r in results],
         "platform": {"python": platform.python_version(), "numpy": np.__version__,
@@ -346,13 +324,6 @@ def _table(results, total_ratio) -> str:
         sm = sum(r.multipliers_ms for r in results if r.best_ms is not None)
         lines.append(f"total: baseline {sb:.1f} ms / default {sd:.3f} ms = {total_ratio:.0f}x   "
                      f"(accuracy='multipliers': {sm:.3f} ms = {sb / sm:.0f}x)")
-        if all(r.numpy_path_ms is not None for r in results if r.best_ms is not None):
-            sn = sum(r.numpy_path_ms for r in results if r.best_ms is not None)
-            lines.append(f"without the compiled kernel (numpy path): default {sn:.3f} ms = {sb / sn:.0f}x "
-                         f"(per case {min(r.numpy_path_ms for r in results):.3f}-"
-                         f"{max(r.numpy_path_ms for r in results):.3f} ms)")
-        else:
-            lines.append("compiled kernel: not in use (numba not installed); the default is the numpy path")
     lines.append("ms = CPU milliseconds; err = max relative error of the moduli >= 1e-6 of the largest; "
                  "mult.err = of the complex multipliers")
     return "\n".join(lines)

@@ -12,11 +12,11 @@ run at the same mesh:
   separately, with the collocation residual and the shooting defect reached;
 * the hand-derived route (``linearize.link_floquet.exudyn_floquet``) at the
   same samples and steps: its dominant (hub) multiplier is the reference the
-  generic one must equal to 1e-6 (issue 9);
+  generic one must equal to 1e-6;
 * the direct Exudyn monodromy (``direct_monodromy``, 2 n + 1 one-period
   Exudyn runs) as the brute-force baseline (``--direct``, slow).
 
-Target (issue 9): orbit + linearisation + Floquet <= 2 s per Omega at 8 elements
+Target: orbit + linearisation + Floquet <= 2 s per Omega at 8 elements
 (``target_2s`` on wall clock; on a loaded machine read the CPU column).
 
 Orbit stage, measured (CPU seconds, min of 2-3 runs in one process, 8 elements, 32
@@ -34,7 +34,7 @@ Omega      orbit before (its)          orbit after (its)           shooting
 
 linearisation 0.02 s CPU throughout; residuals after 2.3e-9, 6.4e-10, 3.1e-10,
 1.1e-10 (tolerance 1e-6, unchanged), shooting defects 2e-5 .. 1e-4 (tolerance
-1e-2).  "before" is commit f539110 (damped Newton only), "after" the full-step
+1e-2).  "before" is the damped-Newton-only orbit solver, "after" the full-step
 Newton with the quasi-static fallback and the compressed reaction stiffness.
 Two-link arm (default mesh), same measurement: 1.07 -> 0.67 s at 2 pi,
 0.99 -> 1.02 s at 4 pi (no continuation before either).
@@ -43,7 +43,7 @@ Floquet stage, measured (this script, 8 elements, 32 samples, Table 3 gains, loa
 2-core machine, ``--no-shooting``): default ``analyze`` (frozen-modal frame, two nested
 frames, 128 exponential-midpoint steps Richardson-extrapolated with 64 and 32, a 16-step
 solve checking the estimate's premise) against (a) the hand route's linearisation
-propagated to convergence (``--converged-steps``, the issue-9 reference: this column also
+propagated to convergence (``--converged-steps``, the reference: this column also
 holds the two linearisations' disagreement) and (b) the generic linearisation itself
 propagated to convergence (the propagator error, which the estimate claims to bound):
 

@@ -1,13 +1,13 @@
 #!/usr/bin/env python3
 """Scale of the generic path: orbit, linearisation and Floquet of the single link at 4 ... 64 elements.
 
-Issue 12 item 4.  For each mesh, in a fresh subprocess (so that each mesh's
+For each mesh, in a fresh subprocess (so that each mesh's
 peak memory is its own): the periodic orbit (:func:`linearize.periodic_orbit.find_orbit`,
 ``solver="auto"``: structured Newton above the threshold), the constraint-correct
 linearisation with the Table 3 gains (:func:`linearize.constrained.linearize_orbit`),
 the dense Floquet multipliers (:func:`stability.floquet`, ``magnus2``, as
 :func:`linearize.analysis.analyze` runs it) and the dominant ones matrix-free
-(:func:`stability.implicit_floquet`, same propagator).  ``--frame modal`` propagates in
+(:func:`stability.implicit.implicit_floquet`, same propagator).  ``--frame modal`` propagates in
 the frozen-modal coordinates of :mod:`stability.modal` (its basis is a stage of its own,
 shared by both Floquet methods) and runs the dense Floquet as ``analyze()`` does:
 Richardson-extrapolated, from ``N, N/2, N/4`` steps, or with ``N`` divisible by 9 from
@@ -116,7 +116,8 @@ def worker(elements: int, samples: int, n_steps: int, dense: bool, implicit: boo
     from linearize.analysis import UNDAMPED_TOLERANCE
     from linearize.constrained import linearize_orbit
     from linearize.periodic_orbit import find_orbit
-    from stability import floquet, implicit_floquet
+    from stability import floquet
+    from stability.implicit import implicit_floquet
 
     if trace_memory:
         tracemalloc.start()  # per-stage Python peaks; slows allocation-heavy stages (the orbit: ~3x CPU)

@@ -11,7 +11,7 @@ CPU time of the study and all its children measured here (``RUSAGE_CHILDREN`` of
 
 The machine's load (``os.getloadavg``) before and after each run is printed beside the times:
 on a shared machine the wall times grow with the load, the CPU times much less.  The targets
-(issue 12.5) are for an otherwise idle 2-core machine: full <= 60 s, quick <= 15 s wall.  With
+are for an otherwise idle 2-core machine: full <= 60 s, quick <= 15 s wall.  With
 the cores busy all the time the wall time of an idle machine would be the total CPU time over
 the number of cores: the script prints that lower bound beside the measured wall time.
 

@@ -4,7 +4,7 @@
 Prints, per case (Omega = 2pi..8pi, rho_d = 0.3, 0.3, 0.3, 0.4): Taguchi
 time and evaluations, Nelder-Mead and differential-evolution evaluations and
 time, all measured in this run.  The four tunings run in parallel, one per
-worker process (``--workers``, default 2), the issue's target being < 2 s in
+worker process (``--workers``, default 2), the target being < 2 s in
 total on 2 cores.  Writes ``taguchi_speed.json`` to ``--out`` (results/).
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Benchmark: one Floquet evaluation inside a tuning loop on the Exudyn plant (issue 12.2).
+"""Benchmark: one Floquet evaluation inside a tuning loop on the Exudyn plant.
 
 The 8-element Exudyn link at Omega = 2pi, linearised once along its periodic
 orbit (68 states).  Compared, in one run, in CPU seconds of this process

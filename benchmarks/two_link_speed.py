@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Speed of the two-link arm: orbit + linearisation + Floquet per Omega, and one four-gain tuning (CPU seconds).
 
-Targets (issue 11): orbit + linearisation + Floquet <= 5 s per Omega at the default mesh; one
+Targets: orbit + linearisation + Floquet <= 5 s per Omega at the default mesh; one
 four-gain Taguchi tuning <= 60 s on 2 cores.  "Floquet" is the labelling pass (magnus2, 512 steps,
 prepared workspace) plus Hill's method for the dominant drive-mode multiplier (16 harmonics).
 Baseline measured in the same run: the time-stepping product that reaches the same accuracy

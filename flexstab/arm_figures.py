@@ -25,8 +25,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import scipy.linalg
 
-__all__ = ["ArmLayout", "arm_layout", "beam_centerlines", "plot_poses", "floquet_mode_shapes", "plot_floquet_mode",
-           "mode_title"]
+__all__ = ["ArmLayout", "ModeFigure", "arm_layout", "beam_centerlines", "plot_poses", "floquet_mode_shapes",
+           "plot_floquet_mode", "mode_title"]
 
 logger = logging.getLogger(__name__)
 
@@ -139,8 +139,9 @@ def plot_poses(orbit: Any, path: "str | Path", *, snapshots: int = 12, title: Op
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
-    ax.set_title(title or f"{orbit.model.name}: poses over one period, Omega = {orbit.omega:.4g} rad/s")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.set_title(title or f"{orbit.model.name}: poses over one period, Ω = {orbit.omega / math.pi:.4g}π rad/s",
+                 fontsize=11)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="time", title_fontsize=8)
     return _save(fig, path, dpi=130)
 
 
@@ -187,25 +188,55 @@ def floquet_mode_shapes(result: Any, index: int = 0, *, substeps: int = 16) -> t
 
 
 def mode_title(orbit: Any, rho: complex, label: str, measured: Optional[tuple[complex, str]] = None) -> str:
-    """Title of :func:`plot_floquet_mode`: the multiplier's modulus -- ``measured`` = ``(value, method)``
-    when the value reported elsewhere comes from another method than the product whose eigenvector
-    gives the shape (e.g. Hill's method in the two-link table), else the product's ``rho``."""
+    """Title of :func:`plot_floquet_mode` (two lines): the model, Omega and the multiplier's modulus --
+    ``measured`` = ``(value, method)`` when the value reported elsewhere comes from another method than
+    the product whose eigenvector gives the shape (e.g. Hill's method in the two-link table), else the
+    product's ``rho``."""
     if measured is not None:
-        value = f"|rho| = {abs(measured[0]):.6f} ({label}; {measured[1]})"
+        value = f"|ρ| = {abs(measured[0]):.6f} ({label}; {measured[1]})"
     else:
-        value = f"|rho| = {abs(rho):.4f} ({label})"
-    return (f"{orbit.model.name}, Omega = {orbit.omega:.4g}: Floquet mode of {value}; "
-            "grey: orbit pose, red: pose + mode")
+        value = f"|ρ| = {abs(rho):.4f} ({label})"
+    k = f"{orbit.omega / math.pi:.4g}"
+    return f"{orbit.model.name}, Ω = {'' if k == '1' else k}π rad/s: Floquet mode of {value}"
+
+
+@dataclass(frozen=True)
+class ModeFigure:
+    """What :func:`plot_floquet_mode` drew.
+
+    Attributes
+    ----------
+    path : Path
+        The PNG written.
+    multiplier : complex
+        The multiplier of the product whose eigenvector gives the shape.
+    mode : str
+        Its label.
+    scale_m : float
+        The drawn deformation: the largest displacement coordinate of the mode is ``scale_m`` metres
+        (``amplitude`` times the arm's reach; a mode has no amplitude of its own).
+    """
+
+    path: Path
+    multiplier: complex
+    mode: str
+    scale_m: float
+
+    @property
+    def name(self) -> str:
+        """File name of :attr:`path`."""
+        return self.path.name
 
 
 def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] = None, snapshots: int = 8,
                       amplitude: float = 0.08, title: Optional[str] = None,
-                      measured: Optional[tuple[complex, str]] = None) -> Path:
+                      measured: Optional[tuple[complex, str]] = None) -> ModeFigure:
     """Snapshots of the Floquet mode of multiplier ``index`` (default: the dominant damped one) on the pose.
 
     The deformation ``dq`` is scaled so that its largest coordinate is
-    ``amplitude`` times the arm's reach; the undeformed orbit pose is grey.  ``measured``
-    (``(value, method)``): the title shows that value of the multiplier (see :func:`mode_title`).
+    ``amplitude`` times the arm's reach (the scale is written on the figure and returned); the
+    undeformed orbit pose is grey.  ``measured`` (``(value, method)``): the title shows that value of
+    the multiplier (see :func:`mode_title`).
     """
     import matplotlib.pyplot as plt
 
@@ -216,24 +247,34 @@ def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] =
     orbit = result.orbit
     layout = arm_layout(_built(orbit).mbs)
     reach = max(float(np.max(np.abs(np.concatenate(beam_centerlines(layout, orbit.q[0]))))), 1e-3)
+    scale = amplitude * reach
     label = result.modes[index]["mode"] if index < len(result.modes) else ""
     cols = min(snapshots, 4)
     rows = int(math.ceil(snapshots / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.0 * cols, 3.0 * rows), squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.1 * cols, 2.6 * rows + 0.9), squeeze=False,
+                             sharex=True, sharey=True)
     picks = np.linspace(0, times.size, snapshots, endpoint=False).astype(int)
     for ax, k in zip(axes.ravel(), picks):
         q = orbit.q[k]
-        for line in beam_centerlines(layout, q):
-            ax.plot(line[:, 0], line[:, 1], "-", color="0.7", lw=2)
-        for line in beam_centerlines(layout, q + amplitude * reach * dq[k]):
-            ax.plot(line[:, 0], line[:, 1], "-", color="C3", lw=1.8)
+        for j, line in enumerate(beam_centerlines(layout, q)):
+            ax.plot(line[:, 0], line[:, 1], "-", color="0.7", lw=2, label="orbit pose" if j == 0 else None)
+        for j, line in enumerate(beam_centerlines(layout, q + scale * dq[k])):
+            ax.plot(line[:, 0], line[:, 1], "-", color="C3", lw=1.8, label="pose + mode" if j == 0 else None)
         ax.plot([0], [0], "ks", ms=4)
         ax.set_aspect("equal")
         ax.set_xlim(-1.15 * reach, 1.15 * reach)
         ax.set_ylim(-0.4 * reach, 1.15 * reach)
         ax.set_title(f"t = {times[k] / orbit.period:.3f} T", fontsize=9)
-        ax.tick_params(labelsize=7)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+    for ax in axes[-1, :]:
+        ax.set_xlabel("x (m)", fontsize=9)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("y (m)", fontsize=9)
     for ax in axes.ravel()[len(picks):]:
         ax.axis("off")
-    fig.suptitle(title or mode_title(orbit, rho, label, measured), fontsize=9)
-    return _save(fig, path, dpi=120)
+    axes[0, 0].legend(fontsize=8, loc="lower left")
+    fig.suptitle((title or mode_title(orbit, rho, label, measured))
+                 + f"\nlargest displacement of the mode drawn as {scale:.3g} m ({100 * amplitude:.0f} % of the "
+                   f"reach {reach:.3g} m)", fontsize=10)
+    return ModeFigure(path=_save(fig, path, dpi=120), multiplier=complex(rho), mode=str(label), scale_m=float(scale))

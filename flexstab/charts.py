@@ -28,6 +28,7 @@ __all__ = [
     "OmegaChart",
     "gain_chart",
     "omega_chart",
+    "dominant_ylabel",
     "plot_gain_chart",
     "plot_omega_chart",
     "check_grid",
@@ -264,7 +265,7 @@ def gain_chart(
     store: Path,
     *,
     target: Optional[float] = None,
-    progress: bool = False,
+    progress: Any = False,
 ) -> GainChart:
     """Evaluate ``task({"omega", "kp", "kd"})`` on the grid ``kd x kp`` (resumable via ``store``)."""
     kp = np.asarray(kp, dtype=float)
@@ -283,7 +284,7 @@ def omega_chart(
     executor,
     store: Path,
     *,
-    progress: bool = False,
+    progress: Any = False,
 ) -> OmegaChart:
     """max|rho| against Omega with zero gains and with ``(kp, kd)`` (resumable via ``store``).
 
@@ -369,8 +370,10 @@ def plot_gain_chart(chart: GainChart, path: Path, taguchi_path: Optional[Sequenc
     of = f" of drive {drive}" if drive else ""
     ax.set_xlabel(f"kp{of} (N·m/rad)")
     ax.set_ylabel(f"kd{of} (N·m·s/rad)")
-    ax.set_title(f"max|ρ|, {label}\nΩ = {chart.omega / math.pi:.3g}π rad/s, {chart.kp.size} × {chart.kd.size} grid",
-                 fontsize=10)
+    import textwrap
+
+    ax.set_title(textwrap.fill(f"max|ρ|, {label}", 80)
+                 + f"\nΩ = {chart.omega / math.pi:.3g}π rad/s, {chart.kp.size} × {chart.kd.size} grid", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
@@ -384,6 +387,12 @@ def _gain_text(g) -> str:
     return f"{g:.4g}"
 
 
+def dominant_ylabel(orbit) -> str:
+    """Axis label of a model's dominant multiplier: the drive modes, and the first bending mode only when
+    the model has beams (ANCF slope nodes; a rigid arm has no bending mode)."""
+    return f"dominant |ρ| ({'drive modes / bending 1' if orbit.slope_nodes else 'drive modes'})"
+
+
 def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised reduced model",
                      ylabel: str = "max|ρ| (spectral radius)") -> Path:
     """The plotted multiplier (``ylabel``) against Omega (log scale), uncontrolled and controlled."""
@@ -392,18 +401,23 @@ def plot_omega_chart(chart: OmegaChart, path: Path, label: str = "linearised red
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    import textwrap
+
+    fig, ax = plt.subplots(figsize=(7, 4.8), layout="constrained")
     x = chart.omega / math.pi
-    ax.semilogy(x, chart.radius_uncontrolled, "-", label="uncontrolled (kp = kd = 0)")
-    ax.semilogy(x, chart.radius_controlled, "-",
+    # the |rho| = 1 line is drawn below the curves (zorder), thin: a curve on the unit circle (an undamped
+    # mode) stays visible on top of it instead of hidden under it
+    ax.axhline(1.0, color="red", lw=0.9, ls="--", label="|ρ| = 1", zorder=1)
+    ax.semilogy(x, chart.radius_uncontrolled, "-", lw=1.8, label="uncontrolled (kp = kd = 0)", zorder=3)
+    ax.semilogy(x, chart.radius_controlled, "-", lw=1.8, zorder=3,
                 label=f"kp = {_gain_text(chart.kp)} N·m/rad, kd = {_gain_text(chart.kd)} N·m·s/rad")
-    ax.axhline(1.0, color="red", lw=1, ls="--", label="|ρ| = 1")
     ax.set_xlabel("Ω / π (Ω in rad/s)")
     ax.set_ylabel(ylabel)
-    ax.set_title(f"{ylabel} against the frequency Ω of the fundamental motion\n{label}", fontsize=10)
-    ax.legend()
+    # wrapped to the figure's width (a model's label ran past both edges)
+    ax.set_title(textwrap.fill(f"{ylabel} against the frequency Ω of the fundamental motion; {label}", 80),
+                 fontsize=10)
+    ax.legend(fontsize=9)
     ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path

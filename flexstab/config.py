@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Union
 
 from mbs_models.parameters import ManipulatorParameters
-from taguchi.tuning import check_gain_range
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -159,6 +158,8 @@ class StudyConfig:
             raise ValueError(f"omega must be finite and > 0, got {self.omega!r}")
         if not (math.isfinite(self.target) and self.target > 0):
             raise ValueError(f"target must be finite and > 0, got {self.target!r}")
+        from taguchi.tuning import check_gain_range  # here: parsing the command line imports no numpy
+
         object.__setattr__(self, "kp_range", check_gain_range(self.kp_range, "kp_range"))
         object.__setattr__(self, "kd_range", check_gain_range(self.kd_range, "kd_range"))
         if isinstance(self.elements, bool) or not isinstance(self.elements, int) or self.elements < 1:

@@ -40,8 +40,9 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
-from tqdm import tqdm
 
+from flexstab.progress import make_bar
+from flexstab.threads import blas_threads, limit_blas_threads
 from stability.serialization import json_ready
 
 __all__ = [
@@ -57,6 +58,7 @@ __all__ = [
     "run_sweep",
     "validate_scheduler_address",
     "exit_with_parent",
+    "worker_init",
     "PARENT_POLL_INTERVAL",
 ]
 
@@ -134,6 +136,10 @@ class DaskExecutor(cf.Executor):
     def __init__(self, client: Any, owns_client: bool = True) -> None:
         self.client = client
         self._owns_client = owns_client
+        # one BLAS thread per worker process (flexstab.threads), also on workers that join later
+        from flexstab._dask_plugin import BlasThreadsPlugin
+
+        client.register_plugin(BlasThreadsPlugin(blas_threads()), name="flexstab-blas-threads")
         self._inner = client.get_executor(pure=False)
         self._closed = False
 
@@ -287,7 +293,18 @@ def make_executor(
         return SerialExecutor()
     context = multiprocessing.get_context(mp_context) if mp_context is not None else None
     return cf.ProcessPoolExecutor(max_workers=max_workers, mp_context=context,
-                                  initializer=exit_with_parent, initargs=(os.getpid(),))
+                                  initializer=worker_init, initargs=(os.getpid(), blas_threads()))
+
+
+def worker_init(parent_pid: int, blas: int) -> None:
+    """Initializer of every pool worker: ``blas`` BLAS threads (:mod:`flexstab.threads`), SIGTERM's default
+    action (the pool stops its workers with it; the parent's handler, inherited by a fork, is the CLI's),
+    and end with the parent (:func:`exit_with_parent`)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    limit_blas_threads(blas)
+    exit_with_parent(parent_pid)
 
 
 #: Seconds between two checks of the parent process by a pool worker (see :func:`exit_with_parent`).
@@ -328,7 +345,7 @@ def map_ordered(
     items: Iterable[T],
     executor: cf.Executor | None = None,
     *,
-    progress: bool = False,
+    progress: Any = False,
     desc: str | None = None,
 ) -> list[R]:
     """Evaluate ``fn`` on every item through ``executor``; results in input order.
@@ -342,8 +359,8 @@ def map_ordered(
     executor : concurrent.futures.Executor, optional
         Where to run; ``None`` or a :class:`SerialExecutor` runs the calls one
         after the other in this process (the bar then advances per call).
-    progress : bool
-        Show a tqdm progress bar (on stderr).
+    progress : bool or callable
+        Show a tqdm progress bar (on stderr), or a bar of this factory (:mod:`flexstab.progress`).
     desc : str, optional
         Label of the progress bar.
 
@@ -361,7 +378,7 @@ def map_ordered(
     seq = list(items)
     if not seq:
         return []
-    with tqdm(total=len(seq), desc=desc, disable=not progress, leave=False) as bar:
+    with make_bar(progress, total=len(seq), desc=desc, unit="runs") as bar:
         if executor is None or isinstance(executor, SerialExecutor):
             out = []
             for i, item in enumerate(seq):
@@ -465,7 +482,7 @@ def run_sweep(
     executor: cf.Executor | None,
     store_path: str | os.PathLike[str],
     *,
-    progress: bool = False,
+    progress: Any = False,
     desc: str | None = None,
 ) -> SweepResult:
     """Evaluate ``fn`` on every point, resumably, storing each result as it finishes.
@@ -489,7 +506,8 @@ def run_sweep(
     store_path : path-like
         JSON Lines file; created (with parent folders) if missing.
     progress, desc
-        tqdm progress bar over the points still to compute.
+        Progress bar over the points still to compute: ``True`` (tqdm) or a bar factory
+        (:mod:`flexstab.progress`).
 
     Returns
     -------
@@ -531,9 +549,7 @@ def run_sweep(
         fh.flush()
         done[key] = json.loads(json.dumps(result_json))
 
-    with open(path, "a", encoding="utf-8") as fh, tqdm(
-        total=len(todo), desc=desc, disable=not progress, leave=False
-    ) as bar:
+    with open(path, "a", encoding="utf-8") as fh, make_bar(progress, total=len(todo), desc=desc, unit="points") as bar:
         if executor is None or isinstance(executor, SerialExecutor):
             for key, point in todo.items():
                 try:

@@ -91,8 +91,9 @@ class ModelStudyOptions:
         Coarser charts and validation (see the module docstring).
     log : callable, optional
         Called with one line when a stage starts or ends (the CLI: on a non-terminal stderr).
-    progress : bool
-        Progress bars of the tuning and the charts (the CLI: on a terminal stderr).
+    progress : bool or callable
+        Progress of the tuning and the charts: tqdm bars, or a bar factory (:mod:`flexstab.progress`; the
+        CLI: tqdm on a terminal stderr, one line per step otherwise).
     """
 
     out: Path = Path("results")
@@ -104,7 +105,7 @@ class ModelStudyOptions:
     elements: Optional[int] = None
     quick: bool = False
     log: Optional[Callable[[str], None]] = None
-    progress: bool = False
+    progress: Any = False
 
 
 def _cpu() -> float:
@@ -146,6 +147,8 @@ def _write_csv(path: Path, results: dict) -> None:
 def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResult:
     """Run the model-file study (see the module docstring) and write ``report.md`` / ``report.html``.
 
+    One study per output folder: the folder is locked while it runs (:func:`flexstab.study.folder_lock`).
+
     Parameters
     ----------
     model : str
@@ -159,11 +162,25 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     ValueError
         Bad model file or options (before any stage runs).
     """
+    from flexstab.options import ensure_out_dir, resolve_model_definition
+
+    t0, c0 = time.perf_counter(), _cpu()
+    definition, options = resolve_model_definition(model, cfg, opts.elements)
+    out = ensure_out_dir(opts.out)
+    from flexstab.study import folder_lock
+
+    with folder_lock(out):
+        return _run_model_study(model, cfg, opts, definition, options, out, t0, c0)
+
+
+def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: Any, options: dict, out: Path,
+                     t0: float, c0: float) -> StudyResult:
+    """:func:`run_model_study` in its locked output folder."""
     import argparse
 
     from flexstab.commands.chart import model_charts
     from flexstab.commands.tune import factor_ranges, tune_model_plant
-    from flexstab.options import ensure_out_dir, gain_pairs, resolve_model_definition
+    from flexstab.options import gain_pairs
     from flexstab.plants import MAX_TUNING_STEPS, plant_choice_for
     from flexstab.study import validation_blocks
     from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, analyze
@@ -171,9 +188,6 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     from mbs_models.model_file import ModelFileError
     from taguchi.tuning import TuningConfig
 
-    t0, c0 = time.perf_counter(), _cpu()
-    definition, options = resolve_model_definition(model, cfg, opts.elements)
-    out = ensure_out_dir(opts.out)
     for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
         (out / f).unlink(missing_ok=True)
     TuningConfig(target=opts.target, kp_range=opts.kp_range, kd_range=opts.kd_range)  # checks before the orbit
@@ -359,9 +373,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
         v = validate_model_multipliers(definition, omega, kp=kp or 0.0, kd=kd or 0.0, config=check, **options)
         d = v.to_dict()
         d["gains_source"] = TUNING_FAILED_VALIDATION if untuned else ("tuned" if kp else "no drives")
-        if not d.get("agrees"):
-            checks.append("validation: the multipliers measured from the nonlinear runs do not confirm the "
-                          "predicted ones (agrees = false)")
+        from flexstab.checks import validation_failures
+
+        checks.extend(f"validation: {line}" for line in validation_failures(d))
         (out / "validation.json").write_text(json.dumps(_ready(d), indent=2, default=float))
         fig = "validation_multipliers.png"
         plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],

@@ -7,9 +7,10 @@ import re
 from pathlib import Path
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
-           "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs"]
+           "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
+           "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS"]
 
-_PI_FORM = re.compile(r"^\s*([0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
+_PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
 
 def parse_omega(text: str) -> float:
@@ -24,14 +25,18 @@ def parse_omega(text: str) -> float:
     m = _PI_FORM.match(s)
     try:
         if m:
-            factor = float(m.group(1)) if m.group(1) not in ("", ".") else 1.0
+            sign = -1.0 if m.group(1).startswith("-") else 1.0
+            digits = m.group(1).lstrip("+-")
+            factor = sign * (float(digits) if digits not in ("", ".") else 1.0)
             value = factor * math.pi
         else:
             value = float(s)
     except ValueError:
         raise ValueError(f"omega must be rad/s or a multiple of pi like '2pi', got {text!r}") from None
-    if not math.isfinite(value) or value <= 0:
-        raise ValueError(f"omega must be finite and > 0, got {text!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"omega must be finite, got {text!r}")
+    if value <= 0:
+        raise ValueError(f"omega must be positive, got {text!r}")
     return value
 
 
@@ -70,6 +75,37 @@ def gain_list(text: str) -> tuple:
 def is_model_file(model: str) -> bool:
     """Whether ``--model`` names a model file (a ``.py`` path) rather than a built-in model."""
     return str(model).endswith(".py")
+
+
+def check_model_arg(model) -> None:
+    """The check of ``--model`` before any import: a model file ``PATH.py`` must exist.
+
+    Raises
+    ------
+    ValueError
+        The model file is missing (the message of :func:`mbs_models.model_file.load_model_file`).
+    """
+    if model is not None and is_model_file(model) and not Path(model).is_file():
+        raise ValueError(f"model file {str(model)!r} not found")
+
+
+def check_range_arg(rng, flag: str) -> None:
+    """The check of a ``--kp-range LO HI`` style option before any import: finite, ``0 <= LO < HI``.
+
+    Raises
+    ------
+    ValueError
+        Naming the option and its values.
+    """
+    if rng is None:
+        return
+    lo, hi = rng
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        raise ValueError(f"{flag} must be finite, got {lo:g} {hi:g}")
+    if lo < 0:
+        raise ValueError(f"{flag}: gains must be >= 0, got LO = {lo:g}")
+    if not lo < hi:
+        raise ValueError(f"{flag} is empty or inverted: LO = {lo:g}, HI = {hi:g}")
 
 
 def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
@@ -135,6 +171,36 @@ def resolve_omega(args: argparse.Namespace, cfg) -> float:
     """The one Omega rule of every command: ``--omega`` if given, else ``[study] omega`` of the config (2pi)."""
     omega = getattr(args, "omega", None)
     return float(omega) if omega is not None else float(cfg.omega)
+
+
+def result_output(args: argparse.Namespace):
+    """Context in which a command prints its result: to the real standard output.
+
+    :func:`flexstab.cli.main` sends everything else written to ``sys.stdout`` while a command runs
+    (Exudyn's solver banners and warnings, any library's console output) to stderr, so that stdout holds
+    the table or the ``--json`` object only; it keeps the real stream as ``args.result_stdout``.
+    Without it (a command's ``run`` called directly) the current ``sys.stdout``.
+    """
+    import contextlib
+    import sys
+
+    return contextlib.redirect_stdout(getattr(args, "result_stdout", None) or sys.stdout)
+
+
+#: Fields holding gains: in every command's JSON each is an array with one number per drive, in the
+#: order of the model's drives (the single link: one element), whatever the model (docs/running.md).
+GAIN_FIELDS = ("kp", "kd")
+
+
+def gains_as_lists(d: dict) -> dict:
+    """Apply the JSON typing rule of :data:`GAIN_FIELDS` to ``d`` (in place; returned): a number
+    becomes a one-element list, a tuple a list; ``None`` stays ``None``."""
+    for key in GAIN_FIELDS:
+        v = d.get(key)
+        if v is None:
+            continue
+        d[key] = [float(x) for x in v] if isinstance(v, (list, tuple)) else [float(v)]
+    return d
 
 
 def dump_json(obj, fp) -> None:

@@ -1,4 +1,4 @@
-"""Robust design of the PD gains against payload, frequency and stiffness uncertainty (issue 11).
+"""Robust design of the PD gains against payload, frequency and stiffness uncertainty.
 
 Glue between the model-free :mod:`taguchi.robust` and the models: a plant
 factory maps the noise values of an outer run (``tip_mass`` in kg,

@@ -13,9 +13,9 @@ report can be traced to a file:
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
    against the predicted multipliers;
-7. ``two_link`` -- the built-in two-link flexible arm (issue 11,
-   :mod:`flexstab.two_link_report`): Floquet at 2pi / 4pi uncontrolled and tuned,
-   figures, and the cached results of ``scripts/two_link_study.py``.
+7. ``two_link`` -- the built-in two-link flexible arm (:mod:`flexstab.two_link_report`):
+   orbit, Floquet uncontrolled, four-gain Taguchi tuning with an independent check of the
+   tuned value, figures (full study only; ``--quick`` leaves it out unless named).
 
 Which Omega
 -----------
@@ -62,6 +62,7 @@ chain of :data:`EXUDYN_CHAINS`.
 """
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -74,13 +75,13 @@ import time
 import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, Iterator, Optional, Sequence
 
 from flexstab.config import StudyConfig
 from flexstab.report import figure, relative, table, text, to_html, to_markdown
 
 __all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash",
-           "validation_blocks"]
+           "validation_blocks", "folder_lock", "LOCK_FILE"]
 
 logger = logging.getLogger(__name__)
 
@@ -335,7 +336,8 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
         table(["case", "Ω", "kp (N·m/rad)", "kd (N·m·s/rad)", "|ρ₁|", "measured ratio", "at",
                "relative difference"], rows),
     ]
-    blocks += [figure(f, "") for f in figs]
+    blocks += [figure(c["figure_file"], (f"Fig. {c['figure']}. " if c["figure"] is not None else "") + c["caption"])
+               for c in doc["cases"]]
     paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
     title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
@@ -441,7 +443,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
     else the reference gains (see the module docstring).  Measurement:
-    :func:`validation.multipliers.validate_link_multipliers` (issue 10): the one-period map of the
+    :func:`validation.multipliers.validate_link_multipliers`: the one-period map of the
     nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
     linearisation within the measurement's own error bar.
     """
@@ -465,8 +467,10 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
     blocks = validation_blocks(d, f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: "
                                   f"{source}).", check.steps, fig)
+    from flexstab.checks import validation_failures
+
     return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
-            "files": [fig, "validation.json"]}
+            "files": [fig, "validation.json"], "check_failures": validation_failures(d)}
 
 
 def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> list:
@@ -504,7 +508,7 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
 
 
 def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    """The built-in two-link arm (issue 11): see :mod:`flexstab.two_link_report`."""
+    """The built-in two-link arm at the study Omega: see :mod:`flexstab.two_link_report`."""
     from flexstab.two_link_report import stage_two_link
 
     return stage_two_link(cfg, opts)
@@ -529,7 +533,7 @@ STAGE_TITLES: dict[str, str] = {
     "transients": "Transient responses",
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
-    "two_link": "Two-link flexible arm (issue 11)",
+    "two_link": "Two-link flexible arm",
 }
 
 
@@ -632,7 +636,8 @@ def render_report(out: Path) -> tuple[Path, Path]:
         if entry.get("status") == "reused":
             head += f"; reused from the run finished at {rec['finished_at']} (inputs unchanged)"
             reused.append(title)
-        sections.append((title, [text(head)] + rec["blocks"]))
+        checks = [text(f"**Check failed:** {'; '.join(rec['check_failures'])}")] if rec.get("check_failures") else []
+        sections.append((title, [text(head)] + checks + rec["blocks"]))
     quick = manifest["quick"]
     omega = cfg.omega
     preamble = [
@@ -653,6 +658,62 @@ def render_report(out: Path) -> tuple[Path, Path]:
 
 
 # ----------------------------------------------------------------------------- driver
+#: The lock file of a study's output folder: holds the pid of the study writing there.
+LOCK_FILE = ".flexstab.lock"
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path) -> Iterator[Path]:
+    """Hold ``out/.flexstab.lock`` (this process's pid) while the block runs: one study per folder.
+
+    A lock left by a process that no longer runs (killed with SIGKILL, a crashed machine) is stale:
+    it is replaced, with a log line.
+
+    Raises
+    ------
+    ValueError
+        Another running process holds the folder (one line naming it, its pid and the lock file).
+    """
+    path = Path(out) / LOCK_FILE
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid = int(path.read_text().split()[0])
+            except (OSError, ValueError, IndexError):
+                pid = -1
+            if pid > 0 and pid != os.getpid() and _pid_alive(pid):
+                raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (pid {pid}; "
+                                 f"lock file {path}): wait for it to finish or choose another --out") from None
+            logger.warning("removing the stale lock %s (pid %s is not running)", path, pid)
+            path.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{os.getpid()}\n")
+        break
+    else:  # pragma: no cover - another process took the stale lock between our two attempts
+        raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (lock file {path})")
+    try:
+        yield path
+    finally:
+        try:
+            if path.read_text().split()[0] == str(os.getpid()):
+                path.unlink()
+        except (OSError, IndexError):
+            pass
+
+
 def _prepare_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -669,7 +730,8 @@ def _prepare_out(out: Path) -> None:
 EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
-#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: ~6 s CPU).
+#: Stages left out of a ``quick`` study unless named explicitly (the two-link section: its tuning is
+#: ~20 s CPU on the idle machine).
 FULL_ONLY = ("two_link",)
 
 
@@ -697,19 +759,18 @@ def _preload(stages: Sequence[str]) -> None:
         from taguchi.arrays import available_arrays
 
         available_arrays()  # loads and verifies the catalogue (imports pydoe -> scipy.stats) once
-    # the compiled Floquet kernel (numba's on-disk cache, ~1 s CPU to load): every stage's reduced-model
-    # and small-system Floquet runs use it; loaded once here instead of once per process
+    # the Floquet engine's modules, imported and run once here instead of once per process
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 
     floquet(ReducedModel(2 * math.pi))
 
 
-def _lane_worker_init(parent_pid: int) -> None:
-    """Initializer of the study's Exudyn processes: quiet, and end with the parent."""
-    from flexstab.executor import exit_with_parent
+def _lane_worker_init(parent_pid: int, blas: int = 1) -> None:
+    """Initializer of the study's Exudyn processes: ``blas`` BLAS threads, and end with the parent."""
+    from flexstab.executor import worker_init
 
-    exit_with_parent(parent_pid)
+    worker_init(parent_pid, blas)
 
 
 def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOptions()) -> StudyResult:
@@ -734,6 +795,13 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         raise ValueError(f"unknown stage(s) {', '.join(unknown)}; available: {', '.join(STAGES)}")
     out = Path(opts.out)
     _prepare_out(out)
+    with folder_lock(out):
+        return _run_study(cfg, opts, stages, out, t0, c0)
+
+
+def _run_study(cfg: StudyConfig, opts: StudyOptions, stages: Sequence[str], out: Path, t0: float,
+               c0: float) -> StudyResult:
+    """:func:`run_study` in its locked output folder."""
     say = opts.log or (lambda line: None)
     chash = config_hash(cfg)
     code = _code_hash()
@@ -775,11 +843,6 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
         if name == "validation":  # reads the gains tuned by the exudyn stage
             inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
-        if name == "two_link":  # reads the cached results of scripts/two_link_study.py
-            from flexstab.two_link_report import find_cache
-
-            c = find_cache(out)
-            inputs["cache"] = _file_sha(c) if c is not None else None
         ihash = _sha(_canonical(inputs))
         rec = _load_record(out, name)
         if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:
@@ -788,6 +851,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
                 results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"],
                                  "cpu": rec.get("cpu")}
                 entries[name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
+                if rec.get("check_failures"):  # a reused stage keeps its failed checks (and exit code 1)
+                    results[name].update(status="check failed", error="; ".join(rec["check_failures"]))
             done(name)
             return None
         _record_path(out, name).unlink(missing_ok=True)
@@ -817,12 +882,17 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         files = {f: _file_sha(out / f) for f in _stage_files(r)}
         record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
                   "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
-                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now()}
+                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now(),
+                  "check_failures": list(r.get("check_failures") or [])}
         _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
-        say(f"{tag(name)} finished in {el:.1f} s")
+        checks = list(r.get("check_failures") or [])  # flexstab.checks: computed, but a check failed
+        status = "check failed" if checks else "computed"
+        say(f"{tag(name)} finished in {el:.1f} s" + (f"; check failed: {'; '.join(checks)}" if checks else ""))
         with lock:
-            results[name] = {"status": "computed", "json": r["json"], "elapsed": el, "cpu": cpu}
-            entries[name] = {"status": "computed", "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
+            results[name] = {"status": status, "json": r["json"], "elapsed": el, "cpu": cpu}
+            entries[name] = {"status": status, "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
+            if checks:
+                results[name]["error"] = entries[name]["error"] = "; ".join(checks)
         done(name)
 
     def run_here(name: str) -> None:
@@ -845,16 +915,20 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
     pools: list = []
     helpers: list = []
     lane_error: list = []
+    stopping = threading.Event()
     if chains:
         import concurrent.futures as cf
         import multiprocessing
+
+        from flexstab.threads import blas_threads
 
         _preload(stages)  # imported once here, inherited by the forked processes
         for _ in chains:
             # start each process now, from this thread while it is the only one: a fork from a helper
             # thread could copy a lock (the import lock) that the main thread holds at that moment
             pools.append(cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                                initializer=_lane_worker_init, initargs=(os.getpid(),)))
+                                                initializer=_lane_worker_init,
+                                                initargs=(os.getpid(), blas_threads())))
             pools[-1].submit(int).result()
         remote = replace(opts, progress=False, log=None)
 
@@ -869,6 +943,8 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
                     try:
                         r, el, cpu = fut.result()
                     except Exception as exc:
+                        if stopping.is_set():  # the study was interrupted: its process was stopped, no failure
+                            return
                         failed(name, p[1], exc, time.perf_counter() - ts)
                     else:
                         finished(name, p[0], p[1], r, el, cpu)
@@ -884,7 +960,15 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
             run_here(name)
         for helper in helpers:
             helper.join()
-    except BaseException:
+    except BaseException as exc:
+        stopping.set()
+        # the manifest says how the run ended: Ctrl-C / SIGTERM (KeyboardInterrupt, see flexstab.cli) or an error
+        manifest.update({"status": "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed",
+                         "finished_at": _now(), "elapsed": time.perf_counter() - t0})
+        try:
+            write_manifest()
+        except OSError:
+            pass
         for pool in pools:  # interrupted: stop the other processes now, do not wait for their stages
             for proc in list(getattr(pool, "_processes", {}).values()):
                 proc.terminate()

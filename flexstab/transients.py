@@ -216,28 +216,30 @@ def _ratio_text(s: dict) -> str:
 
 
 def _caption(case: Case, res: dict, with_forcing: bool) -> str:
+    """The report's caption of the figure of ``case`` (what is drawn, the envelope, the measured growth)."""
     s = res["summary"]
     eq = "Eq. 33" if case.controlled else "Eq. 25"
+    x0 = f"x(0) = [0, 0, π/4, 0] (Eq. {35 if case.controlled else 26})"
     if with_forcing:
         tail = ("the forced one tends to the T-periodic forced solution, not to 0"
-                if res["summary"]["spectral_radius"] < 1 else "the forced one grows at the same rate")
-        what = (f"Coloured: response including h_L (Eq. {31 if case.controlled else 20} with Eq. 24); "
-                f"grey: homogeneous ({eq}). Envelope of the homogeneous response; {tail}.")
+                if s["spectral_radius"] < 1 else "the forced one grows at the same rate")
+        what = (f"Response including h_L (Eq. {31 if case.controlled else 20} with Eq. 24, coloured) and the "
+                f"homogeneous response ({eq}, grey) of the linearised reduced model from {x0}; {tail}.")
     else:
-        what = f"Homogeneous response ({eq}: h_L omitted) of the linearised reduced model ({s['constants']} constants)."
-    printed = "" if case.printed_rho1 is None else f"; printed {case.printed_rho1}"
+        what = f"Homogeneous response ({eq}, h_L omitted) of the linearised reduced model from {x0}."
+    printed = "" if case.printed_rho1 is None else f", printed {case.printed_rho1}"
     n_plot, n_meas = s["periods_plotted"], s["periods_measured"]
-    window = (f"the last plotted period" if n_meas == n_plot
+    window = ("the last plotted period" if n_meas == n_plot
               else f"period {n_meas} of {n_meas} integrated (the first {n_plot} are plotted)")
-    k_text = (f"k = {n_meas - 1} (last plotted period)" if n_meas == n_plot
-              else f"k = {n_meas - 1} (integrated beyond the {n_plot} plotted periods)")
+    k_text = (f"k = {n_meas - 1}, the last plotted period" if n_meas == n_plot
+              else f"k = {n_meas - 1}, integrated beyond the {n_plot} plotted periods")
     return (
-        f"{what} x(0) = [0, 0, π/4, 0] (Eq. {35 if case.controlled else 26}).\n"
-        f"Dashed: ±C·ρ₁^(t/T), ρ₁ = {s['dominant_multiplier'][0]:.6g} (dominant Floquet multiplier{printed}); "
-        f"C = max |y|·ρ₁^(−t/T) over {window}.\n"
-        f"Measured ‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at {k_text}, "
-        f"{_signed_percent(s['last_ratio_relative_error'])} vs ρ₁; least-squares fit over k ≥ {s['fit_from_period']}: "
-        f"{s['fitted_ratio']:.6g}; {_ratio_text(s)}."
+        f"{what} Top: hub-angle perturbation y₁ and tip deflection X₁y₂; bottom: their magnitudes on a log scale; "
+        f"thin vertical lines mark the periods. Dashed: the envelope ±C·ρ₁^(t/T) of the dominant Floquet multiplier "
+        f"ρ₁ = {s['dominant_multiplier'][0]:.6g}{printed}, with C fitted over {window}. Measured growth per period "
+        f"‖x((k+1)T)‖/‖x(kT)‖ = {s['last_ratio']:.6g} at {k_text} "
+        f"({_signed_percent(s['last_ratio_relative_error'])} relative to ρ₁; it tends to ρ₁ like |ρ₂/ρ₁|^k, "
+        f"{_ratio_text(s)})."
     )
 
 
@@ -258,13 +260,18 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
     n_plot = res["n_plot"]
     m = n_plot * hom.n_per_period + 1
     t = hom.t[:m]
+    # (title, quantity, unit, data, envelope constant, forced data)
     series = [
-        ("hub-angle perturbation $y_1$ (rad)", hom.x[:m, 0], res["C_y1"], None if forced is None else forced.x[:, 0]),
-        ("tip deflection $X_1 y_2$ (m)", X1 * hom.x[:m, 1], res["C_tip"], None if forced is None else X1 * forced.x[:, 1]),
+        ("hub-angle perturbation", "$y_1$", "rad", hom.x[:m, 0], res["C_y1"],
+         None if forced is None else forced.x[:, 0]),
+        ("tip deflection", "$X_1 y_2$", "m", X1 * hom.x[:m, 1], res["C_tip"],
+         None if forced is None else X1 * forced.x[:, 1]),
     ]
     env_t = np.linspace(0.0, t[-1], 400)
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7.8), sharex=True)
-    for j, (label, y, C, yf) in enumerate(series):
+    # constrained layout: the margins follow the tick labels actually drawn (fixed margins clipped the
+    # y-label beside wide tick labels such as -0.0075)
+    fig, axes = plt.subplots(2, 2, figsize=(12, 7.4), sharex=True, layout="constrained")
+    for j, (what, sym, unit, y, C, yf) in enumerate(series):
         env = C * rho ** (env_t / T)
         color = "C0" if j == 0 else "C2"
         ax, axl = axes[0, j], axes[1, j]
@@ -279,10 +286,10 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
         ax.plot(env_t, env, "r--", lw=1.3, label=r"$\pm C\,\rho_1^{t/T}$")
         ax.plot(env_t, -env, "r--", lw=1.3)
         axl.semilogy(env_t, env, "r--", lw=1.3, label=r"$C\,\rho_1^{t/T}$")
-        ax.set_title(label)
-        axl.set_title(f"|{label.split(' (')[0]}|, log scale")
-        ax.set_ylabel(label.split(" ")[-1])
-        axl.set_ylabel("magnitude " + label.split(" ")[-1])
+        ax.set_title(f"{what} {sym}")
+        axl.set_title(f"|{what} {sym}|, log scale")
+        ax.set_ylabel(f"{sym} ({unit})")
+        axl.set_ylabel(f"|{sym}| ({unit})")
         axl.set_xlabel("time t (s)")
         top = max(np.max(np.abs(y)), C * max(1.0, rho ** n_plot), 0.0 if yf is None else np.max(np.abs(yf)))
         bottom = min(C * min(1.0, rho ** n_plot), top) * 1e-3
@@ -292,24 +299,19 @@ def plot_case(res: dict, path: Path, with_forcing: bool) -> None:
                 a.axvline(k * T, color="0.85", lw=0.6, zorder=0)
             a.grid(True, which="major", alpha=0.3)
         if yf is None:
-            ax.legend(loc="upper left" if rho > 1 else "upper right", fontsize=8)
-            axl.legend(loc="lower right" if rho > 1 else "upper right", fontsize=8)
+            ax.legend(loc="upper left" if rho > 1 else "upper right", fontsize=9)
+            axl.legend(loc="lower right" if rho > 1 else "upper right", fontsize=9)
         else:
-            ax.legend(loc="best", fontsize=8, framealpha=0.9)
-            axl.legend(loc="best", fontsize=8, framealpha=0.9)
+            ax.legend(loc="best", fontsize=9, framealpha=0.9)
+            axl.legend(loc="best", fontsize=9, framealpha=0.9)
     control = (f"PD control kp = {case.kp:.4f} N·m/rad, kd = {case.kd:.4f} N·m·s/rad ({case.gains_source or 'given'})"
                if case.controlled else "no control")
     title = f"Fig. {case.figure}: transient" if case.figure is not None else "Transient"
     kind = "with h_L" if with_forcing else "homogeneous"
-    fig.suptitle(
-        f"{title} vibration ({kind}), Ω = {case.omega_over_pi:.4g}π rad/s "
-        f"(T = {T:.4g} s), {control}",
-        fontsize=12,
-    )
-    fig.text(0.01, 0.005, _caption(case, res, with_forcing), fontsize=8, va="bottom", ha="left", wrap=True)
-    # fixed margins for this 12 x 7.8 in, 2 x 2 layout (tight_layout measured every text twice:
-    # 40 % of the figure's time); the caption sits below 0.085, the title above 0.90
-    fig.subplots_adjust(left=0.07, right=0.985, top=0.895, bottom=0.16, hspace=0.28, wspace=0.22)
+    # two lines: the case, then the gains (one line was wider than the figure at 6 pi: cut at both sides);
+    # the explanation (equations, envelope, measured ratio) is the report's caption (summary["caption"])
+    fig.suptitle(f"{title} vibration ({kind}), Ω = {case.omega_over_pi:.4g}π rad/s (T = {T:.4g} s)\n{control}",
+                 fontsize=12)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -326,6 +328,7 @@ class _CaseTask:
     def __call__(self, case: Case) -> dict:
         res = run_case(case, self.settings, self.with_forcing, self.params)
         plot_case(res, self.out / res["summary"]["figure_file"], self.with_forcing)
+        res["summary"]["caption"] = _caption(case, res, self.with_forcing)  # the report's, not drawn in the image
         return res["summary"]
 
 

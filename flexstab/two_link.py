@@ -1,4 +1,4 @@
-"""The two-link flexible arm study (issue 11): Floquet, mesh convergence, four-gain Taguchi, checks, figures.
+"""The two-link flexible arm study: Floquet, mesh convergence, four-gain Taguchi, checks, figures.
 
 Everything goes through the generic model-file path (``linearize.find_orbit``,
 ``linearize.linearize_orbit``, ``linearize.analyze``) with the built-in model
@@ -252,18 +252,18 @@ def plot_gain_slices(sl: GainSlices, path, *, target: float = 0.3, title: str = 
     """Contour plots of the two slices with the ``rho_d`` level."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.8), layout="constrained")
     for ax, data, name, d in ((axes[0], sl.shoulder, "shoulder", 0), (axes[1], sl.elbow, "elbow", 1)):
         X, Y = np.meshgrid(sl.kp_grid[d], sl.kd_grid[d])
         cs = ax.contourf(X, Y, np.minimum(data, 1.5), levels=20, cmap="viridis")
-        fig.colorbar(cs, ax=ax, label="|rho| dominant (drive / bending-1 modes; clipped at 1.5)")
+        fig.colorbar(cs, ax=ax, label="dominant |ρ| (clipped at 1.5)")
         ax.contour(X, Y, data, levels=[target], colors="r", linewidths=2)
-        ax.set_xlabel(f"kp{d + 1} (N m/rad)")
-        ax.set_ylabel(f"kd{d + 1} (N m s/rad)")
+        ax.set_xlabel(f"kp{d + 1} (N·m/rad)")
+        ax.set_ylabel(f"kd{d + 1} (N·m·s/rad)")
         other = (sl.fixed[2], sl.fixed[3]) if d == 0 else (sl.fixed[0], sl.fixed[1])
         ax.set_title(f"{name} gains; other drive at kp = {other[0]:.3g}, kd = {other[1]:.3g}", fontsize=9)
-    fig.suptitle(title or f"two-link: dominant |rho| over gain slices (red: rho_d = {target})", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(title or f"two-link: dominant |ρ| (drive modes / bending 1) over gain slices; red: ρ_d = {target:g}",
+                 fontsize=10)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

@@ -1,34 +1,32 @@
-"""The study's two-link section (issue 11): one stage function and its report blocks.
+"""The study's two-link section: one stage function and its report blocks.
 
-Computed in the stage (a few CPU seconds per Omega): the periodic orbit, the
-linearisation and the labelled Floquet multipliers of the built-in two-link arm at
-2 pi and 4 pi (``--quick``: 2 pi only), uncontrolled and at the four tuned gains, the
-dominant one measured by Hill's method; figures of the poses and of the dominant
-Floquet mode.
+Everything the section shows is computed by the stage, at the study Omega (~20-40 s
+CPU, most of it the tuning): the periodic orbit and linearisation of the built-in
+two-link arm, its labelled Floquet multipliers uncontrolled (the dominant one measured
+by Hill's method), the four-gain Taguchi tuning to rho_d, the multipliers at the tuned
+gains, an independent check of the tuned value (the frozen-modal product, no Hill
+code) and figures of the poses and of the dominant Floquet mode.
 
-Read from the cached results of ``scripts/two_link_study.py`` (minutes of CPU: the
-four-gain tunings, Nelder-Mead / differential evolution, the independent
-streamed-product check, the mesh study and the robust design) in the study's own
-folder (never relative to the working directory): copied into the study folder as
-``two_link_cached.json`` with the SHA-256 of the source, so that every number in the
-section comes from a file beside the report.  Each part of that file carries the keys
-it was computed with (:func:`cache_keys`: the code hash of the packages and of the
-script, the mesh, the gain ranges, rho_d, and the stage's own arguments); a part whose
-keys differ from this study's is ignored, and the section says so.  Without a usable tuning the section uses
-:data:`flexstab.two_link.TUNED_GAINS` and says so.
+The longer studies of the arm (mesh convergence, robust design, direct optimisers,
+the streamed-product check at 32768 steps) are ``scripts/two_link_study.py``'s; its
+stage files carry the keys they were computed with (:func:`cache_keys`: the code hash
+of the packages and of the script, the mesh, the gain ranges, rho_d and the stage's
+own arguments), and :func:`fresh_parts` keeps the parts computed with given keys.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import math
+import time
 import types
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 from flexstab.report import figure, table, text
 
-__all__ = ["stage_two_link", "CACHE_NAME", "CACHE_PARTS", "find_cache", "cache_keys", "fresh_parts", "script_hash"]
+__all__ = ["stage_two_link", "CHECK_MODAL_STEPS", "CACHE_NAME", "CACHE_PARTS", "cache_keys", "fresh_parts",
+           "script_hash"]
 
 #: File written by ``scripts/two_link_study.py`` into its output folder.
 CACHE_NAME = "two_link.json"
@@ -36,7 +34,7 @@ CACHE_NAME = "two_link.json"
 CACHE_PARTS = ("tune", "mesh", "robust", "direct", "figures")
 
 
-#: The script whose results the section reads (its constants -- the mesh levels, the direct stage's
+#: The script whose stage files :func:`cache_keys` keys (its constants -- the mesh levels, the direct stage's
 #: elements -- change the numbers, and it is not one of the hashed packages).
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "two_link_study.py"
 
@@ -87,185 +85,134 @@ def fresh_parts(cache: dict, expected: dict) -> tuple[dict, list]:
     return fresh, notes
 
 
-def find_cache(out: Path) -> Optional[Path]:
-    """The script's results in the study's own output folder, ``<out>/two_link/two_link.json``
-    (``python3 scripts/two_link_study.py --out <out>/two_link``; its default is ``results/two_link``,
-    the default study folder's).  Never a file relative to the working directory: a study must not
-    report another run's numbers because of where it was started."""
-    p = Path(out) / "two_link" / CACHE_NAME
-    return p if p.exists() else None
-
-
-def _z(z: complex) -> str:
-    return f"{abs(z):.6f}"
-
-
 def _mode_rows(fl: Any) -> str:
     """The Hill-refined multipliers of the drive modes / first bending mode (one of each conjugate pair)."""
     return ", ".join(f"{abs(z):.5g} ({label})" for label, z in fl.measure.refined)
 
 
+#: Steps of the independent check of the tuned value: the exponential midpoint in frozen-modal
+#: coordinates (:func:`stability.modal.modal_floquet`), Richardson-extrapolated from these and half as
+#: many (fourth order, with its own error estimate; no Hill code).  Measured at the 2 pi gains:
+#: estimate 2e-5 against the tuning tolerance 3e-4, 0.4 s CPU.
+CHECK_MODAL_STEPS = 512
+
+
+def _check_tuned(lin: Any, gains: Sequence[float], near: complex) -> dict:
+    """The tuned dominant multiplier by the frozen-modal product (independent of the loop's Hill response)."""
+    import numpy as np
+
+    from stability.modal import modal_floquet
+
+    g = [float(v) for v in gains]
+    r = modal_floquet(lin.with_gains(g[0::2], g[1::2]), method="magnus2", n_steps=CHECK_MODAL_STEPS, extrapolate=True)
+    w = np.asarray(r.multipliers)
+    z = complex(w[int(np.argmin(np.abs(w - near)))])
+    return {"method": f"frozen-modal magnus2, {CHECK_MODAL_STEPS}/{CHECK_MODAL_STEPS // 2} steps extrapolated",
+            "multiplier": [z.real, z.imag], "modulus": abs(z), "error_estimate": float(r.error_estimate)}
+
+
 def stage_two_link(cfg: Any, opts: Any) -> dict:
-    """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> dict``)."""
+    """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> dict``).
+
+    At the study Omega: the orbit and linearisation of the built-in two-link arm, its labelled
+    multipliers uncontrolled, the four-gain Taguchi tuning to the study's rho_d (Hill response,
+    :func:`flexstab.two_link.tune_four_gains`, ranges :data:`flexstab.two_link.TUNING_RANGES`),
+    the labelled multipliers at the tuned gains, an independent check of the tuned value
+    (:func:`_check_tuned`) and the pose and mode figures.  Everything the section shows is
+    computed here.
+    """
     from flexstab.arm_figures import plot_floquet_mode, plot_poses
     from flexstab.plants import whole_spectrum
-    from flexstab.two_link import TUNED_GAINS, two_link_floquet
+    from flexstab.study import _pi
+    from flexstab.two_link import TUNING_RANGES, tune_four_gains, two_link_floquet
 
     out = Path(opts.out)
-    omegas = (2,) if opts.quick else (2, 4)
-    cache_path = find_cache(out)
-    raw = json.loads(cache_path.read_text()) if cache_path is not None else None
-    doc: dict = {"omegas_over_pi": list(omegas), "cache": None, "rows": []}
-    cache = None
-    stale: list = []
-    if raw is not None:
-        expected = cache_keys(getattr(cfg, "target", 0.3))
-        cache, stale = fresh_parts(raw, expected)
-        doc["cache"] = {"source": str(cache_path), "sha256": hashlib.sha256(cache_path.read_bytes()).hexdigest(),
-                        "keys": expected, "used": [p for p in CACHE_PARTS if p in cache], "ignored": stale}
-        (out / "two_link_cached.json").write_text(json.dumps(raw, indent=2))
-        if not any(p in cache for p in CACHE_PARTS):
-            cache = None
-    tuned_src = {}
-    for k in omegas:
-        g = None
-        if cache is not None:
-            g = ((cache.get("tune") or {}).get(f"{k}pi") or {}).get("gains")
-        tuned_src[k] = ("scripts/two_link_study.py (two_link_cached.json)", g) if g else \
-            ("flexstab.two_link.TUNED_GAINS", list(TUNED_GAINS[k]))
-    figs = []
-    rows_tab = []
-    for k in omegas:
-        omega = k * math.pi
-        unc = two_link_floquet(omega)
-        src, g = tuned_src[k]
-        ctl = two_link_floquet(omega, gains=g, orbit=unc.orbit, lin=unc.linearization)
-        row = {"omega": omega, "elements": unc.elements, "tuned_gains": g, "gains_source": src}
-        for label, fl in (("uncontrolled", unc), ("tuned", ctl)):
-            row[label] = {
-                "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
-                "dominant_modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
-                "hill_error_estimate": fl.measure.hill_error_estimate,
-                "labelled": [{"modulus": float(abs(mu)), "mode": m["mode"], "undamped": m["undamped"]}
-                             for mu, m in zip(fl.floquet.multipliers, fl.modes) if abs(mu) > 1e-6][:12],
-                "cpu_seconds": fl.cpu_seconds,
-            }
-        whole = whole_spectrum(ctl.orbit, omega, g[0::2], g[1::2])
-        row["tuned"]["whole_spectrum"] = whole
-        doc["rows"].append(row)
-        rows_tab.append([f"{k}π", unc.elements, f"{abs(unc.measure.dominant):.6f} ({unc.measure.mode})",
-                         _mode_rows(unc), ", ".join(f"{v:.4g}" for v in g),
-                         f"{abs(ctl.measure.dominant):.6f} ({ctl.measure.mode})", _mode_rows(ctl),
-                         f"{whole['spectral_radius_all']:.4f} ({whole['spectral_radius_all_mode']}, "
-                         f"{(whole['spectral_radius_all_frequency_hz'] or 0) / 1e3:.1f} kHz)",
-                         f"{sum(unc.cpu_seconds.values()):.1f}"])
-        if k == omegas[0]:
-            figs.append(str(plot_poses(unc.orbit, out / f"two_link_poses_{k}pi.png").name))
-        res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
-                                    linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
-                                    dominant_multiplier=ctl.measure.dominant)
-        # the title shows the modulus the table shows (Hill's), not the labelling product's (512 steps: 0.3023
-        # against Hill's 0.300027 at 4 pi); the shape is that product's eigenvector nearest Hill's multiplier
-        measured = (ctl.measure.dominant, f"Hill's method, {ctl.harmonics} harmonics, as in the table")
-        row["tuned"]["mode_figure"] = {"file": f"two_link_mode_{k}pi.png", "modulus": abs(ctl.measure.dominant),
-                                       "method": measured[1]}
-        figs.append(str(plot_floquet_mode(res, out / f"two_link_mode_{k}pi.png", measured=measured).name))
-    doc["figures"] = figs
+    omega = float(cfg.omega)
+    target = float(getattr(cfg, "target", 0.3))
+    k = omega / math.pi
+    tag = f"{k:.4g}pi".replace(".", "p")
+    unc = two_link_floquet(omega)
+    c0 = time.process_time()
+    tuned = tune_four_gains(unc.linearization, target, orbit=unc.orbit)
+    tune_cpu = time.process_time() - c0
+    g = list(tuned.gains)
+    ctl = two_link_floquet(omega, gains=g, orbit=unc.orbit, lin=unc.linearization)
+    check = _check_tuned(unc.linearization, g, ctl.measure.dominant)
+    tol = tuned.tolerance
+    confirmed = bool(abs(check["modulus"] - target) <= tol + check["error_estimate"])
+    row: dict = {"omega": omega, "omega_over_pi": k, "elements": unc.elements, "target": target,
+                 "tuning": {"gains": g, "names": list(tuned.names), "ranges": [list(r) for r in TUNING_RANGES],
+                            "status": tuned.status, "message": tuned.message, "converged": tuned.converged,
+                            "response": tuned.spectral_radius, "tolerance": tol,
+                            "evaluations": tuned.evaluations, "iterations": len(tuned.iterations),
+                            "cpu_seconds": tune_cpu},
+                 "tuned_gains": g, "check": dict(check, confirmed=confirmed)}
+    for label, fl in (("uncontrolled", unc), ("tuned", ctl)):
+        row[label] = {
+            "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
+            "dominant_modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
+            "hill_error_estimate": fl.measure.hill_error_estimate,
+            "labelled": [{"modulus": float(abs(mu)), "mode": m["mode"], "undamped": m["undamped"]}
+                         for mu, m in zip(fl.floquet.multipliers, fl.modes) if abs(mu) > 1e-6][:12],
+            "cpu_seconds": fl.cpu_seconds,
+        }
+    whole = whole_spectrum(ctl.orbit, omega, g[0::2], g[1::2])
+    row["tuned"]["whole_spectrum"] = whole
+    poses = plot_poses(unc.orbit, out / f"two_link_poses_{tag}.png",
+                       title=f"Two-link arm on its periodic orbit, Ω = {_pi(omega)} rad/s").name
+    res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
+                                linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
+                                dominant_multiplier=ctl.measure.dominant)
+    # the title shows the modulus the table shows (Hill's), not the labelling product's; the shape is that
+    # product's eigenvector nearest Hill's multiplier
+    measured = (ctl.measure.dominant, f"Hill's method, {ctl.harmonics} harmonics")
+    mode_png = f"two_link_mode_{tag}.png"
+    mode_fig = plot_floquet_mode(res, out / mode_png, measured=measured)
+    row["tuned"]["mode_figure"] = {"file": mode_png, "modulus": abs(ctl.measure.dominant), "method": measured[1],
+                                   "deformation_scale_m": mode_fig.scale_m}
+    doc = {"rows": [row], "figures": [poses, mode_png]}
     (out / "two_link.json").write_text(json.dumps(doc, indent=2, default=str))
+    t = row["tuning"]
+    names = ", ".join(tuned.names)
+    rows_tab = [[f"{_pi(omega)}", unc.elements, f"{abs(unc.measure.dominant):.6f} ({unc.measure.mode})",
+                 _mode_rows(unc), ", ".join(f"{v:.4g}" for v in g),
+                 f"{abs(ctl.measure.dominant):.6f} ({ctl.measure.mode})",
+                 f"{check['modulus']:.6f} ± {check['error_estimate']:.0e}",
+                 f"{abs(abs(ctl.measure.dominant) - target) / target:.1e}",
+                 f"{whole['spectral_radius_all']:.4f} ({whole['spectral_radius_all_mode']}, "
+                 f"{(whole['spectral_radius_all_frequency_hz'] or 0) / 1e3:.1f} kHz)",
+                 t["evaluations"], f"{tune_cpu:.1f}"]]
+    ranges = "; ".join(f"{s} {lo:g}–{hi:g}" for s, (lo, hi) in zip(tuned.names, TUNING_RANGES))
     blocks = [
-        text("Built-in two-link flexible arm (`--model two-link`, issue 11): shoulder q1 = π/2 + (π/4) sin Ωt, "
-             "elbow q2 = (π/4) sin Ωt, 2 ANCF elements per link, four PD gains (kp1, kd1, kp2, kd2). Multipliers: "
+        text("Built-in two-link flexible arm (`--model two-link`): shoulder q1 = π/2 + (π/4) sin Ωt, elbow "
+             f"q2 = (π/4) sin Ωt, {unc.elements} ANCF elements per link, four PD gains ({names}). Multipliers: "
              "`magnus2` (512 steps) for all of them and their mode labels; the dominant one (drive modes / first "
-             "bending mode) measured by Hill's method (`stability.hill`, 16 harmonics; its H vs H/2 estimate is in "
-             "the JSON). The tuned quantity is that dominant multiplier; the last-but-one column is the spectral "
-             "radius of the whole linearisation at the tuned gains (frozen-modal product, every mode) with its "
-             "mode: on this mesh an axial pair of the discretisation, lightly damped through the joints, hardly "
-             "moved by the gains and not converged under mesh refinement (0.557 at 2 elements per link, 0.860 at "
-             "4, at the 2π gains), so it is reported, not tuned."),
-        table(["Ω", "el./link", "uncontrolled: dominant |ρ|", "uncontrolled: drive / bending-1 multipliers (Hill)",
-               "tuned gains kp1, kd1, kp2, kd2", "tuned: dominant |ρ| (Hill)", "tuned: drive / bending-1 multipliers",
-               "tuned: whole-spectrum max|ρ| (mode)", "CPU s (orbit+lin.+Floquet)"], rows_tab),
-        text("Tuned gains from " + "; ".join(f"{k}π: {tuned_src[k][0]}" for k in omegas) + "."),
+             "bending mode) measured by Hill's method (`stability.hill`; its H vs H/2 estimate is in the JSON)."),
+        text(f"Four-gain Taguchi tuning (L9, iterated) to ρ_d = {target:g} in this stage, response = that dominant "
+             f"multiplier by Hill's method, from the ranges {ranges} (N·m/rad, N·m·s/rad): {t['status']} after "
+             f"{t['evaluations']} evaluations in {t['iterations']} iterations ({tune_cpu:.1f} s CPU). Checked by an "
+             f"independent method without Hill code: {check['method']} (its own error estimate beside the value): "
+             + ("confirmed" if confirmed else "**not confirmed**") + f" within ρ_d ± {tol:.1e}."),
+        table(["Ω (rad/s)", "el./link", "uncontrolled: dominant |ρ|",
+               "uncontrolled: drive / bending-1 multipliers (Hill)", f"tuned gains {names}",
+               "tuned: dominant |ρ| (Hill)", "independent check |ρ|", "|ρ − ρ_d| / ρ_d",
+               "tuned: whole-spectrum max|ρ| (mode)", "evaluations", "tuning CPU s"], rows_tab),
+        text("The whole-spectrum column is the spectral radius of the whole linearisation at the tuned gains "
+             "(frozen-modal product, every mode) with its mode: on this mesh an axial pair of the discretisation, "
+             "lightly damped through the joints, hardly moved by the gains and not converged under mesh "
+             "refinement, so it is reported, not tuned. Mesh convergence, the robust design and the comparison "
+             "with direct optimisers are not part of the study (`scripts/two_link_study.py`, minutes of CPU)."),
+        figure(poses, f"The two-link arm at 12 instants of one period on its periodic orbit (Ω = {_pi(omega)} "
+                      "rad/s), coloured by time; dotted: the tip path. Poses half a period apart coincide when the "
+                      "motion is symmetric."),
+        figure(mode_png, f"Floquet mode of the dominant multiplier at the tuned gains (|ρ| = "
+                         f"{abs(ctl.measure.dominant):.6f}, {ctl.measure.mode}; Hill's method, {ctl.harmonics} "
+                         f"harmonics, as in the table) at 8 instants of the period: grey the orbit pose, red the pose "
+                         f"plus the T-periodic mode. A mode has no amplitude of its own: it is drawn with its largest "
+                         f"displacement equal to {mode_fig.scale_m:.3g} m (8 % of the arm's reach); the shape is the "
+                         "512-step labelling product's eigenvector nearest Hill's multiplier."),
     ]
-    if stale:
-        blocks.append(text("**Note:** results of `scripts/two_link_study.py` in `two_link/` that do not belong to this "
-                           "code and these inputs were ignored (keys in `two_link.json`, cache section): "
-                           + "; ".join(stale) + ". Re-run `python3 scripts/two_link_study.py --out <study out>/two_link`."))
-    if cache is not None:
-        blocks += _cached_blocks(cache)
-    else:
-        blocks.append(text("No usable results of `scripts/two_link_study.py` in this study's folder (`two_link/`): the "
-                           "tuning, method comparison, independent check, mesh study and robust design are not in this "
-                           "report (run `python3 scripts/two_link_study.py --out <study out>/two_link` first)."))
-    for f in figs:
-        k = f.split("_")[-1].replace(".png", "").replace("pi", "π")
-        cap = (f"The arm over one period on its periodic orbit, Ω = {k}" if "poses" in f else
-               f"Floquet mode of the dominant multiplier at the tuned gains, Ω = {k}: deformation along one "
-               "period (red) on the orbit pose (grey)")
-        blocks.append(figure(f, cap))
-    return {"json": "two_link.json", "title": "Two-link flexible arm (issue 11)", "blocks": blocks,
-            "files": ["two_link.json"] + (["two_link_cached.json"] if raw is not None else []) + figs}
-
-
-def _cached_blocks(c: dict) -> list:
-    blocks = []
-    tune = c.get("tune") or {}
-    if tune:
-        rows = []
-        for key, t in tune.items():
-            chk = t.get("check") or {}
-            rows.append([key.replace("pi", "π"), ", ".join(f"{v:.5g}" for v in t["gains"]),
-                         f"{t['rho']:.6f}", f"{chk.get('streamed_moduli', {}).get('32768', float('nan')):.6f}",
-                         f"{chk.get('difference', float('nan')):.1e}",
-                         f"{abs(t['rho'] - c.get('target', 0.3)) / c.get('target', 0.3):.1e}",
-                         t["evaluations"], f"{t['cpu_s']:.1f}"])
-        blocks += [
-            text("Four-gain Taguchi (L9, iterated) to ρ_d, response = dominant multiplier by Hill's method; checked "
-                 "by an independent method: the streamed exponential-midpoint product (`stability.floquet` with a fixed step count, streamed in chunks) at "
-                 "32768 steps (no Hill code; its own 16384 → 32768 change is in the cached JSON)."),
-            table(["Ω", "tuned gains", "|ρ| Hill (loop)", "|ρ| magnus2 32768 steps", "|Hill − magnus2|",
-                   "|ρ − ρ_d| / ρ_d", "evaluations", "CPU s"], rows),
-        ]
-    comp = [(k, t) for k, t in tune.items() if t.get("direct")]
-    if comp:
-        rows = []
-        for key, t in comp:
-            rows.append([key.replace("pi", "π"), "Taguchi", t["evaluations"], f"{t['cpu_s']:.1f}", f"{t['rho']:.6f}"])
-            for d in t["direct"]:
-                rows.append([key.replace("pi", "π"), d["method"], d["evaluations"], f"{d.get('cpu_s', d['elapsed']):.1f}",
-                             f"{d['spectral_radius']:.6f}"])
-        src = ", ".join(sorted({str(t.get("direct_source", "this run")) for _, t in comp}))
-        blocks += [text("Same objective (Hill response), same tolerance (1e-3 ρ_d), each method stops at its first "
-                        "hit. CPU seconds: Taguchi on 2 worker processes (summed), Nelder–Mead and differential "
-                        f"evolution serial (measured by the benchmark: {src})."),
-                   table(["Ω", "method", "evaluations", "CPU s", "|ρ| reached"], rows)]
-    mesh = c.get("mesh") or {}
-    if mesh:
-        rows = []
-        for key, rs in mesh.items():
-            for r in rs:
-                rows.append([key.replace("pi", "π"), r["elements"], r["size"],
-                             f"{r['uncontrolled']['modulus']:.7f} ({r['uncontrolled']['mode']})",
-                             f"{r['uncontrolled']['hill_error_estimate']:.0e}",
-                             f"{r['tuned']['modulus']:.8f} ({r['tuned']['mode']})",
-                             f"{r['tuned']['hill_error_estimate']:.0e}"])
-        blocks += [text("Mesh convergence of the dominant multipliers (Hill's method; its H vs H/2 estimate beside)."),
-                   table(["Ω", "elements per link", "coordinates", "uncontrolled |ρ|", "est.", "tuned |ρ|", "est."],
-                         rows)]
-    rob = c.get("robust") or {}
-    if rob:
-        rows = []
-        for key, r in rob.items():
-            for label, w in (("nominal", r["nominal"]), ("robust", r["robust"]["check"])):
-                rows.append([key.replace("pi", "π"), label, ", ".join(f"{v:.4g}" for v in w["gains"]),
-                             f"{w['nominal']:.5f}", f"{w['worst']:.5f}",
-                             ", ".join(f"{a} {b:.3g}" for a, b in w["worst_noise"].items())])
-            rows.append([key.replace("pi", "π"), "change", "", f"{r['nominal_cost']:+.4f} (|ρ − ρ_d|)",
-                         f"{-r['worst_case_improvement']:+.5f} ({-r['worst_case_improvement_percent']:+.2f} %)",
-                         f"grid {r['grid_size']} points"])
-        blocks += [text("Robust design: inner L9 array of the four gains × outer L9 array of the noise factors "
-                        "(payload 0.05–0.2 kg, Ω ± 10 %, E ± 5 %), S/N = −10 log10 mean (|ρ| − ρ_d)² over the outer "
-                        "runs; both gain sets judged by the worst |ρ| over a full grid of the noise box."),
-                   table(["Ω", "gains", "kp1, kd1, kp2, kd2", "|ρ| at nominal", "worst |ρ| on grid", "worst at"],
-                         rows)]
-    return blocks
+    if not tuned.converged:
+        blocks.insert(2, text(f"**Tuning did not reach ρ_d:** {tuned.message}."))
+    return {"json": "two_link.json", "title": f"Two-link flexible arm at Ω = {_pi(omega)} rad/s", "blocks": blocks,
+            "files": ["two_link.json", poses, mode_png]}

@@ -14,6 +14,7 @@ from linearize.constrained import linearize_orbit
 from linearize.periodic_orbit import DEFAULT_SAMPLES, PeriodicOrbit, StageClock, find_orbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.floquet import CONTRACT_RTOL, recertify
+from stability.frozen import frozen_result
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
@@ -23,6 +24,8 @@ __all__ = [
     "FrozenModes",
     "frozen_modes",
     "UNDAMPED_TOLERANCE",
+    "DRIVE_SHARE_THRESHOLD",
+    "drive_movable",
     "ModelFloquetResult",
     "analyze",
     "label_multipliers",
@@ -55,8 +58,18 @@ FRAMES = ("modal", "model")
 PROPAGATOR_WARNING = 1e-4
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
+#: A mode carries a drive's name, and counts as one the drives can move, only when that drive's share
+#: in it (:func:`_drive_shares`: ``|c^T z|^2 / ((c^T M^-1 c)(z^H M z))`` in [0, 1], a squared cosine:
+#: the fraction of the mode's kinetic-energy norm a unit generalised force on the drive coordinate can
+#: reach) is at least this.  A mode decoupled from every drive (e.g. the lateral modes of a chain driven
+#: axially) has a share at rounding level (<= 1e-20); a mode the drive moves through a heavy structure
+#: can have a small one (the single link's hub mode at 2 ANCF elements: 1.7e-3, because the link's
+#: nodal coordinates carry most of the kinetic energy), so the threshold separates "decoupled" from
+#: "weakly coupled": a cosine of 1e-4.
+DRIVE_SHARE_THRESHOLD = 1e-8
 
 
+@frozen_result
 @dataclass(frozen=True)
 class ModelFloquetResult:
     """Floquet analysis of a model file about its periodic orbit.
@@ -150,15 +163,25 @@ class FrozenModes:
     shapes : ndarray, shape (r, r)
         Columns ``phi_j``.
     labels : list of str
-        The drive's name for the ``d`` lowest modes (the motions the ``d`` released
-        drives control, e.g. ``hub``), ``bending k`` /
+        A drive's name for the mode each drive moves (among the ``d`` lowest modes, the motions
+        the ``d`` released drives control, e.g. ``hub``, the one with the drive's largest
+        participation; if that drive's share in it is below :data:`DRIVE_SHARE_THRESHOLD`, the
+        mode of any order with the drive's largest share, if that reaches the threshold; else no
+        mode carries the drive's name), ``bending k`` /
         ``axial k`` for modes of ANCF beams (by the tangential share of the beam-node
         motion), else ``<Exudyn item> k``.
+    item_labels : list of str
+        The label each mode would carry without the drives (``bending k``, ``<item> k``; a
+        drive mode's numbered after the others).
+    drive_shares : ndarray, shape (d, r)
+        Share of each drive in each mode (:func:`_drive_shares`).
     """
 
     eigenvalues: np.ndarray
     shapes: np.ndarray
     labels: list
+    item_labels: list = field(default_factory=list)
+    drive_shares: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def _drive_shares(lin: LinearizedPeriodicSystem, Mz: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -190,21 +213,29 @@ def frozen_modes(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> FrozenM
     labels = []
     n_drives = 0 if lin.B is None else lin.B.shape[2]
     drive_modes: dict = {}
+    shares = np.zeros((n_drives, Phi.shape[1]))
     if n_drives:
         # the n_drives lowest frozen modes without PD are the motions the drives control
         # (rigid-body modes about the released drives, possibly gravity-stiffened); each
-        # is named after the drive with the largest participation (c_d^T phi)^2
+        # is named after the drive with the largest participation (c_d^T phi)^2 -- if that
+        # drive's share says it moves the mode; else the mode of the drive's largest share
         c = lin.B[0]
+        for j in range(Phi.shape[1]):
+            shares[:, j] = _drive_shares(lin, Mz, Phi[:, j])
         free = list(range(min(n_drives, Phi.shape[1])))
         for name_idx in range(n_drives):
             part = [(float((c[:, name_idx] @ Phi[:, j]) ** 2), j) for j in free if j not in drive_modes]
-            if part:
-                drive_modes[max(part)[1]] = orbit.drive_names[name_idx]
+            pick = max(part)[1] if part else None
+            if pick is None or not shares[name_idx, pick] >= DRIVE_SHARE_THRESHOLD:
+                rest = [j for j in range(Phi.shape[1]) if j not in drive_modes]
+                pick = max(rest, key=lambda j: shares[name_idx, j]) if rest else None
+                if pick is not None and not shares[name_idx, pick] >= DRIVE_SHARE_THRESHOLD:
+                    pick = None
+            if pick is not None:
+                drive_modes[pick] = orbit.drive_names[name_idx]
+    kinds: list = []
     for j in range(Phi.shape[1]):
         phi = Phi[:, j]
-        if j in drive_modes:
-            labels.append(drive_modes[j])
-            continue
         dq = N0 @ phi
         kind = None
         if slope_nodes:
@@ -225,9 +256,17 @@ def frozen_modes(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit) -> FrozenM
             for i, g in enumerate(labels_item):
                 groups[g] = groups.get(g, 0.0) + float(dq[i] ** 2)
             kind = max(groups, key=groups.get) if groups else "mode"
+        kinds.append(kind)
+        if j in drive_modes:
+            labels.append(drive_modes[j])
+            continue
         counts[kind] = counts.get(kind, 0) + 1
         labels.append(f"{kind} {counts[kind]}")
-    return FrozenModes(eigenvalues=lam, shapes=Phi, labels=labels)
+    item_labels = list(labels)
+    for j in sorted(drive_modes):  # numbered after the others, so the others keep their numbers
+        counts[kinds[j]] = counts.get(kinds[j], 0) + 1
+        item_labels[j] = f"{kinds[j]} {counts[kinds[j]]}"
+    return FrozenModes(eigenvalues=lam, shapes=Phi, labels=labels, item_labels=item_labels, drive_shares=shares)
 
 
 def _slope_nodes(orbit: PeriodicOrbit) -> list:
@@ -285,6 +324,9 @@ def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floqu
         out.append({
             "modulus": mod,
             "mode": fm.labels[k],
+            # the drives' shares in the frozen mode the multiplier is labelled by (open loop, no PD: the
+            # closed loop's own vector hardly moves a stiffly controlled drive coordinate)
+            "drive_shares": {n: round(float(fm.drive_shares[i, k]), 6) for i, n in enumerate(orbit.drive_names)},
             "group": group,
             "frequency_hz": float(math.sqrt(abs(fm.eigenvalues[k])) / (2 * math.pi)),
             "mac": mac,
@@ -294,13 +336,21 @@ def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floqu
     return out
 
 
+def drive_movable(mode: dict, drive_names: Sequence[str] = ()) -> bool:
+    """Whether some drive's share in the frozen mode of a labelled multiplier (``mode["drive_shares"]``,
+    :func:`label_multipliers`) is at least :data:`DRIVE_SHARE_THRESHOLD`: a mode the PD gains on the
+    drives can move."""
+    return any(float(v) >= DRIVE_SHARE_THRESHOLD for v in mode.get("drive_shares", {}).values())
+
+
 def _dominant(floquet_result: Any, modes: list, drive_names: tuple) -> complex:
-    """Largest multiplier of a drive mode or the first bending mode (the modes a rigid /
-    one-mode model has, e.g. the paper's hub and bending 1); without such modes the
+    """Largest multiplier not on the unit circle of a mode the drives can move: a drive mode, the
+    first bending mode (the modes a rigid / one-mode model has, e.g. the paper's hub and bending 1)
+    or any mode a drive's share says it moves (:func:`drive_movable`); without such modes the
     largest one not on the unit circle."""
     main = set(drive_names) | {"bending 1"}
     for mu, m in zip(floquet_result.multipliers, modes):
-        if m["mode"] in main and not m["undamped"]:
+        if not m["undamped"] and (m["mode"] in main or (drive_names and drive_movable(m, drive_names))):
             return complex(mu)
     for mu, m in zip(floquet_result.multipliers, modes):
         if not m["undamped"]:

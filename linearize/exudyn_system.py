@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from mbs_models.model_file import BuiltModel
+from mbs_models.model_file import BuiltModel, ModelFileError
 
 __all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE"]
 
@@ -95,6 +95,35 @@ class ExudynSystem:
             if self.m < self.m_exudyn:
                 logger.debug("%d of %d algebraic equations are free axes (lambda = 0)", self.m_exudyn - self.m,
                              self.m_exudyn)
+        self._check_massless_free_nodes()
+
+    def _check_massless_free_nodes(self) -> None:
+        """Raise :class:`ModelFileError` naming the first node whose coordinates have no mass and on
+        which no constraint acts: its equations of motion are ``0 = f`` (a singular mass matrix that
+        Exudyn's solver reports only as a failed step).  A massless node that a constraint (joint)
+        holds is fine: the constrained system can still be regular."""
+        M = self._mass_raw(self.q_initial, 0.0)
+        massless = ~np.any(M != 0.0, axis=0) & ~np.any(M != 0.0, axis=1)
+        if not np.any(massless):
+            return
+        if self.m:
+            Cq = self._ae_jacobian_full(self.q_initial, 0.0)[self.active]
+            massless &= ~np.any(Cq != 0.0, axis=0)
+        if not np.any(massless):
+            return
+        sd = self.mbs.systemData
+        for j in range(sd.NumberOfNodes()):
+            ltg = [int(i) for i in sd.GetNodeLTGODE2(j)]
+            if ltg and all(massless[i] for i in ltg):
+                node = self.mbs.GetNode(j)
+                name = node.get("name") or f"node{j}"
+                raise ModelFileError(
+                    f"model {self.built.definition.name}: node {j} ({name!r}, {node.get('nodeType', 'node')}) is a "
+                    "massless free node: no body gives its coordinates mass and no constraint acts on them "
+                    "(add a body with mass on it, or constrain it)")
+        idx = np.flatnonzero(massless)
+        raise ModelFileError(f"model {self.built.definition.name}: ODE2 coordinates {idx.tolist()} have no mass and "
+                             "no constraint acts on them (a singular mass matrix)")
 
     # ----------------------------------------------------------------- state
     def set_state(self, q: np.ndarray, v: np.ndarray, t: float) -> None:
@@ -261,6 +290,41 @@ class ExudynSystem:
                 out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ("rotation", ltg[2])))
             elif kind == "Point2D" and len(ltg) == 2:
                 out.append((ltg[0], ltg[1], float(ref[0]), float(ref[1]), ("fit",)))
+        return out
+
+    def rotation_coordinates(self) -> np.ndarray:
+        """ODE2 indices of the angles a whole turn (2 pi) leaves the configuration unchanged for:
+        the angle of ``RigidBody2D`` nodes and the three Tait-Bryan angles of ``RigidBodyRxyz`` nodes
+        (they enter the kinematics through sines and cosines only).  The candidates for an orbit
+        periodic up to whole turns (:func:`linearize.periodic_orbit.whole_turn_shift`)."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            kind = mbs.GetNode(j).get("nodeType")
+            ltg = [int(i) for i in mbs.systemData.GetNodeLTGODE2(j)]
+            if kind == "RigidBody2D" and len(ltg) == 3:
+                out.append(ltg[2])
+            elif kind == "RigidBodyRxyz" and len(ltg) == 6:
+                out.extend(ltg[3:6])
+        return np.array(sorted(out), dtype=int)
+
+    def rotation_parameters(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """3D nodes whose rotation coordinates are not angles: ``(node type, ODE2 indices, reference
+        values)`` of the Euler parameters of ``RigidBodyEP`` nodes and the rotation vectors of
+        ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
+        sign and a rotation vector passes its singular length 2 pi: no orbit periodic up to whole turns
+        exists in these coordinates (:func:`linearize.periodic_orbit.whole_turn_shift` says so)."""
+        mbs = self.mbs
+        out = []
+        for j in range(mbs.systemData.NumberOfNodes()):
+            node = mbs.GetNode(j)
+            kind = str(node.get("nodeType"))
+            ltg = np.array([int(i) for i in mbs.systemData.GetNodeLTGODE2(j)], dtype=int)
+            ref = np.asarray(node.get("referenceCoordinates", []), dtype=float)
+            if kind == "RigidBodyEP" and ltg.size == 7:
+                out.append((kind, ltg[3:7], ref[3:7]))
+            elif kind.startswith("RigidBodyRotVec") and ltg.size == 6:
+                out.append((kind, ltg[3:6], ref[3:6]))
         return out
 
     def describe(self) -> dict[str, Any]:

@@ -66,7 +66,6 @@ __all__ = [
     "HILL_FLOOR",
     "MAX_HARMONICS",
     "MAX_FALLBACK_STEPS",
-    "choose_harmonics",
     "select_harmonics",
     "HarmonicsChoice",
     "HillGainObjective",
@@ -570,12 +569,6 @@ def select_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[fl
                   f"(tolerance / 20) at kp={list(kp)} kd={list(kd)}; using {H} (estimate {est:.2e}, method "
                   f"{m.method}{', truncated' if m.truncated else ''})", RuntimeWarning, stacklevel=2)
     return HarmonicsChoice(plant=p, harmonics=H, converged=False, error_estimate=est, tolerance=tolerance)
-
-
-def choose_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[float], tolerance: float,
-                     candidates: Sequence[int] = (8, 12, 16, 24, 32)) -> HillModelPlant:
-    """``select_harmonics(...).plant`` (warns when no candidate met the tolerance)."""
-    return select_harmonics(plant, kp, kd, tolerance, candidates).plant
 
 
 class HillGainObjective:

@@ -16,8 +16,8 @@ Independent check (:func:`direct_monodromy`): the nonlinear free-hub model
 orbit's state and from ``2 n`` perturbed states; the difference quotients form
 the monodromy matrix of Exudyn's own discrete map.
 
-Hazards (issue 4) and how they are handled
-------------------------------------------
+Hazards and how they are handled
+--------------------------------
 * The link has no structural damping (paper), so modes that the hub hardly
   moves (the axial modes, 1.3-47 kHz at 8 elements, and -- with the strongly
   damped hub of the Table 3 gains, which acts almost as a clamp -- the bending
@@ -52,6 +52,7 @@ from linearize import LinearizedPeriodicSystem, linearize_along_orbit
 from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
 from linearize.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
 from mbs_models.parameters import ManipulatorParameters
+from stability.frozen import frozen_result
 
 __all__ = [
     "DEFAULT_PROPAGATOR_STEPS",
@@ -179,6 +180,7 @@ def classify_multipliers(lin: LinearizedPeriodicSystem, floquet_result: Any, mod
 
 
 # --------------------------------------------------------------------------- results
+@frozen_result
 @dataclass(frozen=True)
 class ExudynFloquetResult:
     """Floquet analysis of the Exudyn link about a reference motion.
@@ -368,6 +370,7 @@ def exudyn_floquet(
 
 
 # --------------------------------------------------------------------------- direct
+@frozen_result
 @dataclass(frozen=True)
 class DirectMonodromyResult:
     """Monodromy of Exudyn's own discrete map, by finite differences of simulations.

@@ -56,7 +56,7 @@ from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
-from mbs_models.model_file import BuiltModel, ModelDefinition, build_model, resolve_model
+from mbs_models.model_file import BuiltModel, ModelDefinition, ModelFileError, build_model, resolve_model
 
 __all__ = [
     "DEFAULT_SAMPLES",
@@ -69,6 +69,7 @@ __all__ = [
     "TangentBlocks",
     "find_orbit",
     "tangent_blocks",
+    "whole_turn_shift",
 ]
 
 logger = logging.getLogger(__name__)
@@ -125,6 +126,10 @@ SHOOTING_STEPS_PER_SAMPLE = 16
 #: harmonics the orbit keeps (<= 16 omega) have omega h <= 2 pi / 32, i.e. an
 #: error <= 3e-3 of their amplitude; 1e-2 leaves a factor of 3.
 SHOOTING_TOLERANCE = 1e-2
+#: The defect is relative to the orbit's variation, but to no less than this times the size of its
+#: coordinates and rates: Exudyn's Newton tolerance in these runs (:data:`NEWTON_RELATIVE_TOLERANCE`)
+#: resolves the state no better.
+SHOOTING_FLOOR = 1e-6
 
 
 #: Newton tolerances of Exudyn's integrator in the guess and shooting runs.  The
@@ -150,7 +155,7 @@ SPARSE_SIMULATION_SIZE = 100
 
 #: Generalised-alpha spectral radius of the guess and shooting runs: index-3
 #: constraints need some numerical damping (rho_inf = 1 failed on the single
-#: link's clamp); 0.9 is the value the single-link simulations use (issue 4).
+#: link's clamp); 0.9 is the value the single-link simulations use.
 SHOOTING_SPECTRAL_RADIUS = 0.9
 
 
@@ -244,6 +249,10 @@ class PeriodicOrbit:
         ANCF slope nodes ``(ODE2 indices, reference coordinates)`` (for mode labels).
     planar_pairs : tuple
         Planar vector coordinates ``(i_x, i_y, ref_x, ref_y)`` (for the co-rotating basis).
+    shift : ndarray, shape (n,)
+        Whole turns per period: ``q(t + T) = q(t) + shift`` (zero for a T-periodic orbit;
+        :func:`whole_turn_shift`).  ``q`` holds the coordinates themselves (with the turns);
+        ``q_t``, ``q_tt``, the multipliers and torques are T-periodic.
     wall_time : float
     timings, cpu_timings : dict
         Wall-clock and CPU seconds per stage: ``build`` (model and collocation set-up),
@@ -274,10 +283,28 @@ class PeriodicOrbit:
     wall_time: float = 0.0
     timings: dict = field(default_factory=dict, repr=False)
     cpu_timings: dict = field(default_factory=dict, repr=False)
+    shift: Optional[np.ndarray] = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.shift is None:
+            object.__setattr__(self, "shift", np.zeros(self.q.shape[1]))
 
     @property
     def samples(self) -> int:
         return int(self.times.size)
+
+    @property
+    def q_periodic(self) -> np.ndarray:
+        """The periodic part ``q(t_k) - shift t_k / T`` of the samples, shape ``(K, n)``."""
+        return self.q - self.times[:, None] * (self.shift[None, :] / self.period)
+
+    def reference(self, t: float) -> np.ndarray:
+        """``q0(t)`` at a whole number of periods ``t = j T`` (``q[0] + j shift``); other times
+        by :meth:`state`."""
+        j = round(float(t) / self.period)
+        if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)):
+            return self.state(float(t))[0]
+        return self.q[0] + j * self.shift
 
     @property
     def size(self) -> int:
@@ -286,7 +313,8 @@ class PeriodicOrbit:
 
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
-        return (trig_interpolate(self.q, self.period, t), trig_interpolate(self.q_t, self.period, t),
+        ramp = np.multiply.outer(np.asarray(t, dtype=float), self.shift / self.period)
+        return (trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
                 trig_interpolate(self.q_tt, self.period, t))
 
     def torque(self, t: float | np.ndarray) -> np.ndarray:
@@ -304,6 +332,8 @@ class PeriodicOrbit:
             "orbit_residual": float(self.residual),
             "shooting_residual": float(self.shooting_residual),
             "iterations": self.iterations,
+            "turns": {f"{self.coordinate_labels[i] if self.coordinate_labels else 'q'}[{int(i)}]":
+                      int(round(float(self.shift[i]) / (2 * math.pi))) for i in np.flatnonzero(self.shift)},
             "torque_max": [float(v) for v in np.max(np.abs(self.torques), axis=0)] if self.torques.size else [],
         }
 
@@ -585,6 +615,11 @@ class _Collocation:
         self.s = self.n + self.m + self.d
         self.exudyn_jacobian: Optional[bool] = None  # decided (checked) at the first tangent
         self.R = np.array([[dr.evaluate(t)[0] for dr in built.drives] for t in self.times]).reshape(self.K, self.d)
+        self.set_shift(np.zeros(self.n))
+        #: drift ``q(T) - q(0) - shift`` of the simulated guess period and its samples' periodic
+        #: part (None before the guess)
+        self.guess_drift: Optional[np.ndarray] = None
+        self._guess_samples: Optional[np.ndarray] = None
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         if solver == "auto":
@@ -594,13 +629,24 @@ class _Collocation:
         self._exudyn_jacobians: Optional[bool] = None
         self._assembly: Optional[structured.NewtonAssembly] = None
 
+    def set_shift(self, shift: np.ndarray) -> None:
+        """Whole-turn shift ``s`` (``q(t + T) = q(t) + s``): the unknowns are the periodic part
+        ``p = q - s t / T`` (see :func:`find_orbit`)."""
+        self.shift = np.asarray(shift, dtype=float).copy()
+        self.ramp = self.times[:, None] * (self.shift[None, :] / self.T)
+
+    def coords(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(q, q', q'')`` at the samples from the unknowns ``X`` (periodic part plus the ramp)."""
+        P = X[:, :self.n]
+        return P + self.ramp, self.D1 @ P + self.shift / self.T, self.D2 @ P
+
     def tangent(self, X: np.ndarray) -> TangentBlocks:
         """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
         :func:`tangent_blocks` would difference every column (Exudyn's force Jacobians
         fail their check or ``M`` depends on ``q``), column-compressed differences with
         the same rule and steps (:mod:`linearize.collocation_solver`)."""
-        Q, L, _ = self.split(X)
-        V, A = self.D1 @ Q, self.D2 @ Q
+        _, L, _ = self.split(X)
+        Q, V, A = self.coords(X)
         if self.pattern is None:
             tb = tangent_blocks(self.system, self.times, Q, V, A, L, use_exudyn_jacobian=self.exudyn_jacobian,
                                 accurate=False)
@@ -632,8 +678,8 @@ class _Collocation:
         return X[:, :n], X[:, n:n + m], X[:, n + m:]
 
     def residual(self, X: np.ndarray) -> tuple[np.ndarray, float]:
-        Q, L, U = self.split(X)
-        V, A = self.D1 @ Q, self.D2 @ Q
+        _, L, U = self.split(X)
+        Q, V, A = self.coords(X)
         sys_ = self.system
         out = np.empty((self.K, self.s))
         fscale = 0.0
@@ -656,8 +702,8 @@ class _Collocation:
         return max(force, geo)
 
     def jacobian(self, X: np.ndarray) -> tuple[np.ndarray, TangentBlocks]:
-        Q, L, _ = self.split(X)
-        V, A = self.D1 @ Q, self.D2 @ Q
+        _, L, _ = self.split(X)
+        Q, V, A = self.coords(X)
         tb = tangent_blocks(self.system, self.times, Q, V, A, L, use_exudyn_jacobian=self.exudyn_jacobian,
                             accurate=False)
         self.exudyn_jacobian = tb.exudyn_jacobian
@@ -890,18 +936,131 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
 
 
 def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
-    """One Exudyn period from the model file's initial state, drives prescribed, sampled."""
+    """One Exudyn period from the model file's initial state, drives prescribed, sampled.
+
+    Also fixes the whole-turn shift of ``col`` (:func:`whole_turn_shift`) from that period
+    (unless it is set already) and records the drift the shift leaves (:attr:`_Collocation.guess_drift`).
+    """
     sysm = col.system
     built_p = build_model(model, col.built.omega, prescribe_drives=True)
     X = np.zeros((col.K, col.s))
+    q0 = np.asarray(sysm.q_initial, dtype=float)
     try:
-        _, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
-                             record_times=col.times)
-        X[:, :col.n] = Qs
+        qT, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
+                              record_times=col.times)
     except ExudynRunError as exc:
         logger.info("orbit guess: %s; starting from the initial state at every sample", exc)
-        X[:, :col.n] = sysm.q_initial
+        qT, Qs = None, np.broadcast_to(q0, (col.K, col.n))
+    if not np.any(col.shift):
+        col.set_shift(whole_turn_shift(col.system, col.built, None if qT is None else qT - q0))
+    if qT is not None:
+        col.guess_drift = qT - q0 - col.shift
+    X[:, :col.n] = Qs - col.ramp
+    col._guess_samples = X[:, :col.n].copy()
     return X
+
+
+#: :func:`whole_turn_shift` takes an angle's advance over the simulated period for ``k`` whole turns
+#: when it is within this of ``2 pi k`` (a quarter turn: the transient swing of a hinged part about
+#: its orbit is smaller; an advance of 1.5 turns is no whole turn and is left to the growth check).
+WHOLE_TURN_WINDOW = 0.5 * math.pi
+
+
+def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[np.ndarray]) -> np.ndarray:
+    """The shift ``s`` of an orbit periodic up to whole turns, ``q(t + T) = q(t) + s``.
+
+    Rule (the model-file contract): ``s_i = 2 pi k_i``, ``k_i = round(advance_i / 2 pi)`` when
+    ``advance_i`` is within :data:`WHOLE_TURN_WINDOW` of ``2 pi k_i``, for the rotation coordinates (:meth:`ExudynSystem.rotation_coordinates`: planar rigid-body angles, Tait-Bryan
+    angles) where ``advance = q(T) - q(0)`` over one simulated period of the model with its drives
+    prescribed, ``0`` elsewhere; the drives' own whole turns (:attr:`BuiltModel.drive_turns`) must
+    come out of it (a drive turning a coordinate of a non-rotation node, or a simulation that failed,
+    takes the drive's turns on its marker m1's coordinate, else minus them on m0's).  ``s`` is then
+    checked: the model's forces and constraints must be the same at ``(q + s, t + T)`` as at ``(q, t)``.
+
+    Raises
+    ------
+    mbs_models.model_file.ModelFileError
+        If the drives' turns cannot be placed or the model is not invariant under the shift.
+    """
+    n = system.n
+    s = np.zeros(n)
+    if advance is not None:
+        _check_rotation_parameters(system, built, np.asarray(advance, dtype=float))
+    rot = system.rotation_coordinates()
+    if advance is not None and rot.size:
+        a = np.asarray(advance, dtype=float)[rot]
+        k = np.round(a / (2.0 * math.pi))
+        near = np.abs(a - 2.0 * math.pi * k) <= WHOLE_TURN_WINDOW
+        s[rot] = np.where(near, 2.0 * math.pi * k, 0.0)
+    B = built.drive_vectors()
+    turns = 2.0 * math.pi * np.asarray(built.drive_turns or [0] * B.shape[1], dtype=float)
+    if B.shape[1] and not np.allclose(B.T @ s, turns, atol=1e-9):
+        s = np.zeros(n)
+        for (i0, i1), k in zip(built.drive_indices, turns):
+            if k == 0:
+                continue
+            if i1 >= 0 and s[i1] == 0:
+                s[i1] = k
+            elif i0 >= 0 and s[i0] == 0:
+                s[i0] = -k
+        if not np.allclose(B.T @ s, turns, atol=1e-9):
+            raise ModelFileError(f"model {built.definition.name}: the drives' whole turns per period "
+                                 f"({', '.join(str(int(round(k / (2 * math.pi)))) for k in turns)}) cannot be "
+                                 f"placed on their coordinates")
+    if np.any(s):
+        _check_invariance(system, built, s)
+        logger.info("orbit periodic up to whole turns: %s", {system.coordinate_labels()[i] + f"[{i}]":
+                                                              int(round(s[i] / (2 * math.pi))) for i in np.flatnonzero(s)})
+    return s
+
+
+def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> None:
+    """Raise :class:`ModelFileError` when a node with Euler parameters or a rotation vector makes a whole
+    turn in the simulated period (``advance = q(T) - q(0)``): its parameters come back with the opposite
+    sign (Euler parameters) or pass the singular length 2 pi (rotation vector), so no smooth orbit periodic
+    up to whole turns exists in its coordinates -- Newton would otherwise settle on another orbit (e.g.
+    the body at rest)."""
+    q0 = np.asarray(system.q_initial, dtype=float)
+    for kind, idx, ref in system.rotation_parameters():
+        p0, pT = q0[idx] + ref, q0[idx] + advance[idx] + ref
+        if kind == "RigidBodyEP":
+            turned = float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0))
+            what = "its Euler parameters come back with the opposite sign"
+        else:
+            turned = float(np.linalg.norm(pT - p0)) >= math.pi
+            what = "its rotation vector passes the singular length 2 pi"
+        if turned:
+            raise ModelFileError(
+                f"model {built.definition.name}: a {kind} node turns by a whole turn per period ({what}); an "
+                f"orbit periodic up to whole turns needs the turning angle as a coordinate: use "
+                f"NodeRigidBodyRxyz (its angles advance by 2 pi k) or NodeRigidBody2D for the turning body")
+
+
+#: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
+#: by at most this, relative to their size plus one (round-off of sin/cos at arguments ~2 pi k:
+#: ~1e-15; 1e-8 rejects only a model that really changes after a turn, e.g. a spring to ground).
+INVARIANCE_TOLERANCE = 1e-8
+
+
+def _check_invariance(system: ExudynSystem, built: BuiltModel, s: np.ndarray) -> None:
+    T = built.period
+    rng = np.random.default_rng(3)
+    q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    t = 0.37 * T
+    f0, f1 = system.rhs(q, v, t), system.rhs(q + s, v, t + T)
+    bad = np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))
+    what = "forces"
+    if not np.any(bad) and system.m:
+        c0, c1 = system.constraints(q, t), system.constraints(q + s, t + T)
+        bad = np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))
+        what = "constraints"
+    if np.any(bad):
+        labels = system.coordinate_labels()
+        turned = ", ".join(f"{labels[i]}[{i}] by {int(round(s[i] / (2 * math.pi)))}" for i in np.flatnonzero(s))
+        raise ModelFileError(f"model {built.definition.name}: coordinates turn by whole turns per period "
+                             f"({turned}), but the model's {what} are not the same after those turns "
+                             f"(e.g. a spring to ground on a turning angle): no orbit periodic up to whole turns")
 
 
 #: Quasi-static guess: Newton iterations per static solve, the relative residual they must
@@ -986,19 +1145,26 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
     except (np.linalg.LinAlgError, FloatingPointError, ValueError) as exc:
         logger.debug("quasi-static guess failed: %s", exc)
         return None
+    X[:, :n] -= col.ramp
     return X if np.all(np.isfinite(X)) else None
 
 
-def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int) -> float:
+def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
+                     shift: Optional[np.ndarray] = None) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
+    s = np.zeros(Q.shape[1]) if shift is None else np.asarray(shift, dtype=float)
     try:
         qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
     except ExudynRunError:
         return math.inf
-    x0 = np.concatenate([Q[0], V[0]])
+    x0 = np.concatenate([Q[0] + s, V[0]])
     xT = np.concatenate([qT, vT])
-    variation = max(float(np.max(np.abs(Q - Q[0]))), float(np.max(np.abs(V - V[0]))), 1e-300)
+    P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
+    # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
+    # part, e.g. a rotor spinning steadily, has no variation to compare with)
+    floor = SHOOTING_FLOOR * max(1.0, float(np.max(np.abs(Q))), float(np.max(np.abs(V))))
+    variation = max(float(np.max(np.abs(P - P[0]))), float(np.max(np.abs(V - V[0]))), floor)
     # coordinates and rates are compared in their own units: the defect relative to
     # the largest excursion of either along the orbit
     return float(np.max(np.abs(xT - x0)) / variation)
@@ -1091,7 +1257,8 @@ def find_orbit(
     ok = False
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
             guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
-        X = np.hstack([guess.q, guess.lambdas, guess.torques])
+        col.set_shift(guess.shift)
+        X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
         if not ok:
             logger.info("orbit: Newton from the given guess failed (%.2e); simulated guess", history[-1])
@@ -1099,26 +1266,45 @@ def find_orbit(
     if not ok:
         X = _guess(col, definition)
     lap("guess")
+    at_target = list(history)  # residuals at omega itself (continuation steps at other omegas apart)
     if not ok:
         X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
                                 second_guess=_quasi_static_guess)
         history += h1
+        at_target += h1
+    if not ok:
+        growing = _growing_coordinates(col)
+        if growing:
+            lap("newton")
+            raise OrbitConvergenceError(
+                f"periodic orbit of {definition.name} at omega = {float(omega):.6g}: no periodic orbit, "
+                f"{growing}; every coordinate must come back after T = 2 pi/omega, up to whole turns "
+                f"2 pi k of an angle (see the model-file contract)", history)
+    reached = None
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
-        X, h2, ok, col, tb = _continuation(definition, float(omega), samples, tol, max_iterations, X, solver)
+        shift = col.shift
+        X, h2, ok, col, tb, reached, h_target = _continuation(definition, float(omega), samples, tol,
+                                                              max_iterations, X, solver, shift)
         history += h2
+        at_target += h_target
     lap("newton")
     if not ok:
+        best = min(at_target) if at_target else math.nan
+        cont = ""
+        if continuation:
+            cont = (f"; continuation in omega converged up to {reached:.4g} omega only" if reached is not None
+                    else "; continuation in omega found no orbit even at lower omega")
         raise OrbitConvergenceError(
             f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
-            f"{history[-1]:.2e} after {len(history)} Newton iterations (best {min(history):.2e}, tolerance {tol:.1e})"
-            + (" even with continuation in omega" if continuation else "")
-            + "; try more samples, damping, or an omega away from resonances",
+            f"{at_target[-1] if at_target else math.nan:.2e} after {len(history)} Newton iterations "
+            f"(best at this omega {best:.2e}, tolerance {tol:.1e}){cont}"
+            "; try more samples, damping, or an omega away from resonances",
             history,
         )
-    Q, L, U = col.split(X)
-    Q, L, U = Q.copy(), L.copy(), U.copy()
-    V, A = col.D1 @ Q, col.D2 @ Q
+    _, L, U = col.split(X)
+    L, U = L.copy(), U.copy()
+    Q, V, A = (a.copy() for a in col.coords(X))
     out, fscale = col.residual(X)
     residual = col.relative(out, fscale, max(1.0, float(np.max(np.abs(Q)))))
     # linearisation at the converged samples (Newton's last matrix is at the previous iterate)
@@ -1128,7 +1314,7 @@ def find_orbit(
     lap("tangent")
     shooting = math.nan
     if verify:
-        shooting = _shooting_defect(definition, float(omega), Q, V, samples)
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1144,7 +1330,7 @@ def find_orbit(
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
-        timings=timings, cpu_timings=cpu_timings,
+        timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(),
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
@@ -1152,20 +1338,28 @@ def find_orbit(
 
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
-                  X_fail: np.ndarray, solver: str = "auto"):
-    f, step, X, history = CONTINUATION_START, CONTINUATION_STEP, None, []
-    col = tb = None
+                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[np.ndarray] = None):
+    """Natural continuation in omega from :data:`CONTINUATION_START` omega.  Returns ``(X, history, ok,
+    col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
+    converged (``None``: none), ``at_target`` the residuals of the solves at omega itself (an
+    orbit at a lower omega is no answer at omega)."""
+    f, step, X, history, at_target = CONTINUATION_START, CONTINUATION_STEP, None, [], []
+    col = tb = reached = None
     for _ in range(CONTINUATION_MAX_SOLVES):
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
+        if shift is not None:
+            col.set_shift(shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
         Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
         history += hist
+        if target >= 1.0:
+            at_target += hist
         logger.debug("orbit continuation: omega factor %.4f %s", target, "converged" if ok else "failed")
         if ok:
-            X = Xn
+            X, reached = Xn, target
             if target >= 1.0:
-                return X, history, True, col, tb
+                return X, history, True, col, tb, reached, at_target
             step *= 1.5
             f = target + step
         elif X is None:
@@ -1175,4 +1369,40 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
             f -= step
             if step < CONTINUATION_MIN_STEP:
                 break
-    return (X if X is not None else X_fail), history, False, col, tb
+    return (X if X is not None else X_fail), history, False, col, tb, reached, at_target
+
+
+#: :func:`_growing_coordinates`: a coordinate grows when its drift over the simulated guess period
+#: (after the whole-turn shift) is at least this fraction of its whole excursion in that period
+#: (a monotone advance; an oscillation ends inside its range) ...
+GROWTH_FRACTION = 0.9
+#: ... and larger than this, relative to ``1 + |q(0)|`` (a tenth of a radian or metre: far above the
+#: drift of a slow transient vibration of a structure, far below a fraction of a turn).
+GROWTH_MINIMUM = 0.1
+
+
+def _growing_coordinates(col: _Collocation) -> str:
+    """``""``, or a phrase naming the coordinates that advanced monotonically over the simulated guess
+    period by something that is not whole turns (consulted only after Newton failed from that guess:
+    then no continuation in omega can help, and the user is told at once)."""
+    drift = col.guess_drift
+    if drift is None:
+        return ""
+    q0 = np.asarray(col.system.q_initial, dtype=float)
+    # the sampled periodic part of the guess run: q(t_k) - ramp, plus its end q(T) - shift
+    start = col._guess_samples if col._guess_samples is not None else q0[None, :]
+    P = np.vstack([start, (q0 + drift)[None, :]])
+    excursion = np.max(P, axis=0) - np.min(P, axis=0)
+    grows = (np.abs(drift) >= GROWTH_FRACTION * excursion) & (np.abs(drift) > GROWTH_MINIMUM * (1.0 + np.abs(q0)))
+    idx = np.flatnonzero(grows)
+    if not idx.size:
+        return ""
+    labels = col.system.coordinate_labels()
+    rot = set(int(i) for i in col.system.rotation_coordinates())
+    parts = []
+    for i in idx[:3]:
+        turn = f" ({(drift[i] + col.shift[i]) / (2 * math.pi):.3g} turns)" if i in rot else ""
+        parts.append(f"{labels[i]}[{int(i)}] advances by {drift[i] + col.shift[i]:.4g}{turn}")
+    more = f" and {idx.size - 3} more" if idx.size > 3 else ""
+    return ("in one simulated period " + ", ".join(parts) + more
+            + " -- neither periodic nor a whole number of turns")

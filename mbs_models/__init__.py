@@ -1,17 +1,16 @@
 """Models of the single-link flexible manipulator: parameters, the paper's
 reduced one-mode model and the Exudyn ANCF model."""
-from mbs_models.parameters import ManipulatorParameters
-from mbs_models.reduced import (
-    PAPER_MODE_CONSTANTS,
-    FundamentalMotion,
-    ModeConstants,
-    ReducedModel,
-    derived_mode_constants,
-    mode_constants,
-)
 
-#: Names provided by the Exudyn layer, imported on first use (Exudyn adds ~0.1 s).
+#: Every name is imported on first use: ``import mbs_models.parameters`` (the command line's
+#: configuration) then imports neither scipy (the reduced model) nor Exudyn.
 _LAZY = {
+    "ManipulatorParameters": "mbs_models.parameters",
+    "PAPER_MODE_CONSTANTS": "mbs_models.reduced",
+    "FundamentalMotion": "mbs_models.reduced",
+    "ModeConstants": "mbs_models.reduced",
+    "ReducedModel": "mbs_models.reduced",
+    "derived_mode_constants": "mbs_models.reduced",
+    "mode_constants": "mbs_models.reduced",
     "ExudynLinkConfig": "mbs_models.exudyn_link",
     "ExudynLinkModel": "mbs_models.exudyn_link",
     "ExudynSolverError": "mbs_models.exudyn_link",
@@ -36,13 +35,4 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'mbs_models' has no attribute {name!r}")
 
 
-__all__ = [
-    "ManipulatorParameters",
-    "ReducedModel",
-    "FundamentalMotion",
-    "ModeConstants",
-    "PAPER_MODE_CONSTANTS",
-    "derived_mode_constants",
-    "mode_constants",
-    *sorted(_LAZY),
-]
+__all__ = sorted(_LAZY)

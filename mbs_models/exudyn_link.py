@@ -94,7 +94,7 @@ DRIVES = ("prescribed", "free")
 #: enters the dynamics of the independent coordinates; Exudyn needs it > 0.
 HUB_PLACEHOLDER_MASS = 1.0
 
-#: Default generalised-alpha step and spectral radius (issue 4: h = 1e-3 and
+#: Default generalised-alpha step and spectral radius (measured: h = 1e-3 and
 #: rho_inf = 0.9 give the tip deflection to about 0.7 %).
 DEFAULT_STEP = 1e-3
 DEFAULT_SPECTRAL_RADIUS = 0.9

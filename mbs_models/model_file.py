@@ -17,9 +17,18 @@ A *model file* is a plain Python module with a function::
   exactly as Exudyn's ``CoordinateConstraint`` / ``CoordinateSpringDamper``
   read their two markers (Exudyn's ODE2 coordinates, i.e. displacements from
   the node's reference coordinates), and ``motion`` is its T-periodic
-  reference, ``T = 2 pi / omega``.  An optional key ``breakpoints`` lists the
-  times in ``[0, T)`` where the motion is not smooth (``docs/accuracy.md``).  An empty sequence is valid (a system
-  excited only by its own rheonomic constraints or periodic loads).
+  reference, ``T = 2 pi / omega`` -- or periodic up to whole turns,
+  ``motion(t + T) = motion(t) + (2 pi k, 0, 0)`` with an integer ``k`` (a hub
+  turning at constant speed: ``(omega t, omega, 0)``; :func:`drive_turns`).
+  An optional key ``breakpoints`` lists the times in ``[0, T)`` where the
+  motion is not smooth (``docs/accuracy.md``).  An empty sequence is valid (a
+  system excited only by its own rheonomic constraints or periodic loads).
+* Machines that turn: the orbit may be periodic up to whole turns of angle
+  coordinates (``NodeRigidBody2D`` angles, ``NodeRigidBodyRxyz`` angles),
+  ``q(t + T) = q(t) + 2 pi k``.  The turns are read off one simulated period
+  of the model with its drives prescribed (drives, rheonomic constraints with
+  an offset ``omega t``, free angles that follow them); nothing is declared in
+  the file (see ``docs/rotating-machines.md``).
 * The package, not the file, adds the control.  For the periodic orbit each
   drive's coordinate follows ``motion`` exactly (its constraint reaction is the
   feed-forward torque ``tau_ff``); for the closed loop the drive is released
@@ -56,7 +65,11 @@ __all__ = [
     "ModelFileError",
     "PERIODICITY_TOLERANCE",
     "build_model",
+    "check_derivatives",
+    "DERIVATIVE_STEP",
+    "DERIVATIVE_TOLERANCE",
     "builtin_model",
+    "drive_turns",
     "load_model_file",
     "model_from_build",
     "resolve_model",
@@ -68,6 +81,8 @@ logger = logging.getLogger(__name__)
 BUILTIN_MODELS = {
     "single-link": "single_link.py",
     "two-link": "two_link.py",
+    "laval-rotor": "laval_rotor.py",
+    "slider-crank": "slider_crank.py",
 }
 
 #: A drive's motion must satisfy ``|motion(t + T) - motion(t)| <=`` this times
@@ -77,6 +92,19 @@ BUILTIN_MODELS = {
 PERIODICITY_TOLERANCE = 1e-9
 #: Test times (fractions of T) of the periodicity check.
 _PERIODICITY_PHASES = (0.0, 0.137, 0.5, 0.771)
+
+#: Step of the central differences that check a drive's ``q_t`` and ``q_tt`` (a fraction of T).
+#: For a harmonic ``k omega`` of the motion the truncation error is ``(2 pi k h / T)^2 / 6`` relative,
+#: 6.6e-9 for ``k = 1`` and below 1e-3 up to ``k ~ 120``; the rounding error ``eps / (2 pi h / T)``
+#: is ~4e-13.
+DERIVATIVE_STEP = 1e-4
+#: A drive's ``q_t`` (``q_tt``) is rejected when it differs from the central difference of ``q``
+#: (``q_t``) by more than this times the scale of the rate (``max |q_t|``, ``omega x`` the spread of
+#: ``q``): far above the difference's own error (see :data:`DERIVATIVE_STEP`), far below any mistake
+#: of sign, factor or formula.
+DERIVATIVE_TOLERANCE = 1e-3
+#: Test times (fractions of T) of the derivative check; ``t = 0`` is where a run starts.
+_DERIVATIVE_PHASES = (0.0, 0.137, 0.389, 0.5, 0.771)
 
 
 class ModelFileError(ValueError):
@@ -319,6 +347,9 @@ class BuiltModel:
     drive_indices : ndarray, shape (n_drives, 2)
         ODE2 indices of each drive's markers ``(i0, i1)``; ``-1`` for a ground
         coordinate.
+    drive_turns : tuple of int
+        Whole turns ``k`` each drive's motion advances per period (0: T-periodic;
+        :func:`drive_turns`).
     """
 
     definition: ModelDefinition
@@ -327,6 +358,7 @@ class BuiltModel:
     mbs: Any = field(repr=False)
     drives: tuple
     drive_indices: np.ndarray
+    drive_turns: tuple = ()
 
     @property
     def period(self) -> float:
@@ -364,17 +396,84 @@ def _marker_index(mbs: Any, marker: int, drive: str) -> int:
     return int(ltg[c])
 
 
-def check_periodic(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> None:
-    """Raise :class:`ModelFileError` unless ``drive.motion`` is ``period``-periodic."""
+def drive_turns(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> int:
+    """The whole turns ``k`` by which ``drive.motion`` advances per period (0: T-periodic).
+
+    A motion is accepted when ``motion(t + T) = motion(t) + (2 pi k, 0, 0)`` with an integer
+    ``k`` at the test times (:data:`PERIODICITY_TOLERANCE`, relative to ``1 + |motion(t)|``):
+    a coordinate that turns at constant mean speed (``(Omega t, Omega, 0)``) is periodic up to
+    whole turns, its rate and acceleration periodic.
+
+    Raises
+    ------
+    ModelFileError
+        If the motion is neither T-periodic nor periodic up to the same whole number of turns
+        at every test time.
+    """
+    turns = None
     for phase in _PERIODICITY_PHASES:
         t = phase * period
         a = np.array(drive.evaluate(t))
         b = np.array(drive.evaluate(t + period))
-        if np.any(np.abs(b - a) > tol * (1.0 + np.abs(a))):
+        k = int(round((b[0] - a[0]) / (2.0 * math.pi)))
+        expected = a + np.array([2.0 * math.pi * k, 0.0, 0.0])
+        if np.any(np.abs(b - expected) > tol * (1.0 + np.abs(a) + np.abs(b))) or (turns is not None and k != turns):
             raise ModelFileError(
-                f"drive {drive.name!r}: motion is not T-periodic (T = 2 pi/omega = {period:.6g} s): "
+                f"drive {drive.name!r}: motion is not T-periodic, nor periodic up to whole turns "
+                f"(T = 2 pi/omega = {period:.6g} s; needs motion(t + T) = motion(t) + (2 pi k, 0, 0), k integer): "
                 f"motion({t:.4g}) = {a.tolist()} but motion(t + T) = {b.tolist()}"
             )
+        turns = k
+    return int(turns or 0)
+
+
+def check_periodic(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> None:
+    """Raise :class:`ModelFileError` unless ``drive.motion`` is ``period``-periodic, possibly up to whole
+    turns (:func:`drive_turns`)."""
+    drive_turns(drive, period, tol)
+
+
+def _near_breakpoint(t: float, breakpoints: Sequence[float], period: float, margin: float) -> bool:
+    for b in breakpoints:
+        d = (float(t) - float(b)) % period
+        if min(d, period - d) <= margin:
+            return True
+    return False
+
+
+def check_derivatives(drive: Drive, period: float, tol: float = DERIVATIVE_TOLERANCE) -> None:
+    """Raise :class:`ModelFileError` unless ``q_t`` and ``q_tt`` of ``drive.motion`` are the time
+    derivatives of ``q`` (central differences at a few times of the period, :data:`DERIVATIVE_STEP`).
+
+    Times within two difference steps of one of the drive's declared ``breakpoints`` (times where the
+    motion is not smooth, taken modulo ``period``) are not tested.  Only local differences are used,
+    so a motion that advances by whole turns per period is checked like a periodic one.
+    """
+    h = DERIVATIVE_STEP * period
+    breakpoints = tuple(getattr(drive, "breakpoints", None) or ())
+    times = [p * period for p in _DERIVATIVE_PHASES if not _near_breakpoint(p * period, breakpoints, period, 2 * h)]
+    if not times:
+        return
+    rows = []
+    for t in times:
+        q, q_t, q_tt = drive.evaluate(t)
+        qp, q_tp, _ = drive.evaluate(t + h)
+        qm, q_tm, _ = drive.evaluate(t - h)
+        rows.append((t, q, q_t, q_tt, (qp - qm) / (2 * h), (q_tp - q_tm) / (2 * h)))
+    a = np.array(rows)
+    omega = 2 * math.pi / period
+    rate = max(float(np.max(np.abs(a[:, 2]))), float(np.max(np.abs(a[:, 4]))),
+               omega * float(np.ptp(a[:, 1])), 1e-300)
+    accel = max(float(np.max(np.abs(a[:, 3]))), float(np.max(np.abs(a[:, 5]))), omega * rate, 1e-300)
+    for t, q, q_t, q_tt, d1, d2 in rows:
+        if abs(q_t - d1) > tol * rate:
+            raise ModelFileError(
+                f"drive {drive.name!r}: motion at t = {t:.6g} s: q_t = {q_t:.6g} is not the time derivative of q "
+                f"(central difference {d1:.6g}); motion must return (q, dq/dt, d2q/dt2)")
+        if abs(q_tt - d2) > tol * accel:
+            raise ModelFileError(
+                f"drive {drive.name!r}: motion at t = {t:.6g} s: q_tt = {q_tt:.6g} is not the time derivative of "
+                f"q_t (central difference {d2:.6g}); motion must return (q, dq/dt, d2q/dt2)")
 
 
 def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool = False) -> BuiltModel:
@@ -388,10 +487,12 @@ def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool 
     Raises
     ------
     ModelFileError
-        ``build`` raised (its message is shown), returned something that is not
-        a sequence of drives, a drive is malformed, a marker is not a
-        ``MarkerNodeCoordinate``, two drives have the same name, a motion is
-        not T-periodic, ``Assemble`` failed, or the model has ODE1 coordinates.
+        ``build`` raised (its message is shown), returned ``None`` or something
+        that is not a sequence of drives, called ``mbs.Assemble()`` itself, a
+        drive is malformed, a marker is not a ``MarkerNodeCoordinate``, two
+        drives have the same name, a motion is not T-periodic or its ``q_t``,
+        ``q_tt`` are not the derivatives of ``q`` (:func:`check_derivatives`),
+        ``Assemble`` failed, or the model has ODE1 coordinates.
     ValueError
         If ``omega`` is not finite and positive.
     """
@@ -410,7 +511,11 @@ def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool 
     except Exception as exc:  # noqa: BLE001 - the user's code: one line
         raise ModelFileError(f"{where}: build(mbs, omega) raised {_one_line(exc)}") from None
     if raw is None:
-        raw = ()
+        raise ModelFileError(f"{where}: build returned None; it must return the list of drives ([] for a model "
+                             "without drives)")
+    if mbs.systemData.ODE2Size() > 0 or mbs.systemIsConsistent:
+        raise ModelFileError(f"{where}: build called mbs.Assemble(); leave that to flexstab (it adds the drives' "
+                             "constraints or controllers first)")
     if isinstance(raw, (Mapping, Drive, str)) or not isinstance(raw, Sequence):
         raise ModelFileError(f"{where}: build must return a sequence of drives (list of mappings), got {type(raw).__name__}")
     try:
@@ -446,12 +551,14 @@ def build_model(model: ModelDefinition, omega: float, *, prescribe_drives: bool 
         if i0 == i1:
             raise ModelFileError(f"{where}: drive {d.name!r}: both markers address the same coordinate")
     period = 2.0 * math.pi / omega
+    turns = []
     for d in drives:
         try:
-            check_periodic(d, period)
+            turns.append(drive_turns(d, period))
+            check_derivatives(d, period)
         except ModelFileError as exc:
             raise ModelFileError(f"{where}: {exc}") from None
     logger.debug("built %s at omega=%g: %d ODE2, %d AE, drives %s", model.name, omega,
                  mbs.systemData.ODE2Size(), mbs.systemData.AEsize(), names)
     return BuiltModel(definition=model, omega=omega, system_container=sc, mbs=mbs, drives=drives,
-                      drive_indices=idx)
+                      drive_indices=idx, drive_turns=tuple(turns))

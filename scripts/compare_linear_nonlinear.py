@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Floquet multipliers measured from nonlinear Exudyn runs against the predictions (issue 10).
+"""Floquet multipliers measured from nonlinear Exudyn runs against the predictions.
 
 Cases (:data:`validation.study.MULTIPLIER_CASES`): the complex pair at
 Omega = 2pi (kp = 10, kd = 2), the paper's Table 3 gains at the four Omegas,
@@ -35,7 +35,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-#: Tuned two-link gains (issue 11, session 3 tuning to rho_d = 0.3): Omega/pi -> ((kp1, kp2), (kd1, kd2)).
+#: Tuned two-link gains (four-gain Taguchi tuning to rho_d = 0.3): Omega/pi -> ((kp1, kp2), (kd1, kd2)).
 TWO_LINK_TUNED = {2: ((15.0, 7.1484), (8.9453, 1.4531)), 4: ((21.406, 6.1719), (7.8516, 1.8867))}
 
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The two-link flexible arm (issue 11): four-gain Taguchi with an independent check, method comparison,
+"""The two-link flexible arm: four-gain Taguchi with an independent check, method comparison,
 mesh convergence, robust design, direct Exudyn monodromy, figures.  Writes ``results/two_link/``.
 
 Each stage writes ``two_link_<stage>.json``; every run merges all stage files present into

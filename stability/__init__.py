@@ -1,6 +1,13 @@
-"""Floquet stability analysis of linear T-periodic systems."""
+"""Floquet stability analysis of linear T-periodic systems.
+
+The engines the package uses: :func:`floquet` (Magnus methods and the paper's procedure),
+:func:`modal_floquet` (the frozen-modal frame of stiff linearised models) and
+:func:`hill_multipliers` (Hill's method); :func:`stability.implicit.implicit_floquet` computes the
+dominant multipliers of large systems matrix-free.
+"""
 from stability.floquet import DEFAULT_METHOD, METHODS, FloquetError, FloquetResult, floquet
-from stability.implicit import ImplicitFloquetResult, implicit_floquet
+from stability.hill import HillError, HillResult, hill_multipliers
+from stability.modal import ModalBasisError, ModalFloquetResult, modal_floquet
 from stability.periodic import SecondOrderPeriodicSystem, first_order_matrix
 from stability.response import LinearResponse, linear_response
 
@@ -8,10 +15,14 @@ __all__ = [
     "floquet",
     "FloquetResult",
     "FloquetError",
-    "implicit_floquet",
-    "ImplicitFloquetResult",
     "METHODS",
     "DEFAULT_METHOD",
+    "modal_floquet",
+    "ModalFloquetResult",
+    "ModalBasisError",
+    "hill_multipliers",
+    "HillResult",
+    "HillError",
     "SecondOrderPeriodicSystem",
     "first_order_matrix",
     "linear_response",

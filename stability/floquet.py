@@ -49,7 +49,6 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 from scipy.linalg.lapack import dgebal, dgeev
 
-from stability import _compiled
 from stability.expm import expm_near_block_diagonal, expm_soa, expm_stack, mm_soa
 from stability.magnus import (
     MAGNUS2,
@@ -61,6 +60,7 @@ from stability.magnus import (
     ordered_product,
     ordered_product_soa,
 )
+from stability.frozen import frozen_result
 from stability.periodic import PeriodicMatrixFunction
 from stability.reference import ReferenceOptions, paper_monodromy
 from stability.serialization import json_ready
@@ -132,6 +132,7 @@ TRACE_MIN_POINTS = 64
 TRACE_RTOL = 1e-13
 
 
+@frozen_result
 @dataclass(frozen=True)
 class FloquetResult:
     """Floquet analysis of ``x' = P(t) x`` over one period.
@@ -1235,14 +1236,6 @@ def _magnus_solves_small(
     times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
     P = wrapped.evaluate(times)
-    if USE_COMPILED and not keep_factors and scheme.order in (4, 6):
-        if optional_first and len(Ns) > 1:
-            try:
-                return _compiled_solves(scheme, P[:q * Ns[0]].reshape(Ns[0], q, n, n), Ns[:1], hs[:1], strict) \
-                    + _compiled_solves(scheme, P[q * Ns[0]:].reshape(Ntot - Ns[0], q, n, n), Ns[1:], hs[1:], strict)
-            except _Unresolved:
-                return _compiled_solves(scheme, P[q * Ns[0]:].reshape(Ntot - Ns[0], q, n, n), Ns[1:], hs[1:], strict)
-        return _compiled_solves(scheme, P.reshape(Ntot, q, n, n), Ns, hs, strict)
     Pg = np.ascontiguousarray(P.reshape(Ntot, q, n, n).transpose(1, 2, 3, 0))  # (q, n, n, Ntot)
     h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
     label = "/".join(str(N) for N in Ns)
@@ -1293,35 +1286,6 @@ def _magnus_solves_small(
             log_det = float(np.trace(np.sum(Om[:, :, block], axis=2)))
             factors = np.ascontiguousarray(E[:, :, block].transpose(2, 0, 1)) if keep_factors else None
             out.append(_Solve(N, Phi, _spectrum(Phi), log_det, factors))
-    return out
-
-
-#: Use the compiled kernel (:mod:`stability._compiled`, numba) for the small-system
-#: Magnus-4/6 solves when it is installed; ``False`` forces the numpy path.
-USE_COMPILED = _compiled.AVAILABLE
-
-
-def _compiled_solves(scheme: MagnusScheme, Pg: np.ndarray, Ns: list[int], hs: list[float],
-                     strict: bool) -> list[_Solve]:
-    """:func:`_magnus_solves_small` by the fused compiled loop (same scheme, same tests)."""
-    out = []
-    start = 0
-    label = "/".join(str(N) for N in Ns)
-    for N, h in zip(Ns, hs):
-        Phi, log_det, corr, om_norm = _compiled.magnus_solve(Pg[start:start + N], h, scheme.order)
-        start += N
-        if strict and not corr <= COMMUTATOR_LIMIT:
-            raise _Unresolved(
-                f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
-                f"with {label} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
-            )
-        if not np.isfinite(Phi).all():
-            raise _Unresolved(
-                f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
-                f"grow beyond 1e308 within one period, h*||P|| up to {om_norm:.3g})",
-                genuine_overflow=True,
-            )
-        out.append(_Solve(N, Phi, _spectrum(Phi), log_det, None))
     return out
 
 
@@ -1525,8 +1489,6 @@ def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: 
 def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     """``max_k ||Omega_k - h Pbar_k||_1`` over the sub-intervals of ``Pg`` (shape ``(m, q, n, n)``)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        if USE_COMPILED and scheme.order in (4, 6) and Pg.shape[-1] <= SMALL_N:
-            return _compiled.magnus_solve(Pg, h, scheme.order)[2]
         return float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
                                    axis=1)))
 

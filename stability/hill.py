@@ -56,6 +56,8 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from stability.frozen import frozen_result
+
 __all__ = ["HillResult", "HillError", "hill_multipliers", "fourier_coefficients", "DEFAULT_HARMONICS",
            "RESIDUAL_LIMIT", "TAIL_LIMIT", "pair_error_estimate"]
 
@@ -80,14 +82,14 @@ DENSE_LIMIT = 3000
 #: leaves a backward error of about that change (``|Q'(lambda)| |lambda| / |Q|`` is O(1) in this scaling),
 #: ~1e2 eps; the LU solves add ~sqrt(N) eps (partial pivoting, N <= 1e5 unknowns: <= 316 eps).  ``1e3 eps``
 #: (2.2e-13) is above both.  (The former scaling, by the largest block entry, read 1e-21 .. 1e-18 on converged
-#: two-link pairs, so this limit passed pairs stopped early with errors up to 7.7e-5: review4 M5.)
+#: two-link pairs, so this limit passed pairs stopped early with errors up to 7.7e-5.)
 RESIDUAL_LIMIT = 1e3 * np.finfo(float).eps
 #: A pair whose Floquet vector keeps more than this fraction of its energy in the outer quarter of the
 #: harmonics (:attr:`HillResult.tail`) is flagged as truncated (:attr:`HillResult.truncated`).  Heuristic:
 #: to first order the relative change of the eigenvalue is of the relative amplitude of the outermost retained
 #: coefficients, ``sqrt(tail)``, and a tuning tolerance of ``1e-3 rho_d`` asks ``sqrt(tail) <= 1e-3``.  This is
 #: an indicator, NOT a bound: on damped Mathieu (q = 40, H = 10) the tail is 8.7e-7 while the multiplier is
-#: 9.4e-3 off (the coefficients decay slowly over the outer 2-3 harmonics, review4 M2).  The bound is the
+#: 9.4e-3 off (the coefficients decay slowly over the outer 2-3 harmonics).  The bound is the
 #: H vs H/2 change (:func:`pair_error_estimate`, or ``error_estimate=True``): spectral convergence makes it
 #: bound the error of ``H/2``, so over-state that of ``H``.
 TAIL_LIMIT = 1e-6
@@ -97,6 +99,7 @@ class HillError(ArithmeticError):
     """No eigenvalue found near a target (or the shifted matrix is singular)."""
 
 
+@frozen_result
 @dataclass(frozen=True)
 class HillResult:
     """Multipliers near the targets by Hill's method.

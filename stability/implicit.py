@@ -63,6 +63,7 @@ from stability.floquet import (
     _stream_chunk,
 )
 from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, MagnusScheme, magnus_exponents
+from stability.frozen import frozen_result
 from stability.periodic import PeriodicMatrixFunction
 from stability.serialization import json_ready
 
@@ -75,6 +76,7 @@ ARNOLDI_TOL = 1e-13
 _SCHEMES = {"magnus2": MAGNUS2, "magnus4": MAGNUS4, "magnus6": MAGNUS6}
 
 
+@frozen_result
 @dataclass(frozen=True)
 class ImplicitFloquetResult:
     """Dominant Floquet multipliers from Arnoldi iterations on the one-period map.

@@ -536,37 +536,64 @@ def _batched_inverse(A: np.ndarray) -> tuple:
     return inv, growth
 
 
+#: A holonomy block whose eigenvector matrix ``S`` (or that of its real logarithm) has a growth
+#: ``max|S^-1| max|S|`` above this is *defective* (a Jordan block, e.g. the free spin of a hanging
+#: 3D pendulum: a zero frozen eigenvalue pair): its ``expm(-G tau)`` is formed directly
+#: (:func:`scipy.linalg.expm` per sample) instead of through ``S diag(h^-tau) S^-1``.
+DEFECTIVE_GROWTH = 1e6
+
+
 def _block_log(H: np.ndarray) -> tuple:
     """Eigen-decompositions ``(h, S, S^-1)`` of a batch of holonomy blocks (``(m, s, s)``) with a real
-    logarithm (``log H = S diag(log h) S^-1`` real); falls back to :func:`_real_log` block by block
-    (returned as its own eigen-decomposition) where ``S`` is ill-conditioned."""
+    logarithm (``log H = S diag(log h) S^-1`` real), and ``logs``: ``{c: G_c}`` for the blocks whose
+    decomposition is ill-conditioned (:data:`DEFECTIVE_GROWTH`): their real logarithm
+    (:func:`_real_log`), exponentiated directly by :func:`_remove_holonomy` (their ``h, S, S^-1``
+    entries are placeholders ``1, I, I``).  Raises :class:`ModalBasisError` (never ``LinAlgError``)
+    when a block has no real logarithm."""
     h, S = np.linalg.eig(H)
     Sinv, growth = _batched_inverse(S)
     real = np.abs(h.imag) <= 1e-12 * np.abs(h)
     if np.any(real & (h.real <= 0)):
         raise ModalBasisError("a frozen invariant subspace has a holonomy without a real logarithm "
                               "(a real eigenvector reverses over one period)")
-    bad = np.flatnonzero(~(growth <= 1e6))
-    for c in bad:
+    logs = {}
+    eye = np.eye(H.shape[1])
+    for c in np.flatnonzero(~(growth <= DEFECTIVE_GROWTH)):
         G = _real_log(H[c])
+        if not np.all(np.isfinite(G)):
+            raise ModalBasisError("the holonomy of a frozen invariant subspace has no finite real logarithm")
         g, T = np.linalg.eig(G)
-        h[c], S[c], Sinv[c] = np.exp(g), T, np.linalg.inv(T)
-    return h, S, Sinv
+        Tinv, t_growth = _batched_inverse(T[None])
+        if t_growth[0] <= DEFECTIVE_GROWTH:
+            h[c], S[c], Sinv[c] = np.exp(g), T, Tinv[0]
+        else:
+            logs[int(c)] = G
+            h[c], S[c], Sinv[c] = 1.0, eye, eye
+    return h, S, Sinv, logs
 
 
 def _remove_holonomy(V: np.ndarray, index: dict, tau: np.ndarray) -> np.ndarray:
     """``V[:K]`` made periodic: ``V[K] = V[0] H`` (``H`` block diagonal over the clusters of
     ``index``, the holonomy of the continuation); each sample times ``expm(-G tau)``, ``G`` the
     real logarithm of ``H``'s cluster block, ``tau = t / T`` (batched through the blocks'
-    eigen-decompositions: ``expm(-G tau) = S diag(h^-tau) S^-1``)."""
+    eigen-decompositions: ``expm(-G tau) = S diag(h^-tau) S^-1``; a defective block, e.g. a Jordan
+    block, by its own :func:`scipy.linalg.expm`).  Raises :class:`ModalBasisError` when ``V[0]`` is
+    singular (no basis)."""
     K = V.shape[0] - 1
-    H = np.linalg.solve(V[0], V[K])
+    try:
+        H = np.linalg.solve(V[0], V[K])
+    except np.linalg.LinAlgError:
+        raise ModalBasisError("the frozen-modal basis at t = 0 is singular") from None
+    if not np.all(np.isfinite(H)):
+        raise ModalBasisError("the holonomy of the frozen-modal basis is not finite")
     decomp = {size: (idx, _block_log(H[idx[:, :, None], idx[:, None, :]])) for size, idx in index.items()}
     for k in range(K):
         blocks = {}
-        for size, (idx, (h, S, Sinv)) in decomp.items():
-            E = np.einsum("mij,mj,mjl->mil", S, np.exp(-tau[k] * np.log(h.astype(complex))), Sinv)
-            blocks[size] = (idx, E.real)
+        for size, (idx, (h, S, Sinv, logs)) in decomp.items():
+            E = np.einsum("mij,mj,mjl->mil", S, np.exp(-tau[k] * np.log(h.astype(complex))), Sinv).real
+            for c, G in logs.items():
+                E[c] = scipy.linalg.expm(-tau[k] * G)
+            blocks[size] = (idx, E)
         V[k] = _block_right(V[k], blocks)
     return V[:K]
 
@@ -975,8 +1002,6 @@ class CollapsedModalSystem:
         return self.frame.trace_integral()
 
 
-#: Step-count ratio between the solves of the extrapolation (``N / 4``, ``N / 2``, ``N``).
-EXTRAPOLATION_LEVELS = 3
 #: Range of ``d2 / d1`` (change of the extrapolated multiplier over two doublings / over the last
 #: one) in which the last change ``d1`` is trusted as the estimate (:func:`_extrapolated`):
 #: ``d2 = d1 + d0`` with ``d0 / d1`` = 4 (order 2) .. 32 (order 5).

@@ -25,7 +25,6 @@ __all__ = [
     "PeriodicMatrixFunction",
     "SecondOrderPeriodicSystem",
     "first_order_matrix",
-    "evaluate_periodic_matrix",
     "check_period",
 ]
 
@@ -322,8 +321,3 @@ class PeriodicMatrixFunction:
                 pass
         return np.array([self._as_real(v, "P(t)") for v in values])
 
-
-def evaluate_periodic_matrix(P: Any, times: np.ndarray, period: Optional[float] = None) -> np.ndarray:
-    """Evaluate a periodic matrix at ``times`` (shape ``(m, n, n)``), validated."""
-    wrapped = P if isinstance(P, PeriodicMatrixFunction) else PeriodicMatrixFunction(P, period)
-    return wrapped.evaluate(times)

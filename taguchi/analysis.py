@@ -6,6 +6,7 @@
   their percentage contributions, with the remainder as error;
 * :func:`best_levels` -- the level with the largest mean S/N per factor;
 * :func:`predict_sn` -- the additive-model prediction at chosen levels;
+* :func:`is_constant` -- whether an experiment's S/N ratios are all equal (nothing to analyse);
 * :func:`analyze` -- all four at once (:class:`TaguchiAnalysis`).
 
 Levels are 0-based indices everywhere (Minitab prints them 1-based).
@@ -44,6 +45,7 @@ __all__ = [
     "analyze",
     "anova",
     "best_levels",
+    "is_constant",
     "predict_sn",
     "response_table",
 ]
@@ -180,6 +182,17 @@ class TaguchiAnalysis:
     def to_dict(self) -> dict[str, Any]:
         """Plain dictionary."""
         return asdict(self)
+
+
+def is_constant(sn: npt.ArrayLike) -> bool:
+    """Whether all S/N ratios of an experiment are equal (total sum of squares 0).
+
+    Such an experiment carries no information about the factors: its main effects are all
+    zero and the percentage contributions of :func:`anova` are undefined (NaN, with a
+    ``RuntimeWarning``).  An iterative search uses this to stop instead of analysing it.
+    """
+    y = np.asarray(sn, dtype=float)
+    return bool(y.size == 0 or float(np.sum((y - np.mean(y)) ** 2)) == 0.0)
 
 
 def _default_names(n: int) -> tuple[str, ...]:

@@ -32,7 +32,30 @@ drives: ``(kp1, kd1, kp2, kd2)``, :attr:`TuningConfig.ranges`).  One
 8. **Stop** when ``|y_incumbent - rho_d| <= tolerance`` (default
    ``1e-3 rho_d``) -- status ``"converged"`` -- or when the next iteration
    would exceed ``max_evaluations`` -- status ``"budget exhausted"``, with
-   the best point reached.
+   the best point reached -- or when ``rho_d`` is out of the search's reach
+   -- status ``"target unreachable"`` (below).
+
+**Unreachable targets.** Each window is centred on a point of the one
+before and ``shrink`` times as wide, so every later run lies within the
+current window widened to ``width / (1 - shrink)`` per factor (twice the
+width for ``shrink = 0.5``).  If the responses of an experiment vary by
+``spread`` (max - min over its runs and its confirmation), a response that
+changed linearly over that reach would vary by ``spread / (1 - shrink)``.
+The tuning stops when, on :data:`UNREACHABLE_PATIENCE` consecutive
+experiments, the remaining gap ``|y_incumbent - rho_d| - tolerance``
+exceeds :data:`UNREACHABLE_SAFETY` times that linear reach: the windows
+shrink onto a point (typically a corner of the ranges) whose response does
+not come near ``rho_d``.  It stops at once when every run of an experiment
+has the same response (the windows have collapsed, or the response does
+not depend on the factors there: the experiment holds no information and
+its ANOVA contributions would be undefined, :func:`taguchi.analysis.is_constant`),
+and when every window is narrower than :data:`COLLAPSED_RTOL` of its
+initial width.  Status ``"target unreachable"`` when every run so far lay
+on one side of rho_d (the message names the factors whose best value lies
+at an end of its initial range: the ranges to widen); ``"search stalled"``
+when runs on both sides were seen -- rho_d then lies inside the ranges (the
+response is continuous in the gains), between the incumbent and the run the
+message names, and the windows shrank onto a point away from it.
 
 **Failed runs.** A run whose objective raises a numerical error
 (:data:`RUN_FAILURES`: the engines' ``FloquetError``, ``HillError``,
@@ -75,9 +98,10 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from stability.floquet import FloquetError
+from stability.frozen import frozen_result
 from stability.hill import HillError
 from stability.modal import ModalBasisError
-from taguchi.analysis import TaguchiAnalysis, analyze
+from taguchi.analysis import TaguchiAnalysis, analyze, is_constant
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_target
 
@@ -94,7 +118,12 @@ __all__ = [
     "STATUS_CONVERGED",
     "STATUS_BUDGET",
     "STATUS_FAILED",
+    "STATUS_UNREACHABLE",
+    "STATUS_STALLED",
     "RUN_FAILURES",
+    "UNREACHABLE_PATIENCE",
+    "UNREACHABLE_SAFETY",
+    "COLLAPSED_RTOL",
 ]
 
 logger = logging.getLogger(__name__)
@@ -102,6 +131,16 @@ logger = logging.getLogger(__name__)
 STATUS_CONVERGED = "converged"
 STATUS_BUDGET = "budget exhausted"
 STATUS_FAILED = "runs failed"
+STATUS_UNREACHABLE = "target unreachable"
+STATUS_STALLED = "search stalled"
+#: Consecutive experiments on which the gap to rho_d must exceed the search's linear reach before the
+#: tuning stops as unreachable (one experiment could be a badly placed window).
+UNREACHABLE_PATIENCE = 2
+#: Safety factor on the linear reach ``spread / (1 - shrink)`` (room for curvature of the response).
+UNREACHABLE_SAFETY = 2.0
+#: A window narrower than this fraction of its initial range has collapsed (its levels are a few
+#: rounding units apart: ~2**-43 after 43 halvings).
+COLLAPSED_RTOL = 1e-13
 #: Exceptions of one run that are recorded as a failed run instead of aborting :func:`taguchi_tune`:
 #: the numerical failures the engines raise.  Not the ``ArithmeticError`` base, whose built-in
 #: ``ZeroDivisionError``/``OverflowError`` are programming errors and must propagate.
@@ -423,6 +462,7 @@ class NamedGains:
         return self.gains[self.names.index(key)]
 
 
+@frozen_result(repr=False)
 @dataclass(frozen=True)
 class TaguchiResult(NamedGains):
     """Outcome of :func:`taguchi_tune`.
@@ -438,7 +478,10 @@ class TaguchiResult(NamedGains):
     target, tolerance : float
     converged : bool
     status : str
-        ``"converged"``, ``"budget exhausted"`` or ``"runs failed"`` (every run of an experiment failed).
+        ``"converged"``, ``"budget exhausted"``, ``"target unreachable"`` / ``"search stalled"`` (the
+        windows shrink onto a point whose response stays away from rho_d, with every run on one side of
+        rho_d / with runs on both sides; module docstring) or ``"runs failed"`` (every run of an
+        experiment failed).
     message : str
     evaluations : int
         Floquet evaluations used.
@@ -523,9 +566,6 @@ def recentre(centre: float, width: float, bounds: tuple[float, float]) -> tuple[
     return (lo, hi)
 
 
-_recentre = recentre  # former private name, kept for callers on other branches
-
-
 class _Guarded:
     """``point -> (response, None)``, or ``(nan, "ErrorType: message")`` when the objective raises one of
     :data:`RUN_FAILURES` (picklable if the objective is)."""
@@ -553,7 +593,7 @@ def taguchi_tune(
     config: TuningConfig = TuningConfig(),
     *,
     executor: Optional[cf.Executor] = None,
-    progress: bool = False,
+    progress: Any = False,
 ) -> TaguchiResult:
     """Tune the factors so that ``objective(gains) = max|rho|`` reaches ``config.target``.
 
@@ -566,14 +606,16 @@ def taguchi_tune(
     config : TuningConfig
     executor : concurrent.futures.Executor, optional
         Runs the array's rows; default serial in this process.
-    progress : bool
-        Show a tqdm bar over iterations.
+    progress : bool or callable
+        Show a tqdm bar over iterations, or a bar of this factory ``progress(total=, desc=, unit=)``
+        (an object with tqdm's ``update`` and ``close``).
 
     Returns
     -------
     TaguchiResult
-        Never raises for an unreachable target: the status says
-        ``"budget exhausted"`` and the best point reached is returned.
+        Never raises for an unreachable target: the status says ``"target unreachable"`` or
+        ``"search stalled"`` (the search stopped early, module docstring) or ``"budget
+        exhausted"``, and the best point reached is returned.
 
     Raises
     ------
@@ -597,12 +639,20 @@ def taguchi_tune(
     best_y = math.inf
     failed: list[dict] = []
     all_failed = False
+    stalled = 0  # consecutive experiments whose gap to rho_d exceeds the search's linear reach
+    out_of_reach: Optional[tuple[float, float]] = None  # the last experiment's response range, if stalled
+    flat_at: Optional[str] = None  # why the last experiment holds no information (flat responses, collapsed windows)
+    across: list = []  # (response, gains) of every successful run: which sides of rho_d the runs reached
 
     bar = None
     if progress:
-        from tqdm.auto import tqdm
+        bar_options = {"total": config.max_evaluations, "desc": f"Taguchi rho_d={target:g}", "unit": "eval"}
+        if callable(progress):  # a bar factory (one line per iteration on a pipe, see flexstab.progress)
+            bar = progress(**bar_options)
+        else:
+            from tqdm.auto import tqdm
 
-        bar = tqdm(total=config.max_evaluations, desc=f"Taguchi rho_d={target:g}", unit="eval", leave=False)
+            bar = tqdm(**bar_options, leave=False)
     try:
         while evaluations + n_runs + 1 <= config.max_evaluations:
             lv_values = [_levels(r, s) for r, s in zip(rngs, oa.levels)]
@@ -628,6 +678,17 @@ def taguchi_tune(
             sn_good = {i: sn_target(ys[i], target) for i in good}
             worst = min(sn_good.values())  # a failed run scores as the worst run of its experiment
             sn = np.array([sn_good.get(i, worst) for i in range(n_runs)])
+            if is_constant(sn):  # nothing to analyse: stop with the best run (module docstring)
+                evaluations += n_runs
+                failed.extend(fails)
+                if bar is not None:
+                    bar.update(n_runs)
+                for i in good:
+                    across.append((ys[i], points[i]))
+                    if abs(ys[i] - target) < abs(best_y - target):
+                        best_y, best_gains = ys[i], points[i]
+                flat_at = "every run of the last experiment gave the same response"
+                break
             result = analyze(oa, sn, factor_names=names)
             lv = result.best_levels
             conf = tuple(float(v[k]) for v, k in zip(lv_values, lv))
@@ -643,6 +704,7 @@ def taguchi_tune(
             for p, y in list(zip(points, ys)) + [(conf, y_conf)]:
                 if not math.isfinite(y):  # a failed run
                     continue
+                across.append((y, p))
                 if abs(y - target) < abs(best_y - target):
                     best_y, best_gains = y, p
             assert best_gains is not None
@@ -669,9 +731,19 @@ def taguchi_tune(
             logger.debug("iteration %d: ranges %s -> best %s rho=%.6g", len(history), rngs, best_gains, best_y)
             if abs(best_y - target) <= tol:
                 break
+            finite = [y for y in list(ys) + [y_conf] if math.isfinite(y)]
+            spread = max(finite) - min(finite)
+            reach = UNREACHABLE_SAFETY * spread / (1.0 - config.shrink)
+            stalled = stalled + 1 if abs(best_y - target) - tol > reach else 0
+            if stalled >= UNREACHABLE_PATIENCE:
+                out_of_reach = (min(finite), max(finite))
+                break
             rngs = tuple(
                 recentre(c, (r[1] - r[0]) * config.shrink, b) for c, r, b in zip(best_gains, rngs, bounds)
             )
+            if all(r[1] - r[0] <= COLLAPSED_RTOL * (b[1] - b[0]) for r, b in zip(rngs, bounds)):
+                flat_at = f"the windows collapsed to below {COLLAPSED_RTOL:.0e} of the ranges"
+                break
     finally:
         if bar is not None:
             bar.close()
@@ -682,10 +754,36 @@ def taguchi_tune(
             f"({n_runs} runs + 1 confirmation with {oa.name})"
         )
     converged = abs(best_y - target) <= tol
-    status = STATUS_CONVERGED if converged else (STATUS_FAILED if all_failed else STATUS_BUDGET)
-    at = ", ".join(f"{s} = {v:.6g}" for s, v in zip(names, best_gains))
+    unreachable = not converged and (out_of_reach is not None or flat_at is not None)
+    seen = (min(across, key=lambda pt: pt[0]), max(across, key=lambda pt: pt[0])) if across else ((best_y, best_gains),) * 2
+    status = (STATUS_CONVERGED if converged else STATUS_UNREACHABLE if unreachable
+              else STATUS_FAILED if all_failed else STATUS_BUDGET)
+    at = ", ".join(f"{s} = {v:.6g}" + _at_bound(v, b) for s, v, b in zip(names, best_gains, bounds))
     if converged:
         message = f"|max|rho| - rho_d| = {abs(best_y - target):.2e} <= {tol:.2e} after {evaluations} evaluations"
+    elif unreachable:
+        edge = [s for s, v, b in zip(names, best_gains, bounds) if _at_bound(v, b)]
+        if flat_at is not None:
+            why = flat_at
+        else:
+            why = (f"the responses of the last {UNREACHABLE_PATIENCE} experiments vary too little to close the gap "
+                   f"(last: {out_of_reach[0]:.6g} to {out_of_reach[1]:.6g})")
+        done = f"stopped after {evaluations} evaluations in {len(history)} iterations"
+        ((y_lo, p_lo), (y_hi, p_hi)) = seen
+        if y_lo < target < y_hi:  # rho_d lies inside the ranges (continuity), away from where the search shrank
+            other = min((pt for pt in across if (pt[0] - target) * (best_y - target) < 0),
+                        key=lambda pt: abs(pt[0] - target))
+            status = STATUS_STALLED
+            message = (f"the search stalled: rho_d = {target:g} lies inside the ranges (runs gave {y_lo:.4g} to "
+                       f"{y_hi:.4g}), but the windows shrank onto {at}, where max|rho| = {best_y:.6g}: {why}; {done}; "
+                       f"rho_d lies between that point and the run at "
+                       + ", ".join(f"{s} = {v:.4g}" for s, v in zip(names, other[1]))
+                       + f" (max|rho| = {other[0]:.4g}): start from ranges around both")
+        else:
+            side = "above" if y_lo >= target else "below"
+            message = (f"rho_d = {target:g} is out of reach inside the ranges: every run gave max|rho| {side} it; "
+                       f"best {best_y:.6g} at {at}; {why}; {done}"
+                       + (f"; widen the range of {', '.join(edge)}" if edge else ""))
     elif all_failed:
         message = (f"every run of experiment {len(history)} failed (see failed_runs); best max|rho| = "
                    f"{best_y:.6g} at {at}")
@@ -710,6 +808,16 @@ def taguchi_tune(
         config=config,
         failed_runs=tuple(failed),
     )
+
+
+def _at_bound(value: float, bounds: tuple[float, float]) -> str:
+    """``" (lower end)"``/``" (upper end)"`` when ``value`` sits at an end of its initial range, else ``""``."""
+    eps = 1e-9 * (bounds[1] - bounds[0])
+    if abs(value - bounds[0]) <= eps:
+        return " (lower end)"
+    if abs(value - bounds[1]) <= eps:
+        return " (upper end)"
+    return ""
 
 
 def _check_responses(ys: Sequence[float], points: Sequence[tuple[float, ...]], names: Sequence[str]) -> None:

@@ -1,4 +1,4 @@
-"""``analyze(n_steps=None)`` (adaptive) never stops on the nested extrapolation estimate alone (review4 H2).
+"""``analyze(n_steps=None)`` (adaptive) never stops on the nested extrapolation estimate alone.
 
 The extrapolated estimate of one nested step family (N, N/3, N/9) can miss an error the whole family
 shares (measured on the single link at 8-16 elements, README 'Scale'); the adaptive path therefore runs

@@ -1,4 +1,4 @@
-"""Stability charts: serial vs Dask equality, resumable sweeps, bad input (issue 5, item 4)."""
+"""Stability charts: serial vs Dask equality, resumable sweeps, bad input."""
 from __future__ import annotations
 
 import json
@@ -25,6 +25,7 @@ def test_gain_chart_points_equal_direct_floquet(tmp_path):
             assert chart.radius[i, j] == pytest.approx(ref, rel=1e-7)
 
 
+@pytest.mark.slow
 def test_chart_on_dask_cluster_equals_serial(tmp_path):
     distributed = pytest.importorskip("distributed")
     kp, kd = np.linspace(0, 40, 4), np.linspace(0, 20, 3)
@@ -54,6 +55,7 @@ def test_bad_grid(lo, hi, n):
         check_grid(lo, hi, n, "kp")
 
 
+@pytest.mark.slow
 def test_cli_chart_writes_figures(tmp_path, capsys):
     rc = cli_main(["chart", "--grid", "5", "--omega-points", "5", "--out", str(tmp_path), "--json"])
     assert rc == 0
@@ -86,8 +88,9 @@ def test_exudyn_gain_chart_points_equal_exudyn_floquet(tmp_path):
         PlantRadius(plant, 2 * math.pi)({"omega": 4 * math.pi, "kp": 1.0, "kd": 1.0})
 
 
+@pytest.mark.slow
 def test_chart_names_identify_grid_and_ranges(tmp_path, capsys):
-    """A coarse chart into the same folder must not overwrite the finer one (issue 13, item 4)."""
+    """A coarse chart into the same folder must not overwrite the finer one."""
     base = ["chart", "--omega-points", "3", "--out", str(tmp_path), "--json", "--no-taguchi"]
     assert cli_main(base + ["--grid", "4"]) == 0
     first = json.loads(capsys.readouterr().out)

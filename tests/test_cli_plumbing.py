@@ -1,4 +1,4 @@
-"""Command-line plumbing a user meets (issue 13, item 11): pipes, killed parents, Exudyn chatter, reprs."""
+"""Command-line plumbing a user meets: pipes, killed parents, Exudyn chatter, reprs."""
 from __future__ import annotations
 
 import json

@@ -1,4 +1,4 @@
-"""User configuration files (issue 5, item 5) and CLI option parsing."""
+"""User configuration files and CLI option parsing."""
 from __future__ import annotations
 
 import json
@@ -95,6 +95,7 @@ def test_cli_usage_errors_are_one_line(argv, capsys):
     assert len(err) == 1 and "error" in err[0] and "Traceback" not in err[0]
 
 
+@pytest.mark.slow
 def test_cli_non_converging_orbit_is_one_line_exit_1(tmp_path, capsys):
     """A link so soft that no periodic orbit is found: one line naming the cause, exit code 1."""
     f = tmp_path / "soft.toml"

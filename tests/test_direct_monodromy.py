@@ -1,4 +1,4 @@
-"""Direct Exudyn monodromy of a model file (validation.direct_monodromy), issue 11.
+"""Direct Exudyn monodromy of a model file (validation.direct_monodromy).
 
 Oracle: a rigid pendulum on a revolute joint (a constrained model: its node
 sits at the centre of mass, the joint holds the pivot at O), driven at its

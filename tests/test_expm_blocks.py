@@ -168,6 +168,7 @@ def _matched(a: np.ndarray, b: np.ndarray) -> float:
     return float(max(d.min(axis=1).max(), d.min(axis=0).max()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("elements", [8, 16])
 def test_single_link_multipliers_agree_with_an_independent_exponential(monkeypatch, elements):
     """8 and 16 elements, frozen-modal frame, 144 extrapolated magnus2 steps (as ``linearize.analysis``):

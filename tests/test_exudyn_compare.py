@@ -26,6 +26,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "compare_models.py"
 TABLE3_RESOLUTION = 1e-4
 
 
+@pytest.mark.slow
 def test_compare_models_fast_reduced_vs_table3_and_exudyn_vs_direct(tmp_path):
     spec = importlib.util.spec_from_file_location("compare_models", SCRIPT)
     mod = importlib.util.module_from_spec(spec)
@@ -43,7 +44,7 @@ def test_compare_models_fast_reduced_vs_table3_and_exudyn_vs_direct(tmp_path):
     # run reports as the shooting defect from the orbit state (relative to the elastic
     # deformation: ~1e-3 controlled, ~2e-2 uncontrolled at h = 1e-3, 2 elements).  The
     # linearisation route's own error is far smaller (test_linearize).  (This error bar
-    # cannot tell the rigid-reference linearisation from the true-orbit one at 2 pi: issue 10.)
+    # cannot tell the rigid-reference linearisation from the true-orbit one at 2 pi.)
     for row in (ctrl, unc):
         assert row["exudyn_orbit_mode"] == "hub"
         assert row["direct_closed_loop_defect"] < 0.05  # the integrator resolves the period

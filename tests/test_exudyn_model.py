@@ -64,7 +64,7 @@ def test_mass_matrix_is_constant_and_symmetric():
 def test_orbit_converges_and_is_periodic(orbit2):
     assert orbit2.kind == "periodic"
     assert orbit2.residual < 1e-6
-    # undeformed rigid motion is far from a solution (issue 4: prestress)
+    # undeformed rigid motion is far from a solution (prestress)
     assert rigid_reference(config=ExudynLinkConfig(elements=2), samples=16).residual > 1.0
     # spectral accuracy in the samples: 16 and 32 collocation points agree
     o32 = find_periodic_orbit(config=ExudynLinkConfig(elements=2), samples=32, verify=False)

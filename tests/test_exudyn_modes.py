@@ -63,7 +63,7 @@ PINNED_HZ = _hz(_roots(_pinned, 2))
 
 
 def test_frequency_equations_match_issue_values():
-    # issue 4: beta l = 1.71917, 4.39430 -> 17.2052 Hz, 112.409 Hz; pinned f1 ~ 77.896 Hz
+    # Euler-Bernoulli: beta l = 1.71917, 4.39430 -> 17.2052 Hz, 112.409 Hz; pinned f1 ~ 77.896 Hz
     assert _roots(_clamped, 2) == pytest.approx([1.71917, 4.39430], abs=1e-5)
     assert CLAMPED_HZ == pytest.approx([17.2052, 112.409], rel=1e-5)
     assert PINNED_HZ[0] == pytest.approx(77.896, rel=1e-5)

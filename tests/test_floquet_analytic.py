@@ -210,7 +210,7 @@ def test_constant_P_underflowing_stiff_multiplier_is_flagged():
 
 
 def test_liouville_log_form_with_underflowing_factor_determinant():
-    """Regression (fixed in 22a4b60): ln det Phi used to be accumulated from slogdet of
+    """Regression: ln det Phi used to be accumulated from slogdet of
     each factor expm(h A), which is rounding noise when exp(lambda h) < eps
     (exp(-3000/64) = 4e-21); the residual came out as ~1e301."""
     V = np.array([[1.0, 1.0], [1.0, 2.0]])

@@ -1,4 +1,4 @@
-"""Robustness of the Floquet engine (issue 13, items 5-7).
+"""Robustness of the Floquet engine.
 
 Oracles: an independent scheme (4th-order Magnus at a fixed, fine step count,
 with its own step-halving estimate), so that the adaptive default is checked
@@ -49,7 +49,7 @@ def _agree(a, b) -> bool:
     Secondary moduli are compared on the scale of the spectral radius (the scale that decides
     stability): the default's per-multiplier relative estimate is not reliable for them (found:
     1.08 m / 0.473 kg, 4 pi, kp 20.13, kd 17.65 -> the 8.9e-5 modulus off by 4.3e-8 relative,
-    3.8e-12 absolute, with an estimate of 1e-10; an open engine issue, see the closing note).
+    3.8e-12 absolute, with an estimate of 1e-10; a known limit of the per-multiplier estimate).
     """
     keep = b.moduli >= 1e-6 * b.moduli[0]
     rho = b.moduli[0]
@@ -67,7 +67,7 @@ USER_LINK = ManipulatorParameters(length=0.6, tip_mass=0.3)
 
 @pytest.mark.parametrize("kd", [15.0, 18.0, 21.0])
 def test_default_method_on_the_user_link_at_4pi(kd):
-    """Issue 13.5: 0.6 m / 0.3 kg at 4 pi, kd 15-21 overflowed the default's first step count."""
+    """0.6 m / 0.3 kg at 4 pi, kd 15-21 overflowed the default's first step count."""
     model = ReducedModel(4 * math.pi, 20.0, kd, params=USER_LINK)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)  # no overflow warnings either
@@ -99,7 +99,7 @@ def test_agreement_check_rejects_a_wrong_answer():
 @example(length=1.0, tip_mass=0.0, k=8, kp=0.0, kd=1.0)  # found in a CI run: estimate under-reads
 @example(length=1.0, tip_mass=0.0, k=8, kp=0.0, kd=35.0)  # found in a CI run: small modulus, rounding
 @example(length=1.0821418587149134, tip_mass=0.4730120584796015, k=4, kp=20.12581366318466,
-         kd=17.648661672495763)  # secondary modulus off by 4.3e-8 relative (engine issue, see _agree)
+         kd=17.648661672495763)  # secondary modulus off by 4.3e-8 relative (see _agree)
 @given(
     length=st.floats(0.4, 1.4),
     tip_mass=st.floats(0.0, 0.6),
@@ -117,7 +117,7 @@ def test_default_agrees_with_an_independent_scheme_on_random_links(length, tip_m
 
 
 def test_stiff_fast_system_fails_fast_with_high_order_magnus():
-    """Issue 13.7: a 40-state system with ||P|| ~ 4e5 1/s (like the Exudyn linearisation) and
+    """A 40-state system with ||P|| ~ 4e5 1/s (like the Exudyn linearisation) and
     magnus6: a clear error naming magnus2 instead of an endless refinement."""
     rng = np.random.default_rng(0)
     n = 40
@@ -150,7 +150,7 @@ def test_cli_one_line_errors(argv, code, pattern, capsys):
 
 
 def test_cli_table_with_null_log_moduli_and_liouville(capsys):
-    """Issue 13.6/13.7: JSON nulls (ln 0, an unavailable Liouville check) print as text, not a traceback."""
+    """JSON nulls (ln 0, an unavailable Liouville check) print as text, not a traceback."""
     from flexstab.commands.floquet import _table
 
     d = {
@@ -218,7 +218,7 @@ def test_interleaved_products_match_separate_products():
 
 
 def test_chart_grid_guard(capsys):
-    """Issue 13.7: ``chart --grid 100000`` (1e10 evaluations) is refused with one line, exit 2."""
+    """``chart --grid 100000`` (1e10 evaluations) is refused with one line, exit 2."""
     assert cli_main(["chart", "--grid", "100000"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "grid points" in err

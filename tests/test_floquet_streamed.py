@@ -267,6 +267,7 @@ def test_companions_give_fourth_order_extrapolation():
     assert e_wrong >= 0.5 * e_fine
 
 
+@pytest.mark.slow
 def test_modal_floquet_ratio_three_uses_one_set_of_exponentials():
     """modal_floquet(extrapolate=True) with N divisible by 9 extrapolates from the companions of the
     N-step solve (no N/2, N/4 solves), and its undivided estimate bounds the true error."""

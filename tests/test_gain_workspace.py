@@ -1,4 +1,4 @@
-"""The gain-parametrised Floquet workspace (issue 12.2) against systems built with the gains inside.
+"""The gain-parametrised Floquet workspace against systems built with the gains inside.
 
 Oracle: the same second-order system written with ``K + kp e e^T`` and
 ``C + kd e e^T`` directly (an independent construction of ``P``), evaluated by

@@ -156,7 +156,7 @@ def _damped_mathieu(q: float, N: int = 64, c: float = 0.1):
 
 
 def test_tail_indicator_misses_where_the_pair_estimate_bounds():
-    """review4 M2: at q = 40, H = 10 the tail (8.7e-7) is below TAIL_LIMIT, yet the multiplier is 9.4e-3 off
+    """At q = 40, H = 10 the tail (8.7e-7) is below TAIL_LIMIT, yet the multiplier is 9.4e-3 off
     (oracle: exp(-c pi / 2) on the a_2(q) curve, scipy.special.mathieu_a).  The per-pair H vs H/2 estimate is the
     bound: it is >= the true error there (flagged against a 1e-3 tolerance), and where it passes (q = 10, H = 14)
     the true error is below it (the double multiplier is split by rounding to ~1e-7, the floor of err)."""

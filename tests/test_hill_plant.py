@@ -30,6 +30,7 @@ def arm():
     return orbit, linearize_orbit(orbit, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_hill_response_matches_streamed_magnus2(arm):
     orbit, lin = arm
     g = GAINS
@@ -75,7 +76,7 @@ def test_objective_pickles_and_checks_input(arm):
         obj((1.0, 2.0, 3.0))
 
 
-# --- review S2 / S9: the L9 corners with kd2 = 0, far landings, truncation, quiet fallbacks -----------------
+# --- the L9 corners with kd2 = 0, far landings, truncation, quiet fallbacks -----------------
 
 def _kd2_zero_runs():
     """The runs of the first L9 experiment of ``flexstab.two_link.TUNING_RANGES`` with kd2 = 0 (level 1)."""
@@ -107,8 +108,9 @@ def _modal_reference(lin, g, near, *, by_modulus=False):
     return ref, 4.0 / 3.0 * abs(abs(ref) - abs(out[0][1])), float(np.min(np.abs(others - abs(ref))))
 
 
+@pytest.mark.slow
 def test_kd2_zero_corners_of_the_first_l9_experiment(arm):
-    """S2.1: ``measure`` at the three kd2 = 0 runs (it raised ArithmeticError there before 515b7e5) against the
+    """``measure`` at the three kd2 = 0 runs against the
     frozen-modal magnus2 product.  Tolerance: the reference's bound plus Hill's H vs H/2 estimate (derived in
     ``_modal_reference``); it is far below the gap to any other multiplier and below the labelling pass's miss."""
     orbit, lin = arm
@@ -126,8 +128,9 @@ def test_kd2_zero_corners_of_the_first_l9_experiment(arm):
         assert abs(abs(m.estimate) - abs(ref)) > 10 * tol  # so would the unrefined magnus2 estimate
 
 
+@pytest.mark.slow
 def test_far_landing_outside_the_magnus2_spectrum_is_rejected(arm, monkeypatch):
-    """S2.3: a Hill refinement that lands on a main mode from afar is accepted only if a magnus2 multiplier lies
+    """A Hill refinement that lands on a main mode from afar is accepted only if a magnus2 multiplier lies
     within MATCH_TOLERANCE of it.  Constructed: Hill is made to return a spurious value (labelled ``elbow`` through
     the genuine Floquet vector, larger than the true response, in no magnus2 spectrum) for every candidate whose
     real refinement lands far from its estimate.  The former rule took the largest Hill-labelled value -- the
@@ -175,8 +178,9 @@ def test_far_landing_outside_the_magnus2_spectrum_is_rejected(arm, monkeypatch):
     assert any("frozen-modal" in r.getMessage() for r in records)
 
 
+@pytest.mark.slow
 def test_near_miss_landing_is_rejected(arm, monkeypatch):
-    """review4 M3: a refinement that lands from afar 1.2x above its candidate's own magnus2 estimate (labelled
+    """A refinement that lands from afar 1.2x above its candidate's own magnus2 estimate (labelled
     ``elbow`` through the genuine Floquet vector) is within the former MATCH_TOLERANCE (log 1.2 = 0.18 < 0.25) of a
     magnus2 multiplier, and the former rule returned it as an 88x too large, *confirmed* Hill response.  Matched
     against the nearest magnus2 multiplier at N and 2N steps to the product's own accuracy, it is rejected: the
@@ -232,7 +236,7 @@ def caplog_at_warning():
 
 
 def test_truncated_hill_is_flagged_and_replaced(arm):
-    """S9 / review4 M2: with too few harmonics (H = 4) Hill's multiplier at (40, 10, 5, 0) is off by more than
+    """With too few harmonics (H = 4) Hill's multiplier at (40, 10, 5, 0) is off by more than
     the run budget (1e-3 / 4 relative) and its Floquet vector keeps 1.1e-3 of its energy in the outer harmonics
     (> TAIL_LIMIT).  The run does not return it: it doubles the harmonics until the response's own
     H vs H/2 estimate meets the run budget, and the value agrees with H = 16 within that budget plus H = 16's
@@ -260,9 +264,10 @@ def test_truncated_hill_is_flagged_and_replaced(arm):
     assert abs(h4.multipliers[0] - good.dominant) > plant.budget(abs(good.dominant))
 
 
+@pytest.mark.slow
 def test_modal_fallback_meets_the_budget_or_fails_the_run(arm, monkeypatch):
-    """review4 H3: at (5, 1, 3, 0.5) the frozen-modal fallback at its former fixed 64 steps carries an error
-    estimate above the run budget (tolerance 3e-4 / 4; at review time its value was also 1.3e-3 off Hill at
+    """At (5, 1, 3, 0.5) the frozen-modal fallback at its former fixed 64 steps carries an error
+    estimate above the run budget (tolerance 3e-4 / 4; its value was also 1.3e-3 off Hill at
     H = 48, the oracle).  Now it refines its steps until its step-doubling estimate meets the budget -- and is then
     within the budget of the oracle -- and when the steps are capped below that it raises HillError (a failed
     tuning run) instead of returning an uncertified value."""
@@ -286,7 +291,7 @@ def test_modal_fallback_meets_the_budget_or_fails_the_run(arm, monkeypatch):
 
 
 def test_early_stopped_pair_is_flagged_on_the_arm(arm, monkeypatch):
-    """review4 M5: on the two-link arm (gains GAINS, H = 16, the 8 largest magnus2 targets) converged pairs read
+    """On the two-link arm (gains GAINS, H = 16, the 8 largest magnus2 targets) converged pairs read
     ~eps in the residual's scaling, and pairs whose inverse iteration is stopped at a 1e-3 change are flagged
     ``unconverged`` whenever they are off by more than 1e-6 (errors against the converged run; the former scaling
     passed a pair off by 7.7e-5)."""
@@ -307,7 +312,7 @@ def test_early_stopped_pair_is_flagged_on_the_arm(arm, monkeypatch):
 
 
 def test_harmonics_not_converged_warns(arm):
-    """S9: no candidate meets the tolerance -> RuntimeWarning and ``converged=False`` (it returned the last one
+    """No candidate meets the tolerance -> RuntimeWarning and ``converged=False`` (it returned the last one
     silently).  A tolerance below Hill's round-off cannot be met; a usual one is met at a modest count."""
     from linearize.hill_plant import select_harmonics
 
@@ -322,7 +327,7 @@ def test_harmonics_not_converged_warns(arm):
 
 
 def test_no_candidate_returns_the_labelled_unrefined_value(arm, monkeypatch):
-    """S9: with nothing to refine (constructed: a rounding floor above every multiplier) the measure says so --
+    """With nothing to refine (constructed: a rounding floor above every multiplier) the measure says so --
     ``method="magnus2-unrefined"``, not confirmed, a warning -- instead of returning it as Hill's value."""
     import linearize.hill_plant as hp
 
@@ -334,7 +339,7 @@ def test_no_candidate_returns_the_labelled_unrefined_value(arm, monkeypatch):
 
 
 def test_pair_above_the_residual_limit_is_not_used(arm, monkeypatch):
-    """S9: a Hill pair whose backward error exceeds RESIDUAL_LIMIT is not an eigenpair of the truncated problem and
+    """A Hill pair whose backward error exceeds RESIDUAL_LIMIT is not an eigenpair of the truncated problem and
     is not used (it was ignored before).  Constructed: every pair reported with residual 1e-10; the measure falls
     back to the frozen-modal product, whose value agrees with the genuine Hill value within the modal estimate."""
     import dataclasses
@@ -359,8 +364,8 @@ def test_pair_above_the_residual_limit_is_not_used(arm, monkeypatch):
 
 
 def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
-    """S2: a HillError (no eigenvalue near a candidate, singular shift) no longer ends the evaluation -- before
-    515b7e5 a raise in ``measure`` aborted the whole tuning.  The frozen-modal value is returned instead, and it
+    """A HillError (no eigenvalue near a candidate, singular shift) does not end the evaluation.  The
+    frozen-modal value is returned instead, and it
     agrees with Hill's (unpatched) within the two estimates."""
     import stability.hill as hill_mod
 
@@ -384,8 +389,9 @@ def test_hill_error_falls_back_to_the_modal_product(arm, monkeypatch):
     assert plant.fallback_runs[0]["error_estimate"] <= plant.budget(y)
 
 
+@pytest.mark.slow
 def test_gain_slices_hill_layout_against_the_modal_product(arm):
-    """``flexstab.two_link.gain_slices_hill`` (review S8: untested): rows are kd, columns kp, the other drive at
+    """``flexstab.two_link.gain_slices_hill``: rows are kd, columns kp, the other drive at
     ``fixed``.  Two off-diagonal entries (a transposed or swapped slice would put another gain point there) against
     the frozen-modal magnus2 product at the gains they claim (bound of ``_modal_reference`` + 1e-3 relative for
     Hill at 8 harmonics, below the 1e-6 tail limit: sqrt(TAIL_LIMIT), stability.hill)."""

@@ -1,4 +1,4 @@
-"""Input validation and output contracts found by an adversarial review (API and CLI)."""
+"""Input validation and output contracts of the API and the CLI."""
 from __future__ import annotations
 
 import json
@@ -104,7 +104,7 @@ def test_fine_mesh_clamped_beam_keeps_its_first_mode(capsys):
     assert cli_main(["modes", "--elements", "260", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert d["rigid_modes"] == 0
-    # 17.2052045 Hz: Euler-Bernoulli with tip mass (beta l = 1.71917, issue 4; test_exudyn_modes solves the
+    # 17.2052045 Hz: Euler-Bernoulli with tip mass (beta l = 1.71917; test_exudyn_modes solves the
     # frequency equation).  The mesh error is O(h^4) ~ 1e-11 here, so rounding dominates: eigh on (K, M)
     # is backward stable, |d lambda_1| <~ eps lambda_max, and lambda_max / lambda_1 <= 1e13 (docstring):
     # rel. frequency error <= eps 1e13 / 2 = 1.1e-3 (measured 3.5e-6; the next mode, 112 Hz, is far outside)

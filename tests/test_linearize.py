@@ -86,6 +86,7 @@ def _hub_multiplier(lin, floquet_result):
     return next(complex(mu) for mu, m in zip(floquet_result.multipliers, modes) if m["mode"] == "hub")
 
 
+@pytest.mark.slow
 def test_table3_exudyn_agrees_with_reduced_model_and_direct_exudyn_monodromy():
     """Omega = 2 pi, Table 3 gains.
 
@@ -137,8 +138,9 @@ def test_propagator_step_convergence_and_lead_engine(orbit2):
     assert abs(_hub_multiplier(lin, ref)) == pytest.approx(dom[2], rel=1e-4)
 
 
+@pytest.mark.slow
 def test_mesh_independence_8_vs_16_elements():
-    """Issue 4 acceptance: 8 and 16 elements agree to 0.5 % on the dominant multiplier."""
+    """8 and 16 elements agree to 0.5 % on the dominant multiplier."""
     r8 = exudyn_floquet(kp=KP, kd=KD, elements=8, samples=16, n_steps=64, verify_orbit=False)
     r16 = exudyn_floquet(kp=KP, kd=KD, elements=16, samples=16, n_steps=64, verify_orbit=False)
     assert r16.dominant_mode == r8.dominant_mode == "hub"

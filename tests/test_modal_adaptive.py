@@ -18,6 +18,7 @@ import pytest
 from test_floquet_streamed import _known_system, _multiplier_error
 
 
+@pytest.mark.slow
 def test_adaptive_meets_rtol_and_bounds_the_true_error():
     from stability import floquet
     from stability.modal import ADAPTIVE_START_STEPS, modal_floquet
@@ -50,6 +51,7 @@ def test_adaptive_small_system_ratio_two():
     assert _multiplier_error(res.multipliers, exact) <= res.error_estimate
 
 
+@pytest.mark.slow
 def test_adaptive_unreachable_rtol_is_one_clear_error():
     from stability import FloquetError
     from stability.modal import modal_floquet

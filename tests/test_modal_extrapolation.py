@@ -17,6 +17,7 @@ from test_floquet_streamed import _known_system, _multiplier_error
 
 # 64 and 128: in the asymptotic range (below 64 the coarse levels N/4, N/8 are not, and the
 # estimate over-reads by far: 0.9 at 16 steps for an error 3e-4; bounded, but no test of sharpness)
+@pytest.mark.slow
 @pytest.mark.parametrize("n_steps", [64, 128])
 def test_ratio_two_estimate_bounds_the_true_error(n_steps):
     from stability import floquet

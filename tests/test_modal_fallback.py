@@ -1,6 +1,6 @@
 """The fallback of :func:`stability.modal.modal_floquet` when no frozen-modal basis exists.
 
-System (review S7): a slow 1-DOF mode whose damping crosses critical within the period,
+System: a slow 1-DOF mode whose damping crosses critical within the period,
 ``x'' + c(t) x' + x = 0`` with ``c(t) = 2 + 1.8 sin 2 pi t`` (critical at ``c = 2``: the frozen
 eigenvalue pair turns real and back), beside a stiff constant mode ``y'' + y' + 1e4 y = 0``, ``T = 1``.
 
@@ -85,7 +85,7 @@ def test_modal_frame_is_recorded():
 
 
 def test_one_frame_retry_keeps_the_smaller_estimate_only_when_both_agree():
-    """``analyze``'s choice between one and two frozen-modal frames (review S6.6).  Picking the smaller
+    """``analyze``'s choice between one and two frozen-modal frames.  Picking the smaller
     estimate unconditionally would keep 0.5 +- 1e-9 below although the other frame reads 0.5 + 1e-6:
     rejected; the larger-estimate result is kept with its estimate raised to the 2e-6 disagreement."""
     from linearize.analysis import _pick_frame

@@ -43,7 +43,7 @@ def _nearest(multipliers, mu):
 
 def test_default_analyze_dominant_equals_hand_route(case):
     """Default settings (frozen-modal frame, 128 midpoint steps, Richardson-extrapolated): hub multiplier =
-    hand route to 1e-6 (issue 9).  The estimate claims to bound the *propagator* error, so it is checked
+    hand route to 1e-6.  The estimate claims to bound the *propagator* error, so it is checked
     against the same linearisation propagated to convergence (2048 steps extrapolated: 4th order, its own
     error ~(128/2048)^4 = 1.5e-5 of the 128-step one), not against the hand route, whose distance also
     holds the two linearisations' disagreement (measured 6e-9 here; propagator error 3e-9, estimate 4.5e-8)."""

@@ -43,6 +43,7 @@ def chart(tmp_path, capsys, *argv) -> dict:
     return json.loads(out.out)
 
 
+@pytest.mark.slow
 def test_omega_chart_of_a_driveless_model_is_the_damped_mathieu_chart(tmp_path, capsys):
     """Support-driven pendulum near its first parametric resonance (2 w0 ~ 10.7 rad/s)."""
     argv = ["--model", PENDULUM, "--omega", "10.7", "--omega-range", "10", "11.5", "--omega-points", "4"]
@@ -61,6 +62,7 @@ def test_omega_chart_of_a_driveless_model_is_the_damped_mathieu_chart(tmp_path, 
     assert np.max(np.abs(r_n - still) - tol) > 1e-3
 
 
+@pytest.mark.slow
 def test_gain_chart_of_one_drive_with_the_other_fixed(tmp_path, capsys):
     """Double pendulum: (kp, kd) of the elbow varied, the shoulder at kp = 5, kd = 0.5."""
     argv = ["--model", DOUBLE, "--drive", "elbow", "--kp", "5,0", "--kd", "0.5,0", "--grid", "3",

@@ -34,6 +34,7 @@ def study(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_uncontrolled_multipliers_equal_the_hand_linearisation(study):
     doc = json.loads((study / "floquet.json").read_text())
     assert doc["orbit_residual"] <= 1e-6 and doc["drives"] == ["shoulder", "elbow"]
@@ -50,6 +51,7 @@ def test_uncontrolled_multipliers_equal_the_hand_linearisation(study):
     assert float(rows[0]["modulus"]) == pytest.approx(abs(mu[0]), rel=1e-15)
 
 
+@pytest.mark.slow
 def test_tuned_gains_reach_the_target_in_the_independent_check(study):
     doc = json.loads((study / "tuning.json").read_text())
     kp, kd, target, tol = doc["kp"], doc["kd"], doc["target"], doc["tolerance"]
@@ -61,6 +63,7 @@ def test_tuned_gains_reach_the_target_in_the_independent_check(study):
     assert abs(dominant(double_pendulum_multipliers(OMEGA, kp[::-1], kd[::-1])) - target) > 10 * bound
 
 
+@pytest.mark.slow
 def test_report_charts_and_validation(study):
     md = (study / "report.md").read_text()
     for title in ("Periodic orbit and uncontrolled multipliers", "PD gains by Taguchi tuning", "Stability charts",
@@ -113,6 +116,7 @@ def test_inverted_gain_range_in_the_config_is_one_line(tmp_path, capsys):
     assert len(err.splitlines()) == 1 and "kp_range" in err, err
 
 
+@pytest.mark.slow
 def test_tuning_whose_check_fails_is_check_failed_exit_1(tmp_path, monkeypatch, capsys):
     """Gain ranges [0, 1e-3] cannot move the rigid pendulum's multipliers (|rho| ~ 1) to rho_d = 0.3: the
     tuning stage computes, but its check fails (not converged; the separate evaluation ~0.7 from rho_d).

@@ -97,7 +97,7 @@ def test_check_rejects_a_wrong_jacobian(monkeypatch, defect):
 
 @pytest.mark.parametrize("row", ["hub", "softest"])
 def test_check_rejects_a_small_defect_in_a_soft_row(monkeypatch, row):
-    """A wrong entry far below the largest stiffness (review4 M1): 1e-3 N/m, the level that
+    """A wrong entry far below the largest stiffness: 1e-3 N/m, the level that
     RICHARDSON_STEP's derivation calls significant, in a row whose true stiffness is zero
     (the hub's rows); and 1e-6 of the row in the softest nonzero row (100x the row-wise
     tolerance).  Both are below the former global threshold (1e-8 x max|K| = 3 N/m at 4
@@ -159,7 +159,7 @@ def _pattern_without(pattern, i, j):
 
 
 def test_pattern_missing_one_weak_coupling_is_rejected():
-    """A pattern missing one weak coupling (review4 M1): the weakest off-diagonal entry that is
+    """A pattern missing one weak coupling: the weakest off-diagonal entry that is
     still >= 1e-4 of its own row (not the row's largest).  Its difference contributes
     ~|K_ij h_j| to row i, below a tenth of 1e-6 of the largest row's |K| |e| (the former
     global normalisation, asserted: it accepted this), but >= ~1e-4 of row i, 100 x the

@@ -3,7 +3,7 @@
 Oracle: Table 1 of the reference paper (Dat, Khang, Hoang, Quyen, "Stability
 Control of Dynamical Systems Described by Linear Differential Equations with
 Time-Periodic Coefficients", proceedings p. 489), transcribed by hand below,
-and the validation rules stated in issue 2 (non-positive length/area/density/
+and the package's validation rules (non-positive length/area/density/
 stiffness/inertia, negative tip mass/damping/gravity, NaN, inf, non-numbers
 -> ``ValueError`` naming the field).
 """

@@ -48,6 +48,7 @@ def _stub_study_tail(monkeypatch):
     monkeypatch.setattr(vm, "validate_model_multipliers", stub)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["two-link", "single-link"])
 def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatch, capsys):
     import flexstab.model_study as ms
@@ -81,7 +82,7 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
     assert c["response_method"] == s["response_method"]
     assert c["omega_chart"]["omega"][0] == w
     assert c["omega_chart"]["spectral_radius_controlled"][0] == pytest.approx(t["spectral_radius"], rel=REL, abs=0)
-    # the discretisation choice is recorded alike (review4 L2/L3): the step choice at the range centre for a
+    # the discretisation choice is recorded alike: the step choice at the range centre for a
     # time-stepping plant; for Hill the chart's stable propagator_* fields hold the labelling steps and the
     # absolute H vs H/2 estimate, beside tune's names (label_steps, relative hill_error_estimate)
     if model == "two-link":
@@ -106,7 +107,7 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
 
 def test_hill_plant_caches_are_lru_functions_shared_by_copies_and_pickles():
     """The labelling workspace and the frozen modes are cached per process by ``functools.lru_cache`` on the
-    plant's token (no module-level dict, review S13): a pickled copy (what a process pool unpickles per task)
+    plant's token (no module-level dict): a pickled copy (what a process pool unpickles per task)
     and a ``replace`` copy reuse them -- cache hits, no new build -- while another plant of the same arm builds
     its own.  Rejects a cache that pickled copies miss (a workspace rebuilt per task) or that two plants share."""
     import pickle

@@ -1,4 +1,4 @@
-"""The prepared Exudyn tuning plant (issue 12.2) equals the plant it prepares.
+"""The prepared Exudyn tuning plant equals the plant it prepares.
 
 Oracle: :class:`ExudynPlant` builds each gain pair's system by writing the gains
 into the sampled ``K, C`` and interpolating (an independent path to ``P(t)``);

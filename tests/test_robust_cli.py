@@ -1,4 +1,4 @@
-"""``[robust]`` config section and ``flexstab tune --robust`` (issue 11).
+"""``[robust]`` config section and ``flexstab tune --robust``.
 
 The mechanism is tested model-free in test_taguchi_robust.py; here the
 reduced model's noise mapping is checked against the model built by hand, and
@@ -98,7 +98,7 @@ def test_cli_tune_robust_rejects_exudyn(capsys):
 
 
 def test_tune_robust_output_carries_the_failed_runs(monkeypatch, capsys):
-    """Review4 M4: a ``FloquetError`` of one (inner, outer) run used to abort ``tune --robust``; now the run
+    """A ``FloquetError`` of one (inner, outer) run used to abort ``tune --robust``; now the run
     is in the JSON (``robust.failed_runs``) and the text output names it.  Model-free plant (a bowl in the
     gains, shifted by the noise) so the whole chain runs in well under a second."""
     import argparse

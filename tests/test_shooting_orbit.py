@@ -1,4 +1,4 @@
-"""Shooting orbit in Exudyn (validation.shooting_orbit), issue 11.
+"""Shooting orbit in Exudyn (validation.shooting_orbit).
 
 Oracle: a base-excited spring-damper oscillator, written as a model file: node A
 is the driven coordinate (x_A = a sin(Omega t)), mass B hangs on it by a spring k

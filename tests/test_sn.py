@@ -82,7 +82,7 @@ def test_nominal_the_best_type2_worked_example():
 def test_target_form_single_deterministic_run():
     # paper Eq. 34: y = max|rho| = 0.31, rho_d = 0.3: loss = 0.01^2 = 1e-4, eta = 40 dB
     assert sn_target(0.31, 0.3) == pytest.approx(40.0, rel=1e-9)
-    # Table 3 check in the issue: 0.29999 against 0.3 -> loss 1e-10 -> 100 dB
+    # Table 3 check: 0.29999 against 0.3 -> loss 1e-10 -> 100 dB
     assert sn_target(0.29999, 0.3) == pytest.approx(100.0, rel=1e-6)
     # y = 0.5, target 0.3: loss 0.04, eta = -10 log10 0.04 = 13.9794 dB
     assert sn_target(0.5, 0.3) == pytest.approx(13.979400, abs=1e-6)

@@ -1,4 +1,4 @@
-"""The one-command study: report tables, paper claims, runs and resuming (issues 5 and 13)."""
+"""The one-command study: report tables, paper claims, runs and resuming."""
 from __future__ import annotations
 
 import json
@@ -18,7 +18,7 @@ from mbs_models.parameters import ManipulatorParameters
 
 from _model_bounds import model_difference_bound  # tests/ helper
 
-#: A user's own link (issue 13, item 2): not the paper's, so no printed value applies to it.
+#: A user's own link: not the paper's, so no printed value applies to it.
 USER_LINK = ManipulatorParameters(length=0.6, tip_mass=0.3)
 
 
@@ -124,6 +124,7 @@ def test_table_checks_reject_a_split_heading():
         check_html_tables(bad_html)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["study", "user_study"])
 def test_every_table_row_has_as_many_cells_as_headings(which, request):
     res = request.getfixturevalue(which)
@@ -307,6 +308,7 @@ def test_percent_has_no_negative_zero():
 
 
 # ----------------------------------------------------------------------------- one Omega per study
+@pytest.mark.slow
 def test_study_omega_is_used_by_every_stage(tmp_path):
     """[study] omega = 4pi for a user's link: every table row is at 4pi, none at the paper's other Omegas."""
     cfg = StudyConfig(manipulator=USER_LINK, omega=4 * math.pi)

@@ -140,7 +140,7 @@ def test_magnus6_vs_paper_procedure_table2(paper_procedure_8pi):
 
 
 def test_complex_multipliers_vs_paper_procedure_table2(paper_procedure_8pi):
-    """Regression (fixed in 22a4b60): the Richardson estimate used to watch only the
+    """Regression: the Richardson estimate used to watch only the
     moduli; at Omega = 8pi it stopped at N = 64 with the moduli right to 1e-10 but the
     phase of the complex pair off by 6e-5 (error_estimate ~1e-11), and nothing said so.
 

@@ -1,4 +1,4 @@
-"""Taguchi tuning over any number of gains (issue 11), model-free.
+"""Taguchi tuning over any number of gains, model-free.
 
 Oracles: objectives with a known solution written here (a separable quadratic
 whose only point at the target is a chosen interior point), the array sizes of

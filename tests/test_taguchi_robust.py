@@ -1,4 +1,4 @@
-"""Robust design (crossed inner x outer arrays), model-free (issue 11).
+"""Robust design (crossed inner x outer arrays), model-free.
 
 Oracle: an objective whose robust optimum is known in closed form,
 
@@ -101,7 +101,7 @@ def test_budget_smaller_than_one_crossed_experiment():
         robust_tune(objective, cfg)
 
 
-# --- failed runs (review4 M4): the contract of taguchi_tune, for the crossed arrays -----------------
+# --- failed runs: the contract of taguchi_tune, for the crossed arrays -----------------
 
 def _failing(fail):
     """``objective`` raising ``FloquetError`` where ``fail(g, n)``."""
@@ -117,7 +117,7 @@ def _failing(fail):
 
 def test_failed_crossed_runs_are_recorded_and_the_robust_tuning_goes_on():
     """A ``FloquetError`` at g2 = 0 for the outer runs with z1 = 1 (3 inner rows x 3 outer runs of the
-    first experiment) used to abort ``robust_tune`` (review4 M4)."""
+    first experiment) used to abort ``robust_tune``."""
     import io
     import json
 

@@ -160,6 +160,7 @@ def test_controlled_growth_matches_floquet_multiplier():
     np.testing.assert_allclose(xs[3], rho1.real * xs[2], rtol=1e-3, atol=1e-6 * np.max(np.abs(xs[2])))
 
 
+@pytest.mark.slow
 def test_script_quick_writes_figures_and_json(tmp_path):
     script = _load_script()
     assert script.main(["--quick", "--out", str(tmp_path)]) == 0
@@ -188,8 +189,9 @@ def test_script_quick_writes_figures_and_json(tmp_path):
         assert case["spectral_radius"] == pytest.approx(case["printed_spectral_radius"], rel=1e-3)
 
 
+@pytest.mark.slow
 def test_caption_matches_the_plotted_periods_and_quotes_no_rounding_noise():
-    """Issue 13, item 10: captions name plotted vs integrated periods; rho2 below the floor is a bound."""
+    """Captions name plotted vs integrated periods; rho2 below the floor is a bound."""
     from flexstab.transients import QUICK, _caption, paper_case_pair, run_case
 
     unc, ctl = paper_case_pair(2)

@@ -1,4 +1,4 @@
-"""``flexstab tune --model two-link``: the Hill path and ``--robust`` end to end (review S8/S9), 1 element per link.
+"""``flexstab tune --model two-link``: the Hill path and ``--robust`` end to end, 1 element per link.
 
 Oracles: the independent re-check that ``tune`` itself runs at the tuned gains (the streamed
 exponential-midpoint product, no Hill code) and, for ``--robust``, the frozen-modal magnus2 product
@@ -22,6 +22,7 @@ def _run(capsys, argv):
     return rc, json.loads(out), err
 
 
+@pytest.mark.slow
 def test_tune_two_link_hill_path(monkeypatch, capsys):
     """One L9 experiment with Hill's response; the harmonics cannot meet an impossible tolerance (1e-14 / 20,
     below Hill's round-off), which must warn and show as ``harmonics_converged: false`` in the JSON."""
@@ -67,7 +68,7 @@ class _Falling:
 
 @pytest.mark.parametrize("pool", [False, True])
 def test_fallback_records_come_back_from_workers(pool):
-    """review4 H3: a run's fallback record is made in the worker's copy of the plant; tune's executor wrapper
+    """A run's fallback record is made in the worker's copy of the plant; tune's executor wrapper
     returns it with the value (once each, also in-process), and the values are unchanged."""
     import concurrent.futures as cf
     import multiprocessing

@@ -128,7 +128,9 @@ def test_one_drive_model_file_keeps_kp_kd(tmp_path, capsys):
                    "--kd-range", "0", "5", "--json"])
     d = json.loads(capsys.readouterr().out)
     assert rc == 0 and d["converged"] and d["drives"] == ["joint"] and d["names"] == ["kp", "kd"]
-    assert isinstance(d["kp"], float) and isinstance(d["kd"], float)
+    # the JSON typing rule: one value per drive, a list also for one drive (as floquet --json)
+    assert isinstance(d["kp"], list) and isinstance(d["kd"], list) and len(d["kp"]) == len(d["kd"]) == 1
+    d["kp"], d["kd"] = d["kp"][0], d["kd"][0]
 
     def rho(kp, kd):
         J = 0.1 + 1.0 * 0.5**2  # inertia about the pivot (COM 0.5 m away)
@@ -171,7 +173,7 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
 
 
 def test_propagator_choice_at_the_cap_warns_and_records_the_estimate_reached():
-    """Review4 L3: at MAX_TUNING_STEPS the doubling stopped silently and returned a count whose estimate never
+    """At MAX_TUNING_STEPS the doubling stopped silently and returned a count whose estimate never
     met tolerance / 4.  Second-order fake r_n = r + c / n^2: the last pair compared is (2048, 4096), whose
     4/3 |r_2048 - r_4096| = 4/3 * c * 3/4 / 2048^2 = c / 2048^2 exactly (the fake's own closed form)."""
     from dataclasses import dataclass
@@ -338,7 +340,7 @@ def test_check_failure_names_the_recheck_method():
 
 
 def test_tune_records_a_step_choice_stopped_at_the_cap(monkeypatch, capsys):
-    """Review4 L3: ``tune --model`` carries the range-centre step choice (``propagator_choice``) and says when
+    """``tune --model`` carries the range-centre step choice (``propagator_choice``) and says when
     MAX_TUNING_STEPS stopped it short.  Fake r_n = exact + c / n^2 with c = 320: the last pair at the cap,
     (2048, 4096), estimates 4/3 |r_2048 - r_4096| = c / 2048^2 = 7.63e-5 > tol / 4 = 7.5e-5 (not met); at the
     tuned gains 4096 steps pass the check (c / 4096^2 = 1.9e-5), so the tuning itself succeeds."""

@@ -1,4 +1,4 @@
-"""Iterative Taguchi tuning of the PD gains (issue 3; paper Sec. 4, Table 3, Eq. 34)."""
+"""Iterative Taguchi tuning of the PD gains (paper Sec. 4, Table 3, Eq. 34)."""
 from __future__ import annotations
 
 import json
@@ -95,6 +95,7 @@ def test_direct_optimiser_reaches_target():
     assert abs(check.spectral_radius - 0.4) <= 4e-4 * 1.001
 
 
+@pytest.mark.slow
 def test_dask_cluster_gives_the_serial_result():
     distributed = pytest.importorskip("distributed")
     from flexstab.executor import make_executor

@@ -1,4 +1,4 @@
-"""A run whose Floquet evaluation fails must not abort a Taguchi tuning (review S2.2).
+"""A run whose Floquet evaluation fails must not abort a Taguchi tuning.
 
 Model-free: a known-optimum bowl (the oracle of test_taguchi_multi.py) that raises
 ``FloquetError`` / ``HillError`` at chosen gain points, on the four-factor ranges of the
@@ -143,7 +143,7 @@ class FailAt:
 
 
 def test_a_failed_confirmation_run_is_recorded_and_the_tuning_goes_on():
-    """Review4 H1: the confirmation run failing (call n_runs + 1 = 10 with L9) used to end the tuning
+    """The confirmation run failing (call n_runs + 1 = 10 with L9) used to end the tuning
     with ``ValueError: sn_target: observations must be finite``."""
     cfg = TuningConfig(target=RHO_D, ranges=RANGES, max_evaluations=400)
     res = taguchi_tune(FailAt(10), cfg)  # serial: call 10 is the first experiment's confirmation
@@ -164,7 +164,7 @@ def test_a_failed_confirmation_run_is_recorded_and_the_tuning_goes_on():
 
 @pytest.mark.parametrize("error", [ZeroDivisionError, OverflowError])
 def test_a_programming_error_in_the_objective_propagates(error):
-    """Review4 L1: ``RUN_FAILURES`` caught the ``ArithmeticError`` base, so a ``ZeroDivisionError`` bug
+    """``RUN_FAILURES`` caught the ``ArithmeticError`` base, so a ``ZeroDivisionError`` bug
     became a "failed run" and the tuning reported ``converged``."""
 
     def obj(g):

@@ -1,4 +1,4 @@
-"""The two-link model file through the generic path (orbit, linearisation, labelled Floquet), issue 11.
+"""The two-link model file through the generic path (orbit, linearisation, labelled Floquet).
 
 Oracle: a rigid two-link arm written here by hand (Lagrange's equations of
 the same masses, inertias, gravity, joint damping and PD gains, linearised by
@@ -90,6 +90,7 @@ def test_drive_mode_multiplier_against_rigid_two_link(orbit_2pi, gains):
     assert abs(flexible - no_gravity) > ELASTIC_TOLERANCE * rigid
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("noise", [{"tip_mass": 0.2, "omega_scale": 1.1, "youngs_modulus_scale": 0.95},
                                    {"tip_mass": 0.05, "omega_scale": 0.9, "youngs_modulus_scale": 1.05}])
 def test_noise_plant_of_the_robust_design_against_rigid_two_link(noise):

@@ -1,4 +1,4 @@
-"""The built-in two-link model file (issue 11), checked standalone in plain Exudyn.
+"""The built-in two-link model file, checked standalone in plain Exudyn.
 
 Oracles, all independent of the model file:
 

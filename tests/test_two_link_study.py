@@ -26,13 +26,14 @@ def test_dominant_damped_skips_the_unit_circle():
     assert dominant_damped([1.0, 0.9999]) == pytest.approx(1.0)  # nothing off the circle: the largest
 
 
-def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp_path):
-    """The study's two-link stage (quick: 2 pi) with a cached script result whose mesh part has this
-    study's keys and whose tuning part was computed by other code (its gains 30 % off: ignored, with a
-    note; used, the band check below would fail); the tuned gains of the section give |rho| within 1e-3 rho_d of rho_d = 0.3 by Hill (the loop's method) AND by an independent
-    method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-extrapolated
-    from 512 / 256 steps, whose own estimate (~1.5e-5) is far below the band (3e-4).  All gains 30 % lower
-    leave the band (the check can fail)."""
+@pytest.mark.slow
+def test_study_section_tunes_its_gains_and_they_reach_target_by_an_independent_method(tmp_path):
+    """The study's two-link stage computes everything it shows: it tunes the four gains itself (no script to
+    run first, no stored gains; a stray script result in the folder is not read) and the tuned gains give
+    |rho| within 1e-3 rho_d of rho_d = 0.3 by Hill (the loop's method) AND by an independent method
+    recomputed here: the exponential midpoint in frozen-modal coordinates (stability.modal),
+    Richardson-extrapolated from 512 / 256 steps, whose own estimate (~2e-5) is far below the band (3e-4).
+    All gains 30 % lower leave the band (the check can fail)."""
     import json
     import math
 
@@ -40,35 +41,27 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
 
     from flexstab.config import StudyConfig
     from flexstab.study import StudyOptions, run_study
+    from flexstab.two_link import TUNED_GAINS
     from stability.modal import modal_floquet
 
-    from flexstab.two_link import TUNED_GAINS
-    from flexstab.two_link_report import cache_keys
-
-    keys = cache_keys(0.3)
-    stale = dict(keys, code="0" * 64)  # the tuning part of a run of other code: must not be used
-    cache = tmp_path / "two_link" / "two_link.json"
-    cache.parent.mkdir()
-    cache.write_text(json.dumps({"target": 0.3, "keys": {"mesh": keys, "tune": stale},
-        "tune": {"2pi": {"gains": [0.7 * v for v in TUNED_GAINS[2]], "rho": 0.3, "evaluations": 1, "cpu_s": 1.0}},
-        "mesh": {"2pi": [{"elements": 2, "size": 20, "harmonics": 16,
-        "uncontrolled": {"modulus": 43.85, "mode": "elbow", "hill_error_estimate": 1e-8},
-        "tuned": {"modulus": 0.3001, "mode": "elbow", "hill_error_estimate": 1e-9}}]}}))
+    stray = tmp_path / "two_link" / "two_link.json"  # a script result of other gains: must not be read
+    stray.parent.mkdir()
+    stray.write_text(json.dumps({"target": 0.3, "tune": {"2pi": {"gains": [0.7 * v for v in TUNED_GAINS[2]]}}}))
     res = run_study(StudyConfig(), StudyOptions(out=tmp_path, quick=True, stages=("two_link",), progress=False,
                                                 jobs=1))
     assert res.stages["two_link"]["status"] == "computed"
     doc = json.loads((tmp_path / "two_link.json").read_text())
-    assert doc["cache"]["sha256"] and (tmp_path / "two_link_cached.json").exists()
-    assert doc["cache"]["used"] == ["mesh"] and doc["cache"]["ignored"][0].startswith("`tune` ignored")
     md = (tmp_path / "report.md").read_text()
-    assert "Two-link flexible arm" in md and "Mesh convergence" in md
-    assert "`tune` ignored: computed with other code" in md and "Four-gain Taguchi" not in md
+    assert "Two-link flexible arm" in md and "issue" not in md.lower()
+    assert "run `python3 scripts" not in md and "TUNED_GAINS" not in md and "No usable results" not in md
     row = doc["rows"][0]
+    assert row["tuning"]["status"] == "converged" and row["check"]["confirmed"] is True
     g = row["tuned_gains"]
-    assert row["gains_source"] == "flexstab.two_link.TUNED_GAINS"  # not the stale part's gains
-    # the mode figure states the modulus the table states (Hill's), with the method
+    assert g == row["tuning"]["gains"]
+    # the mode figure states the modulus the table states (Hill's), with the method and the drawn scale
     fig = row["tuned"]["mode_figure"]
     assert fig["modulus"] == row["tuned"]["dominant_modulus"] and fig["method"].startswith("Hill's method")
+    assert 0 < fig["deformation_scale_m"] < 0.2
     hill = row["tuned"]["dominant_modulus"]
     assert row["tuned"]["mode"] in ("shoulder", "elbow")
     band = 1e-3 * 0.3
@@ -88,6 +81,7 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
     assert est < 0.1 * band
     assert abs(hill - 0.3) <= band and abs(m - 0.3) <= band + est, (hill, m, est)
     assert abs(m - hill) <= est + 1e-6
+    assert abs(row["check"]["modulus"] - m) <= 1e-12  # the stage's check is this computation
     off, _ = modal(tuple(0.7 * v for v in g))
     assert abs(off - 0.3) > band
 
@@ -95,7 +89,7 @@ def test_study_section_and_tuned_gains_reach_target_by_an_independent_method(tmp
 def test_stale_cache_parts_are_ignored_with_a_note(tmp_path):
     """The script's merge keeps each stage's keys; the study uses a part only if its keys equal its own
     (code hash, mesh, ranges, rho_d) and names what differs otherwise.  Rejects a cache read whatever
-    code or inputs produced it (review S10).  No orbit: the merge and the key rule only."""
+    code or inputs produced it.  No orbit: the merge and the key rule only."""
     import importlib.util
     import json
     from pathlib import Path
@@ -131,12 +125,12 @@ def test_mode_title_shows_the_measured_modulus_and_its_method():
 
     orbit = SimpleNamespace(model=SimpleNamespace(name="two-link"), omega=4 * 3.141592653589793)
     t = mode_title(orbit, 0.3023 + 0.0j, "elbow", (0.300027 + 0.0j, "Hill's method, 16 harmonics"))
-    assert "|rho| = 0.300027 (elbow; Hill's method, 16 harmonics)" in t and "0.3023" not in t
-    assert "|rho| = 0.3023 (elbow)" in mode_title(orbit, 0.3023 + 0.0j, "elbow")
+    assert "|ρ| = 0.300027 (elbow; Hill's method, 16 harmonics)" in t and "0.3023" not in t
+    assert "|ρ| = 0.3023 (elbow)" in mode_title(orbit, 0.3023 + 0.0j, "elbow")
 
 
 def test_cache_keys_cover_the_stage_arguments_and_the_script(tmp_path):
-    """Review4 L4: the keys were the package hash, mesh, ranges and rho_d only, so the robust stage resumed a
+    """The keys were the package hash, mesh, ranges and rho_d only, so the robust stage resumed a
     file whose other Omegas' rows used another ``--grid`` / ``--robust-iterations``, and a change of the
     script's own constants (MESH, the direct stage's 2 elements; ``scripts/`` is not a hashed package) kept
     old parts in use.  Now each stage's keys carry its arguments and the script's SHA-256."""

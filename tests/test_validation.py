@@ -1,7 +1,7 @@
-"""Nonlinear closed-loop time series (issue 5, items 1-2): validation.closed_loop.
+"""Nonlinear closed-loop time series: validation.closed_loop.
 
-The CLI ``flexstab validate`` and the study script now measure multipliers
-(issue 10, tests/test_multipliers.py); this module keeps the transient tool.
+The CLI ``flexstab validate`` and the study script measure multipliers
+(tests/test_multipliers.py); this module keeps the transient tool.
 
 Oracle: the dominant Floquet multiplier of the Exudyn linearisation along the
 periodic orbit (an independent computation: finite-difference matrices and an
@@ -83,7 +83,7 @@ def test_table3_gains_measured_ratio_matches_linearisation(controlled):
     assert r.agrees
     assert abs(r.measured_ratio_envelope / r.predicted_multiplier_exudyn - 1) < nonlinear
     assert abs(math.log(r.measured_ratio_per_period / r.predicted_multiplier_reduced)) < nonlinear + model_diff
-    # Instead of the issue's trial amplitudes (1.0e-2 -> 2.9e-3 -> 8.5e-4, an earlier run):
+    # Instead of trial amplitudes (1.0e-2 -> 2.9e-3 -> 8.5e-4, an earlier run):
     # a pure hub-velocity kick leaves Delta q_a(0) = 0; every later sample is the independent
     # linear response (the linearisation propagated by exponential-midpoint factors, no time
     # simulation) up to the quadratic remainder; each envelope covers its period's end samples.
@@ -126,6 +126,7 @@ def test_linear_prediction_decays_with_the_multiplier(controlled):
     np.testing.assert_allclose(controlled.stroboscopic[1:], s[1:], rtol=_nonlinear_bound(controlled))
 
 
+@pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_is_left(uncontrolled_floquet):
     r = validate_closed_loop(omega=TWO_PI, elements=ELEMENTS, periods=3, perturbation=1e-4,
                              exudyn_result=uncontrolled_floquet)
@@ -164,6 +165,7 @@ def test_uncontrolled_paper_perturbation_leaves_linear_range_without_raising(unc
     assert np.max(np.abs(r.hub_error)) > 1.0  # large motion, reported not raised
 
 
+@pytest.mark.slow
 def test_absurd_perturbation_is_reported_as_divergence(controlled):
     r = validate_closed_loop(omega=TWO_PI, kp=KP3, kd=KD3, elements=ELEMENTS, periods=3, perturbation=1e7,
                              exudyn_result=controlled.exudyn)

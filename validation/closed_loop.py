@@ -1,4 +1,4 @@
-"""Nonlinear closed-loop validation of the predicted Floquet multipliers (issue 5).
+"""Nonlinear closed-loop validation of the predicted Floquet multipliers.
 
 :func:`validate_closed_loop` simulates the free-hub Exudyn model under
 feed-forward + PD (:func:`~mbs_models.exudyn_link.build_link_model`, drive
@@ -117,7 +117,7 @@ DIVERGENCE_STRETCH = 1.5
 #: hub angles of order 1-3 rad) and round-off.
 NOISE_FLOOR = 1e-9
 #: Relative deviation of the measured ratio from the Exudyn prediction
-#: accepted as agreement (issue 5: within 10 %).
+#: accepted as agreement (within 10 %).
 AGREEMENT_TOLERANCE = 0.10
 #: Exponential-midpoint steps per period of :func:`linear_prediction`.
 DEFAULT_PREDICTION_STEPS = 256

@@ -1,6 +1,6 @@
 """Direct monodromy of any model file: finite differences of one-period Exudyn runs.
 
-An independent check of the linearisation + Floquet path (issue 11): the
+An independent check of the linearisation + Floquet path: the
 model file is built afresh, each drive is released and driven inside Exudyn
 by ``tau = tau_ff(t) - kp (q - q^R) - kd (q' - q^R')`` (one
 ``CoordinateSpringDamper`` per drive whose spring-force user function adds

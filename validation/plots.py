@@ -76,7 +76,7 @@ def plot_validation_figure(
                        for r in results]
     titles = list(titles) if titles is not None else [f"kp = {r.kp:.4g}, kd = {r.kd:.4g}" for r in results]
     ncol = len(results)
-    fig, axes = plt.subplots(3, ncol, figsize=(4.2 * ncol, 9.0), squeeze=False)
+    fig, axes = plt.subplots(3, ncol, figsize=(4.6 * ncol, 9.6), squeeze=False, layout="constrained")
     for j, (r, lp, title) in enumerate(zip(results, predictions, titles)):
         T = r.period
         ax_h, ax_l, ax_t = axes[0, j], axes[1, j], axes[2, j]
@@ -113,30 +113,29 @@ def plot_validation_figure(
         if r.linear_range_left_at is not None:
             for ax in (ax_h, ax_l, ax_t):
                 ax.axvline(r.linear_range_left_at / T, color="0.5", lw=0.8, ls="-.")
-            ax_h.text(r.linear_range_left_at / T, 0.9 * ylim_h, " linear range left", fontsize=7, color="0.3", va="top")
+            ax_h.text(r.linear_range_left_at / T, 0.9 * ylim_h, " linear range left", fontsize=8, color="0.3", va="top")
         if r.diverged and r.diverged_at is not None:
             ax_h.axvline(r.diverged_at / T, color="r", lw=0.8)
         sub = (
             f"measured {_fmt(r.measured_ratio_per_period)} / period; "
             f"Exudyn lin. {_fmt(r.predicted_multiplier_exudyn)}, reduced {_fmt(r.predicted_multiplier_reduced)}"
         )
-        ax_h.set_title(f"{title}\n{sub}", fontsize=8)
+        ax_h.set_title(f"{title}\n{sub}", fontsize=9)
         ax_h.set_ylabel(r"hub-angle error $\Delta q_a$ (rad)")
         ax_l.set_ylabel(r"$|\Delta q_a|$ (rad)")
         ax_t.set_ylabel(r"tip-deflection error (mm)")
-        ax_t.set_xlabel("t / T")
+        ax_t.set_xlabel("time t / T (periods)")
         for ax in (ax_h, ax_l, ax_t):
             ax.grid(True, alpha=0.3)
             ax.set_xlim(0, max(r.periods, 1))
         if j == 0:
-            ax_h.legend(fontsize=7, loc="lower right")
-            ax_l.legend(fontsize=7, loc="lower left")
-            ax_t.legend(fontsize=7, loc="lower right")
+            ax_h.legend(fontsize=8, loc="lower right")
+            ax_l.legend(fontsize=8, loc="lower left")
+            ax_t.legend(fontsize=8, loc="lower right")
         elif lp is not None and math.isfinite(lp.envelope_constant):
-            ax_h.legend(handles=ax_h.lines[2:3], fontsize=7, loc="lower right")
+            ax_h.legend(handles=ax_h.lines[2:3], fontsize=8, loc="lower right")
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
-    fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -156,10 +155,11 @@ def plot_multiplier_plane(
 
     One column per :class:`~validation.multipliers.MultiplierValidation`:
     top, the whole plane (unit circle, every predicted multiplier, the
-    compared ones, the measured ones, the alternatives); bottom, a zoom on the
-    dominant compared multiplier with the measured values per step
-    (``h, h/2, h/4``), the error-bar circle of the measurement and the
-    alternatives (whose distance the measurement resolves or not).
+    compared ones, the measured ones, the alternatives); middle, the dominant
+    compared multiplier with the alternative predictions (whose distance the
+    measurement resolves or not); bottom, the measurement's step convergence:
+    the values per step (``h, h/2, h/4``, one marker each, named in the
+    legend), the extrapolated value and its error-bar circle.
 
     Returns
     -------
@@ -177,10 +177,31 @@ def plot_multiplier_plane(
     titles = list(titles) if titles is not None else [f"{r.info.get('model', '')}: kp = {r.info.get('kp')}, kd = {r.info.get('kd')}"
                                                       for r in results]
     ncol = len(results)
-    fig, axes = plt.subplots(2, ncol, figsize=(4.6 * ncol, 9.0), squeeze=False)
+    fig, axes = plt.subplots(3, ncol, figsize=(5.6 * ncol, 16.0), squeeze=False, layout="constrained")
     markers = ["^", "v", "s", "D"]
+    step_markers = ["s", "D", "P", "*", "h"]
+
+    def legend_below(a) -> None:  # below the panel (one column), not over the unit circle or the points
+        a.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=1)
+
+    def square(a, pts, floor: float) -> None:
+        pts_a = np.asarray(pts)
+        cx = float(np.mean([pts_a.real.min(), pts_a.real.max()]))
+        cy = float(np.mean([pts_a.imag.min(), pts_a.imag.max()]))
+        half = 0.6 * max(float(np.ptp(pts_a.real)), float(np.ptp(pts_a.imag)), floor)
+        a.set_xlim(cx - half, cx + half)
+        a.set_ylim(cy - half, cy + half)
+        a.set_aspect("equal")
+        a.ticklabel_format(useOffset=False, style="plain")
+        a.tick_params(labelsize=8)
+        a.xaxis.set_major_locator(plt.MaxNLocator(3))
+        a.yaxis.set_major_locator(plt.MaxNLocator(5))
+        a.set_xlabel("Re ρ")
+        a.set_ylabel("Im ρ")
+        a.grid(True, alpha=0.3)
+
     for j, (r, title) in enumerate(zip(results, titles)):
-        ax, az = axes[0, j], axes[1, j]
+        ax, az, ah = axes[0, j], axes[1, j], axes[2, j]
         th = np.linspace(0, 2 * np.pi, 400)
         ax.plot(np.cos(th), np.sin(th), color="0.6", lw=0.8, label="unit circle")
         allm = r.prediction.all_multipliers
@@ -210,29 +231,20 @@ def plot_multiplier_plane(
             verdict = "no verdict: step refinement not converging"
         else:
             verdict = "DISAGREES"
-        ax.set_title(f"{title}\n{r.prediction.name}: {verdict}", fontsize=8)
+        ax.set_title(f"{title}\n{r.prediction.name}: {verdict}", fontsize=9)
         ax.set_xlabel("Re ρ")
         ax.set_ylabel("Im ρ")
-        ax.legend(fontsize=6, loc="lower left")
-        # zoom on the dominant compared multiplier
+        legend_below(ax)
+        # middle: the dominant compared multiplier against the alternative predictions
         i0 = 0
         z0 = p[i0]
+        label0 = r.prediction.labels[i0] or "dominant"
         pts = [z0]
-        if r.levels.size:
-            lv = r.levels[:, i0]
-            steps = r.config.steps
-            az.plot(lv.real, lv.imag, "-", color="C0", lw=0.8, alpha=0.6)
-            for s, z in zip(steps, lv):
-                az.plot(z.real, z.imag, "o", color="C0", ms=4, alpha=0.5)
-                az.annotate(f"h={s:g}", (z.real, z.imag), fontsize=6, color="C0", xytext=(3, 3),
-                            textcoords="offset points")
-            pts += list(lv)
         if r.measured.size:
             m = r.measured[i0]
             bar = float(r.errors[i0])
             az.plot(m.real, m.imag, "o", mfc="none", color="C0", ms=10, mew=1.5, label=f"measured ± {bar:.2g}")
-            az.add_patch(Circle((m.real, m.imag), bar, fill=False, ls="--", color="C0", lw=1.0))
-            pts += [m + bar, m - bar, m + 1j * bar, m - 1j * bar]
+            pts += [m]
         az.plot(z0.real, z0.imag, "x", color="C1", ms=10, mew=2, label="predicted (under test)")
         for i, alt in enumerate(r.alternatives):
             a = np.asarray(alt.multipliers)
@@ -241,24 +253,32 @@ def plot_multiplier_plane(
                 az.plot(za.real, za.imag, markers[i % 4], mfc="none", color=f"C{i + 2}", ms=8,
                         label=f"{alt.name} ({'consistent' if alt.consistent else 'excluded'})")
                 pts.append(za)
-        pts_a = np.array(pts)
-        cx, cy = float(np.mean([pts_a.real.min(), pts_a.real.max()])), float(np.mean([pts_a.imag.min(), pts_a.imag.max()]))
-        half = 0.6 * max(float(np.ptp(pts_a.real)), float(np.ptp(pts_a.imag)), 1e-7 * max(abs(z0), 1e-3))
-        az.set_xlim(cx - half, cx + half)
-        az.set_ylim(cy - half, cy + half)
-        az.set_aspect("equal")
-        az.ticklabel_format(useOffset=False, style="plain")
-        az.tick_params(labelsize=6)
-        az.xaxis.set_major_locator(plt.MaxNLocator(4))
-        az.yaxis.set_major_locator(plt.MaxNLocator(5))
-        az.set_title(f"zoom on ρ = {z0.real:.5g}{z0.imag:+.5g}i ({r.prediction.labels[i0] or 'dominant'})", fontsize=8)
-        az.set_xlabel("Re ρ")
-        az.set_ylabel("Im ρ")
-        az.grid(True, alpha=0.3)
-        az.legend(fontsize=6, loc="best")
+        square(az, pts, 1e-7 * max(abs(z0), 1e-3))
+        az.set_title(f"ρ = {z0.real:.5g}{z0.imag:+.5g}i ({label0}) and the alternative predictions", fontsize=9)
+        legend_below(az)
+        # bottom: the measurement's step convergence (one marker per step level, named in the legend: text
+        # labels at the points overprinted each other) with its error-bar circle
+        pts = [z0]
+        if r.levels.size:
+            lv = r.levels[:, i0]
+            ah.plot(lv.real, lv.imag, "-", color="C0", lw=0.8, alpha=0.6)
+            for n, (h, z) in enumerate(zip(r.config.steps, lv)):
+                ah.plot(z.real, z.imag, step_markers[n % len(step_markers)], color="C0", ms=7, alpha=0.7,
+                        label=f"measured with step h = {h:g} s")
+            pts += list(lv)
+        if r.measured.size:
+            m = r.measured[i0]
+            bar = float(r.errors[i0])
+            ah.plot(m.real, m.imag, "o", mfc="none", color="C3", ms=10, mew=1.5, label="extrapolated measurement")
+            ah.add_patch(Circle((m.real, m.imag), bar, fill=False, ls="--", color="C3", lw=1.0,
+                                label=f"its error bar ({bar:.2g})"))
+            pts += [m + bar, m - bar, m + 1j * bar, m - 1j * bar]
+        ah.plot(z0.real, z0.imag, "x", color="C1", ms=10, mew=2, label="predicted (under test)")
+        square(ah, pts, 1e-9 * max(abs(z0), 1e-3))
+        ah.set_title(f"step convergence of the measured {label0} multiplier", fontsize=9)
+        legend_below(ah)
     if suptitle:
-        fig.suptitle(suptitle, fontsize=10)
-    fig.tight_layout()
+        fig.suptitle(suptitle, fontsize=11)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

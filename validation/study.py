@@ -1,4 +1,4 @@
-"""Linear against nonlinear: the four Omega cases, uncontrolled and controlled (issue 5, item 2).
+"""Linear against nonlinear: the four Omega cases, uncontrolled and controlled.
 
 :func:`compare_linear_nonlinear` runs :func:`~validation.closed_loop.validate_closed_loop`
 for every Omega of the paper (Table 3: rho_d = 0.3, 0.3, 0.3, 0.4) and four
@@ -213,7 +213,7 @@ def comparison_markdown(rows: Sequence[ComparisonCase], *, elements: int, period
     return "\n".join(lines)
 
 
-# --------------------------------------------------------------------------- multipliers measured (issue 10)
+# --------------------------------------------------------------------------- multipliers measured
 #: Cases of :func:`multiplier_study`: (name, Omega / pi, gains: "table3", "uncontrolled" or (kp, kd),
 #: prediction-gain factor, prediction reference).
 MULTIPLIER_CASES = (
@@ -279,7 +279,7 @@ def multiplier_study(
             kp, kd, source = 0.0, 0.0, "uncontrolled"
         else:
             kp, kd = gains
-            source = "issue 10 complex-pair case"
+            source = "complex-pair case"
         if progress is not None:
             progress(f"{k}pi {name}")
         cfg = replace(config, growth_periods=growth_periods if gains == "uncontrolled" else 0)

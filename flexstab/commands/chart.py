@@ -7,9 +7,8 @@ import math
 import sys
 from pathlib import Path
 
-from flexstab.config import load_config
-from flexstab.options import (add_model_options, dump_json, ensure_out_dir, gain_list, omega_type, positive_float,
-                              resolve_omega)
+from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
+                              gain_list, omega_type, positive_float, resolve_omega, result_output)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -54,11 +53,18 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> dict:
+def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
     """Compute and plot both charts; return the JSON-ready summary.
 
     ``cfg`` (a :class:`~flexstab.config.StudyConfig`) overrides ``args.config``.
     """
+    _check_args(args)  # before any numerical import
+    from flexstab.config import load_config
+
+    cfg = cfg if cfg is not None else load_config(args.config)
+    model = getattr(args, "model", "reduced")
+    if model not in ("reduced", "exudyn"):
+        return model_charts(args, cfg, progress=progress)
     from flexstab.charts import (
         ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
         plot_omega_chart,
@@ -67,10 +73,6 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     from mbs_models.reduced import ReducedModel
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
-    cfg = cfg if cfg is not None else load_config(args.config)
-    model = getattr(args, "model", "reduced")
-    if model not in ("reduced", "exudyn"):
-        return model_charts(args, cfg, progress=progress)
     for flag in ("drive", "samples", "steps"):
         if getattr(args, flag, None) is not None:
             raise ValueError(f"--{flag} applies to model files only")
@@ -120,7 +122,8 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     path = None
     tuned = None
     if not args.no_taguchi:
-        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
+        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
+                             progress=progress)
         path = [it.incumbent_gains for it in tuned.iterations]
     n_tasks = kp.size * kd.size
     kind = "dask" if args.scheduler else ("process" if exudyn and args.workers != 1 else "auto")
@@ -152,6 +155,20 @@ def make_charts(args: argparse.Namespace, progress: bool = True, cfg=None) -> di
     return summary
 
 
+def _check_args(args: argparse.Namespace) -> None:
+    """The checks of the arguments alone (no configuration, no model): grid sizes, counts, ranges."""
+    for flag, minimum in (("grid", 2), ("omega_points", 2), ("samples", 4), ("steps", 1), ("workers", 1)):
+        v = getattr(args, flag, None)
+        if v is not None and v < minimum:
+            raise ValueError(f"--{flag.replace('_', '-')} must be >= {minimum}, got {v}")
+    for flag in ("kp_range", "kd_range"):
+        check_range_arg(getattr(args, flag, None), "--" + flag.replace("_", "-"))
+    check_model_arg(getattr(args, "model", None))
+    w = getattr(args, "omega_range", None)
+    if w is not None and not w[0] < w[1]:
+        raise ValueError(f"--omega-range must have LO < HI, got {w[0]:g} {w[1]:g}")
+
+
 def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
     """``--kp``/``--kd`` of a model file: one value for every drive, or one per drive (default 0)."""
     if values is None:
@@ -163,7 +180,7 @@ def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
     return tuple(values)
 
 
-def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
+def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     """Both charts of a model file (``--model PATH.py`` or a built-in model file).
 
     Gain chart: the dominant labelled multiplier over the (kp, kd) grid of one drive (``--drive``)
@@ -174,8 +191,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
     import dataclasses
     import hashlib
 
-    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
-                                 plot_omega_chart)
+    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, dominant_ylabel, gain_chart, omega_chart,
+                                 plot_gain_chart, plot_omega_chart)
     from flexstab.executor import make_executor
     from flexstab.options import resolve_model_definition
     from flexstab.plants import is_hill_model
@@ -251,7 +268,8 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
                 def objective(g):  # (kp, kd) of the charted drive -> response at the chart Omega
                     return task({"omega": float(omega), "kp": float(g[0]), "kd": float(g[1])})
 
-                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng))
+                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
+                             progress=progress)
                 path = [it.incumbent_gains for it in tuned.iterations]
             ctag = f"{tag}_{'all' if idx is None else idx}_" + hashlib.sha1(
                 json.dumps([fkp, fkd]).encode()).hexdigest()[:6]
@@ -286,10 +304,11 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
         figures.append(str(plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label,
                                            drive="" if nd == 1 else charted)))
     figures.append(str(plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                                        ylabel="dominant |ρ| (drive modes / bending 1)")))
+                                        ylabel=dominant_ylabel(plants.linearised(omega)[0]))))
     summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
-               "tuned": ({"kp": tuned.kp, "kd": tuned.kd, "response": tuned.spectral_radius, "status": tuned.status,
+               # kp, kd: every drive's gains (the JSON typing rule), the charted drive's tuned, the others fixed
+               "tuned": ({"kp": list(gkp), "kd": list(gkd), "response": tuned.spectral_radius, "status": tuned.status,
                           "evaluations": tuned.evaluations} if tuned is not None else None),
                "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
                "response_method": "hill" if hill else "magnus2",
@@ -315,15 +334,18 @@ def model_charts(args: argparse.Namespace, cfg, progress: bool = True) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    s = make_charts(args, progress=not args.json and sys.stderr.isatty())
-    if args.json:
-        dump_json(s, sys.stdout)
-    else:
-        g = s["gain_chart"]
-        if g is not None:
-            print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, "
-                  f"{g['n_computed']} computed)")
-        if s.get("note"):
-            print(s["note"])
-        print("figures: " + ", ".join(s["figures"]))
+    from flexstab.progress import progress_bars
+
+    s = make_charts(args, progress=progress_bars())  # on stderr: tqdm on a terminal, lines otherwise
+    with result_output(args):
+        if args.json:
+            dump_json(s, sys.stdout)
+        else:
+            g = s["gain_chart"]
+            if g is not None:
+                print(f"gain chart: {len(g['kd'])} x {len(g['kp'])} points ({g['n_loaded']} resumed, "
+                      f"{g['n_computed']} computed)")
+            if s.get("note"):
+                print(s["note"])
+            print("figures: " + ", ".join(s["figures"]))
     return 0

@@ -5,8 +5,8 @@ import argparse
 import math
 import sys
 
-from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, gain_list, non_negative_float
+from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, gains_as_lists,
+                              non_negative_float, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -58,9 +58,21 @@ def _rtol_type(text: str) -> float:
 
 def floquet_report(args: argparse.Namespace) -> dict:
     """Compute the Floquet analysis requested by ``args`` and return the JSON-ready dict."""
+    builtin = args.model in ("reduced", "exudyn")
+    # the checks of the arguments alone come before any numerical import
+    if builtin:
+        if len(args.kp) != 1 or len(args.kd) != 1:
+            raise ValueError(f"--model {args.model} has one drive (the hub): give one --kp and one --kd value")
+        if args.samples is not None:
+            raise ValueError("--samples applies to model files only")
+    else:
+        if args.samples is not None and (args.samples < 4 or args.samples % 2):
+            raise ValueError(f"--samples must be an even integer >= 4, got {args.samples}")
+        check_model_arg(args.model)
+    from flexstab.config import load_config
     from stability import DEFAULT_METHOD, METHODS, floquet
 
-    from stability.floquet import recertify
+    from stability.floquet import DEFAULT_RTOL, recertify
 
     cfg = load_config(args.config)
     omega = args.omega if args.omega is not None else cfg.omega
@@ -68,13 +80,9 @@ def floquet_report(args: argparse.Namespace) -> dict:
     method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
-    if args.model not in ("reduced", "exudyn"):
+    if not builtin:
         return _model_file_report(args, cfg, omega, method, rtol)
-    if len(args.kp) != 1 or len(args.kd) != 1:
-        raise ValueError(f"--model {args.model} has one drive (the hub): give one --kp and one --kd value")
     args.kp, args.kd = args.kp[0], args.kd[0]
-    if args.samples is not None:
-        raise ValueError("--samples applies to model files only")
     out: dict = {"model": args.model}
     if args.model == "reduced":
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
@@ -85,8 +93,8 @@ def floquet_report(args: argparse.Namespace) -> dict:
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        # the engine refines to min(its default 1e-9, rtol); certified against rtol
-        res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(1e-9, rtol))
+        # the engine refines to min(its default, rtol); certified against rtol
+        res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
         out["constants"] = args.constants
     else:
         from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
@@ -197,9 +205,10 @@ def _table(d: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    d = floquet_report(args)
-    if args.json:
-        dump_json(d, sys.stdout)
-    else:
-        print(_table(d))
+    d = gains_as_lists(floquet_report(args))
+    with result_output(args):
+        if args.json:
+            dump_json(d, sys.stdout)
+        else:
+            print(_table(d))
     return 0

@@ -5,7 +5,7 @@ import argparse
 import contextlib
 import sys
 
-from flexstab.options import dump_json
+from flexstab.options import dump_json, result_output
 
 __all__ = ["register", "run", "modes_report"]
 
@@ -77,6 +77,11 @@ def modes_report(args: argparse.Namespace) -> dict:
 def run(args: argparse.Namespace) -> int:
     """Run ``flexstab modes``; return the exit code."""
     out = modes_report(args)
+    with result_output(args):
+        return _print_modes(args, out)
+
+
+def _print_modes(args: argparse.Namespace, out: dict) -> int:
     if args.json:
         dump_json(out, sys.stdout)
         return 0

@@ -5,7 +5,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from flexstab.config import load_config
 from flexstab.options import omega_type
 
 __all__ = ["register", "run"]
@@ -43,6 +42,7 @@ def register(sub) -> None:
 def run_model(args: argparse.Namespace, cfg) -> int:
     """``flexstab study --model PATH.py``: :func:`flexstab.model_study.run_model_study`."""
     from flexstab.model_study import ModelStudyOptions, run_model_study
+    from flexstab.progress import progress_bars
     from flexstab.options import resolve_omega
     from linearize.periodic_orbit import DEFAULT_SAMPLES
 
@@ -57,8 +57,8 @@ def run_model(args: argparse.Namespace, cfg) -> int:
     opts = ModelStudyOptions(out=Path(args.out), omega=resolve_omega(args, cfg), target=cfg.target,
                              kp_range=tuple(cfg.kp_range), kd_range=tuple(cfg.kd_range), samples=samples,
                              elements=args.elements,
-                             quick=args.quick, progress=sys.stderr.isatty(), log=_progress_log())
-    return _report_exit_code(run_model_study(args.model, cfg, opts))
+                             quick=args.quick, progress=progress_bars(), log=_progress_log())
+    return _report_exit_code(run_model_study(args.model, cfg, opts), getattr(args, "result_stdout", None))
 
 
 def _progress_log():
@@ -69,35 +69,45 @@ def _progress_log():
     return lambda line: print(line, file=sys.stderr, flush=True)
 
 
-def _report_exit_code(res) -> int:
+def _report_exit_code(res, stdout=None) -> int:
     """Print where the report is and one line per stage that failed or whose check failed; the exit code
     (1 if any, else 0)."""
     bad = [k for k, v in res.stages.items() if v.get("status") in ("failed", "check failed")]
-    print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)")
+    print(f"report: {res.report_md} and {res.report_html} ({res.elapsed:.1f} s)", file=stdout or sys.stdout)
     for k in bad:
         print(f"stage {k} {res.stages[k]['status']}: {res.stages[k].get('error', '')}", file=sys.stderr)
     return 1 if bad else 0
 
 
 def run(args: argparse.Namespace) -> int:
-    from flexstab.study import StudyOptions, run_study
+    if args.model is None:  # the checks of the arguments alone, before any numerical import
+        for flag in ("omega", "samples", "elements"):
+            if getattr(args, flag) is not None:
+                raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
+        if args.stages is not None and not args.stages.strip():
+            raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, "
+                             "validation")
+        if args.jobs < 1:
+            raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
+    else:
+        from flexstab.options import check_model_arg
 
-    cfg = load_config(args.config)
-    if args.model is not None:
-        return run_model(args, cfg)
-    for flag in ("omega", "samples", "elements"):
-        if getattr(args, flag) is not None:
-            raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
+        if args.samples is not None and (args.samples < 4 or args.samples % 2):
+            raise ValueError(f"--samples must be an even integer >= 4, got {args.samples}")
+        check_model_arg(args.model)
     if args.scheduler:
         from flexstab.executor import validate_scheduler_address
 
         validate_scheduler_address(args.scheduler)  # fail before hours of work, not after
-    if args.stages is not None and not args.stages.strip():
-        raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, validation")
+    from flexstab.config import load_config
+
+    cfg = load_config(args.config)
+    if args.model is not None:
+        return run_model(args, cfg)
+    from flexstab.study import StudyOptions, run_study
+
     stages = tuple(s.strip() for s in args.stages.split(",") if s.strip()) if args.stages else ()
-    if args.jobs < 1:
-        raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     res = run_study(cfg, StudyOptions(out=Path(args.out), quick=args.quick, stages=stages,
                                       progress=sys.stderr.isatty(), scheduler=args.scheduler, log=_progress_log(),
                                       resume=not args.no_resume, jobs=args.jobs))
-    return _report_exit_code(res)
+    return _report_exit_code(res, getattr(args, "result_stdout", None))

@@ -7,18 +7,29 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any, Optional
 
-from flexstab.config import load_config
-from flexstab.options import dump_json, add_model_options, gain_pairs, positive_float, resolve_omega
-# the plant rule and the whole-spectrum report live in the library (flexstab.plants); re-exported here
-from flexstab.plants import (HILL_HARMONICS, HILL_MODELS, MAX_TUNING_STEPS, MODEL_RESPONSE, plant_choice_for,
-                             plant_for, propagator_steps, whole_spectrum)
+from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
+                              gains_as_lists, positive_float, resolve_omega, result_output)
+
+#: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
+#: there), imported on first use so that parsing the command line imports no numerical package.
+_PLANTS_NAMES = ("HILL_HARMONICS", "HILL_MODELS", "MAX_TUNING_STEPS", "MODEL_RESPONSE", "plant_choice_for",
+                 "plant_for", "propagator_steps", "whole_spectrum")
+
+
+def __getattr__(name: str):
+    if name in _PLANTS_NAMES:
+        import flexstab.plants
+
+        return getattr(flexstab.plants, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 if TYPE_CHECKING:
     from taguchi.tuning import TuningConfig
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["register", "run", "tune_report", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
+__all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
            "propagator_steps", "MAX_TUNING_STEPS", "HILL_MODELS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
@@ -87,6 +98,8 @@ def robust_report(args: argparse.Namespace) -> dict:
 
     if args.model not in ("reduced", "two-link"):
         raise ValueError("--robust is available for --model reduced and --model two-link")
+    from flexstab.config import load_config
+
     cfg = load_config(args.config)
     rs = cfg.robust
     grid = getattr(args, "grid", None) or rs.grid
@@ -240,11 +253,8 @@ def factor_ranges(n_drives: int, kp_range, kd_range, specs) -> tuple[tuple[str, 
 RESTART_WIDTH = 0.25
 
 
-_pairs = gain_pairs  # former private name
-
-
 def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
-                     progress: bool = False) -> tuple[Any, Any, list]:
+                     progress: Any = False) -> tuple[Any, Any, list]:
     """Taguchi tuning of a model-file plant (:func:`flexstab.plants.plant_for`), with the step-doubling
     check at the tuned gains for a time-stepping plant.
 
@@ -265,6 +275,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
+    from flexstab.plants import MAX_TUNING_STEPS
     from taguchi.tuning import recentre, taguchi_tune
 
     from linearize.hill_plant import HillModelPlant
@@ -301,18 +312,59 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
         tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
 
+def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
+    """The closed loop's largest multiplier at the centre of the gain ranges, when it belongs to a mode
+    no drive can move (:func:`linearize.analysis.drive_movable`): PD gains cannot bring the spectral
+    radius below it, and the tuning works on the dominant multiplier of the modes the drives move.
+
+    Returns
+    -------
+    dict or None
+        ``modulus``, ``mode`` (label), ``drive_shares``, ``gains`` (the range centre), ``tuned_mode`` and
+        ``tuned_modulus`` (the dominant multiplier the tuning works on), and a one-line ``message``;
+        ``None`` when the largest multiplier is a mode a drive moves.
+    """
+    import numpy as np
+
+    from linearize.analysis import analyze, drive_movable
+    from linearize.periodic_orbit import PeriodicOrbit
+
+    if not isinstance(orbit, PeriodicOrbit):
+        return None  # a plant without a model-file orbit (e.g. a stand-in): nothing to label
+    centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
+    n = len(orbit.drive_names)
+    kp, kd = centre[0::2], centre[1::2]
+    r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
+    top = r.modes[0] if r.modes else None
+    if top is None or drive_movable(top, orbit.drive_names):
+        return None
+    j = int(np.argmin(np.abs(np.asarray(r.floquet.multipliers) - r.dominant_multiplier)))
+    tuned = r.modes[j]
+    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.get("drive_shares", {}).items())
+    gains = ", ".join(f"{name} = {v:.4g}" for name, v in zip(tcfg.names, centre))
+    msg = (f"note: at the range centre ({gains}) the closed loop's largest multiplier |rho| = "
+           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top['mode']}', a mode no drive moves "
+           f"(drive shares {shares}): PD gains cannot bring max|rho| below it; tuning the dominant multiplier "
+           f"of the modes the drives move ('{tuned['mode']}', |rho| = {abs(r.dominant_multiplier):.5g})")
+    return {"modulus": float(r.floquet.spectral_radius), "mode": top["mode"],
+            "drive_shares": dict(top.get("drive_shares", {})), "gains": centre[: 2 * n],
+            "tuned_mode": tuned["mode"], "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
+
+
 def tune_report(args: argparse.Namespace) -> dict:
     """Run the tuning described by ``args``; return the JSON-ready dict."""
-    from flexstab.executor import make_executor
-    from linearize.hill_plant import HillModelPlant
-    from stability import floquet
-    from taguchi.direct import direct_tune
+    if args.max_evaluations < 1:
+        raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
+    if args.workers is not None and args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    check_range_arg(args.kp_range, "--kp-range")
+    check_range_arg(args.kd_range, "--kd-range")
+    check_model_arg(args.model)
+    from flexstab.config import load_config
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     cfg = load_config(args.config)
     omega = resolve_omega(args, cfg)
-    if args.max_evaluations < 1:
-        raise ValueError(f"--max-evaluations must be >= 1, got {args.max_evaluations}")
     kp_range = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_range = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     specs = getattr(args, "factor_range", None)
@@ -328,6 +380,18 @@ def tune_report(args: argparse.Namespace) -> dict:
     # (--range) are known once its drives are
     tcfg = tuning_config(1, None if model_file else specs)
     oa = tcfg.orthogonal_array()  # validates --array early
+    if args.scheduler:
+        from flexstab.executor import validate_scheduler_address
+
+        validate_scheduler_address(args.scheduler)
+        if model_file:
+            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
+    from flexstab.executor import make_executor
+    from flexstab.plants import plant_choice_for, whole_spectrum
+    from linearize.hill_plant import HillModelPlant
+    from stability import floquet
+    from taguchi.direct import direct_tune
+
     harmonics_choice = steps_choice = None
     plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
     n_drives = len(plant.drives) if model_file else 1
@@ -336,8 +400,13 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill for HILL_MODELS (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
+        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
         choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
+        if unreachable is not None:
+            print(f"flexstab tune: {unreachable['message']}", file=sys.stderr, flush=True)
+    else:
+        unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
     # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
@@ -348,7 +417,9 @@ def tune_report(args: argparse.Namespace) -> dict:
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
         kind = "process" if hill and args.workers != 1 else "serial"
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=oa.n_runs) as ex:
-        progress = not args.json and sys.stderr.isatty()
+        from flexstab.progress import progress_bars
+
+        progress = progress_bars()  # on stderr: tqdm on a terminal, one line per iteration otherwise
         if model_file:  # Hill plants: one pass (no propagator steps to refine), passes == []
             if hill and ex is not None:  # collect the workers' fallback records (HillModelPlant.fallback_runs)
                 ex = _FallbackRecorder(ex, plant)
@@ -360,11 +431,15 @@ def tune_report(args: argparse.Namespace) -> dict:
     if hasattr(plant, "drives"):
         out["drives"] = list(plant.drives)
     out.update(res.to_dict())
+    if model_file:
+        out["unreachable_mode"] = None if unreachable is None else {k: v for k, v in unreachable.items()
+                                                                    if k != "message"}
     if passes:  # every pass's Floquet evaluations, and the step-doubling history
         out["evaluations"] = sum(p["evaluations"] for p in passes)
         out["propagator_passes"] = passes
     kp, kd = gain_pairs(res.gains, n_drives)
-    out["kp"], out["kd"] = kp, kd  # scalars for one drive, one value per drive otherwise
+    out["kp"], out["kd"] = kp, kd
+    gains_as_lists(out)  # the JSON typing rule: one value per drive, a list also for one drive
     if model_file and getattr(plant, "orbit", None) is not None:
         out.update(whole_spectrum(plant.orbit, omega, kp, kd))
     if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap
@@ -424,16 +499,23 @@ def _response_name(d: dict) -> str:
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "robust", False):
         d = robust_report(args)
-        if args.json:
-            dump_json(d, sys.stdout)
-        else:
-            _print_robust(d)
+        with result_output(args):
+            if args.json:
+                dump_json(d, sys.stdout)
+            else:
+                _print_robust(d)
         return 0 if d["converged"] else 1
     d = tune_report(args)
     failure = check_failure(d)
     if failure:
         print(f"flexstab tune: {failure}", file=sys.stderr)
     rc = 1 if failure else 0
+    with result_output(args):
+        return _print_tune(args, d, rc)
+
+
+def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
+    """Print the tuning result ``d`` (a table, or one JSON object with ``--json``); return ``rc``."""
     if args.json:
         dump_json(d, sys.stdout)
         return rc
@@ -507,9 +589,12 @@ def run(args: argparse.Namespace) -> int:
 def check_failure(d: dict) -> Optional[str]:
     """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
 
-    Not accepted: the tuning did not converge, or the independent re-check at the tuned gains
+    Not accepted: the tuning did not converge (it stopped early as unreachable or stalled: its message,
+    :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
     (``verified_spectral_radius``, by ``verified_method``) lies outside ``rho_d +- tolerance``.
     """
+    if d.get("status") in ("target unreachable", "search stalled"):  # the message is the one line
+        return d["message"]
     if not d["converged"]:
         return f"not converged: {d['message']}"
     v = d.get("verified_spectral_radius")

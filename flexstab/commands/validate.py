@@ -26,8 +26,7 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from flexstab.config import load_config
-from flexstab.options import dump_json, ensure_out_dir, parse_omega
+from flexstab.options import dump_json, ensure_out_dir, gains_as_lists, parse_omega, result_output
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -136,12 +135,10 @@ def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float], cfg=No
 
 def validation_report(args: argparse.Namespace):
     """Run the validation requested by ``args``; return ``(dict, MultiplierValidation)``."""
-    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
-
     if args.model != "exudyn":
         return _model_file_report(args)
-    cfg = load_config(args.config)
-    omega = parse_omega(args.omega) if args.omega is not None else cfg.omega
+    # every argument is checked before the numerical imports and the configuration
+    omega = parse_omega(args.omega) if args.omega is not None else None
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
     for nm, g in (("kp", kps), ("kd", kds)):
         if g is not None and len(g) != 1:
@@ -161,15 +158,22 @@ def validation_report(args: argparse.Namespace):
                         strict=True)
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
+    spectral_radius = _spectral_radius(args)
+    from flexstab.config import load_config
+
+    cfg = load_config(args.config)
+    omega = cfg.omega if omega is None else omega
     if step is not None and step >= 2 * math.pi / omega:
         raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
     if args.out is not None:
-        out = ensure_out_dir(args.out)
+        ensure_out_dir(args.out)
+    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+
     kp, kd, source = resolve_gains(omega, kp, kd, cfg)
     if growth is None:
         growth = 3 if (kp == 0.0 and kd == 0.0) else 0
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
-                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
+                                   growth_periods=growth, spectral_radius=spectral_radius)
     res = validate_link_multipliers(cfg.manipulator, omega, kp, kd, elements=elements, samples=samples,
                                     config=config, predict_reference=args.predict_reference)
     d = res.to_dict()
@@ -186,28 +190,24 @@ def _spectral_radius(args: argparse.Namespace) -> float:
 
 def _model_file_report(args: argparse.Namespace):
     """``--model PATH.py`` (or a built-in model name): the generic path."""
-    from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
-
     if args.config is not None:
         raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
     if args.predict_reference != "periodic":
         raise ValueError("--predict-reference rigid applies to the built-in single link only")
-    from mbs_models.model_file import BUILTIN_MODELS, resolve_model
+    # every argument is checked before the numerical imports and the model file
+    from flexstab.options import check_model_arg, is_model_file
 
+    check_model_arg(args.model)
     options: dict = {}
     if args.elements is not None:
-        if args.model not in BUILTIN_MODELS:
+        if is_model_file(args.model):
             raise ValueError("--elements applies to the built-in models only (a model file sets its own mesh)")
         options["elements"] = _number("elements", args.elements, minimum=1, integer=True)
-    definition = resolve_model(args.model, **options)
     omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
     T = 2 * math.pi / omega
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
-    from validation.multipliers import MODEL_SAMPLES
-
-    samples = _number("samples", args.samples if args.samples is not None else str(MODEL_SAMPLES), minimum=4,
-                      integer=True)
-    if samples % 2:
+    samples = (_number("samples", args.samples, minimum=4, integer=True) if args.samples is not None else None)
+    if samples is not None and samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
     step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
     if step is not None and step >= T:
@@ -218,10 +218,16 @@ def _model_file_report(args: argparse.Namespace):
     amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True) if args.amplitude is not None else None
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
+    spectral_radius = _spectral_radius(args)
     if args.out is not None:
         ensure_out_dir(args.out)
+    from mbs_models.model_file import resolve_model
+    from validation.multipliers import MODEL_SAMPLES, MultiplierCheckConfig, validate_model_multipliers
+
+    definition = resolve_model(args.model, **options)
+    samples = MODEL_SAMPLES if samples is None else samples
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
-                                   growth_periods=growth, spectral_radius=_spectral_radius(args))
+                                   growth_periods=growth, spectral_radius=spectral_radius)
     res = validate_model_multipliers(definition, omega, kp=kps if kps else 0.0, kd=kds if kds else 0.0,
                                      samples=samples, config=config)
     d = res.to_dict()
@@ -298,7 +304,11 @@ def _text(d: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    d, res = validation_report(args)
+    from flexstab.progress import progress_log
+
+    with progress_log("validation", "validate"):  # the measurement's steps, one line each, on stderr
+        d, res = validation_report(args)
+    gains_as_lists(d)
     if args.out is not None:
         from validation.plots import plot_multiplier_plane
 
@@ -307,8 +317,14 @@ def run(args: argparse.Namespace) -> int:
         gains = ", ".join(f"{g['name']}: kp = {g['kp']:.4g}, kd = {g['kd']:.4g}" for g in d.get("drives", []))
         plot_multiplier_plane([res], out / "validation.png",
                               titles=[f"{d['model']}, Omega = {d['omega_over_pi']:.4g} pi" + (f", {gains}" if gains else "")])
-    if args.json:
-        dump_json(d, sys.stdout)
-    else:
-        print(_text(d))
-    return 0
+    with result_output(args):
+        if args.json:
+            dump_json(d, sys.stdout)
+        else:
+            print(_text(d))
+    from flexstab.checks import exit_code, validation_failures
+
+    failures = validation_failures(d)
+    for line in failures:
+        print(f"flexstab validate: check failed: {line}", file=sys.stderr)
+    return exit_code(failures)

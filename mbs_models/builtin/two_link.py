@@ -1,4 +1,4 @@
-"""Built-in model file: the two-link flexible manipulator of issue 11 (``--model two-link``).
+"""Built-in model file: the two-link flexible manipulator (``--model two-link``).
 
 A model file in the sense of the package's contract: :func:`build` adds the
 system to an empty Exudyn ``MainSystem`` (it does not call ``Assemble``) and
@@ -84,7 +84,7 @@ __all__ = ["TwoLinkParameters", "HarmonicMotion", "build", "DEFAULT_ELEMENTS", "
 #: Default ANCF elements per link.  Two cubic elements per link already give the
 #: locked-arm frequencies to 9e-6 (f1) and 5e-4 (f2) against Euler-Bernoulli; the
 #: dominant (drive-mode) multipliers change by less than the propagator error
-#: between 2, 4 and 8 elements (README, issue 11), while the cost of the Floquet
+#: between 2, 4 and 8 elements (docs/two-link.md), while the cost of the Floquet
 #: product grows with the cube of the size and the axial frequencies with the mesh.
 DEFAULT_ELEMENTS = 2
 
@@ -101,7 +101,7 @@ NODE_NAMES = ("hub", "link1", "elbow_housing", "elbow_rotor", "link2")
 
 @dataclass(frozen=True)
 class TwoLinkParameters:
-    """Data of the two-link arm (SI units); defaults are issue 11's values.
+    """Data of the two-link arm (SI units); defaults are the arm's design values.
 
     Link section and material are Table 1 of the reference paper (both links).
     """
@@ -198,7 +198,7 @@ def build(
         Structural damping of the cables (Exudyn's ``bendingDamping``,
         ``axialDamping``), default 0 (undamped beams, as in the paper).
     parameters : TwoLinkParameters, optional
-        All other data (default: issue 11's values).
+        All other data (default: the arm's design values).
 
     Returns
     -------
