@@ -141,6 +141,10 @@ class StudyConfig:
         ANCF elements of the Exudyn model (>= 1).
     damping : mbs_models.damping.DampingSpec
         Structural damping of the beam elements (``--damping``; default none).
+    rtol : float
+        The accuracy contract of printed multipliers (``docs/accuracy.md``): every multiplier with
+        modulus ``>= 1e-6`` of the largest is certified to this relative error or reported with the
+        reason (``--rtol`` overrides it; default 1e-6).
     """
 
     manipulator: ManipulatorParameters = field(default_factory=ManipulatorParameters)
@@ -151,6 +155,7 @@ class StudyConfig:
     elements: int = 8
     robust: RobustSettings = field(default_factory=RobustSettings)
     damping: Any = None
+    rtol: float = 1e-6
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.omega) and self.omega > 0):
@@ -167,6 +172,9 @@ class StudyConfig:
 
         if not isinstance(self.damping, DampingSpec):
             object.__setattr__(self, "damping", parse_damping(self.damping))
+        if isinstance(self.rtol, bool) or not isinstance(self.rtol, (int, float)) \
+                or not (math.isfinite(self.rtol) and 0.0 < self.rtol < 1.0):
+            raise ValueError(f"rtol must be a number in (0, 1), got {self.rtol!r}")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "StudyConfig":
