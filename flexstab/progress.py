@@ -20,7 +20,7 @@ __all__ = ["LineProgress", "MIN_INTERVAL", "progress_bars", "make_bar", "progres
 
 #: Seconds between two lines of a :class:`LineProgress` (its first line, too, comes only after this
 #: long: a step that ends sooner prints nothing, so quick runs and one-line errors stay one line).
-MIN_INTERVAL = 2.0
+MIN_INTERVAL = 5.0
 
 
 class LineProgress:
