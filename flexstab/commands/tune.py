@@ -417,7 +417,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill where the engine rule says so (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
-        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
+        unreachable = unreachable_mode(getattr(plant, "orbit", None), omega, tcfg)
         choice = sys.modules[__name__].plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
         if unreachable is not None:
