@@ -257,7 +257,14 @@ def test_line_progress_writes_one_line_per_step_at_most_every_interval():
             bar.update(1)
     lines = buf.getvalue().splitlines()
     assert lines[0] == f"tune: 2/10 eval (20 %), {MIN_INTERVAL:.1f} s" and lines[-1].startswith("tune: 10/10 eval (100 %)")
-    assert len(lines) == 6  # every second step, and the last line once more on close
+    assert len(lines) == 5  # every second step; the last step's line is not repeated on close
+    odd = io.StringIO()
+    now[0] = 0.0
+    with LineProgress(total=3, stream=odd, clock=lambda: now[0]) as bar:
+        for _ in range(3):
+            now[0] += 0.6 * MIN_INTERVAL
+            bar.update(1)
+    assert [ln.split(":")[1].split()[0] for ln in odd.getvalue().splitlines()] == ["2/3", "3/3"]  # close: 3/3
     quick = io.StringIO()
     with LineProgress(total=3, stream=quick, clock=lambda: 0.0) as bar:
         bar.update(3)
