@@ -5,6 +5,9 @@ from the periodic orbit perturbed along the predicted Floquet vectors) is
 measured with generalised-alpha at ``rho_inf = 1`` and steps ``h, h/2, h/4``;
 its eigenvalues are compared with the predicted multipliers in modulus and
 phase within the measurement's error bar (:mod:`validation.multipliers`).
+With ``--full-map`` (model files) the whole one-period map is also measured
+from random constraint-consistent perturbations (:mod:`validation.full_map`);
+a resolved slow multiplier without a predicted partner is a failed check.
 
 Gains: ``--kp``/``--kd`` if given (a missing one is 0; one value per drive,
 comma-separated, or one value for all); if neither is given, the study's rule
