@@ -11,10 +11,6 @@ its coordinate from there (Exudyn's ODE2 coordinates).
 """
 import math
 
-import numpy as np
-from exudyn.itemInterface import (CoordinateSpringDamper, LoadMassProportional, MarkerBodyMass, MarkerBodyPosition,
-                                  MarkerNodeCoordinate, NodePointGround, NodeRigidBody2D, ObjectGround,
-                                  ObjectJointRevolute2D, ObjectRigidBody2D)
 
 L1, L2 = 0.5, 0.4                        # link lengths (m)
 RHO_A = 2700.0 * 4e-4                    # mass per length (kg/m)
@@ -49,51 +45,17 @@ def motions(omega):
     return r1, r2
 
 
-def _e(phi):
-    return np.array([math.cos(phi), math.sin(phi)])
-
-
-def _en(phi):
-    return np.array([-math.sin(phi), math.cos(phi)])
-
-
 def build(mbs, omega):
-    r1, r2 = motions(omega)
-    p1, w1, _ = r1(0.0)
-    rel, wrel, _ = r2(0.0)
-    p2, w2 = p1 + rel, w1 + wrel
-    x1 = C1 * _e(p1)
-    v1 = C1 * w1 * _en(p1)
-    x2 = L1 * _e(p1) + C2 * _e(p2)
-    v2 = L1 * w1 * _en(p1) + C2 * w2 * _en(p2)
-    ground = mbs.AddObject(ObjectGround())
-    gnode = mbs.AddNode(NodePointGround())
-    mg = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=gnode, coordinate=0))
-    n1 = mbs.AddNode(NodeRigidBody2D(referenceCoordinates=[x1[0], x1[1], p1], initialVelocities=[v1[0], v1[1], w1]))
-    n2 = mbs.AddNode(NodeRigidBody2D(referenceCoordinates=[x2[0], x2[1], p2], initialVelocities=[v2[0], v2[1], w2]))
-    b1 = mbs.AddObject(ObjectRigidBody2D(nodeNumber=n1, mass=M1, inertia=J1, name="link 1"))
-    b2 = mbs.AddObject(ObjectRigidBody2D(nodeNumber=n2, mass=M2, inertia=J2, name="link 2"))
-    m_g = mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[0, 0, 0]))
-    m_1a = mbs.AddMarker(MarkerBodyPosition(bodyNumber=b1, localPosition=[-C1, 0, 0]))
-    m_1b = mbs.AddMarker(MarkerBodyPosition(bodyNumber=b1, localPosition=[L1 - C1, 0, 0]))
-    m_2a = mbs.AddMarker(MarkerBodyPosition(bodyNumber=b2, localPosition=[-C2, 0, 0]))
-    mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[m_g, m_1a]))
-    mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[m_1b, m_2a]))
-    for b in (b1, b2):
-        mbs.AddLoad(LoadMassProportional(markerNumber=mbs.AddMarker(MarkerBodyMass(bodyNumber=b)),
-                                         loadVector=[0, -G, 0]))
-    a1 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n1, coordinate=2))
-    a2 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n2, coordinate=2))
-    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[mg, a1], damping=ALPHA))
-    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[a1, a2], damping=ALPHA))
+    return _double_pendulum().build_arm(mbs, motions(omega), M1=M1, J1=J1, C1=C1, L1=L1, M2=M2, J2=J2, C2=C2,
+                                        alpha=ALPHA)
 
-    def d1(t):
-        q, qt, qtt = r1(t)
-        return q - p1, qt, qtt
 
-    def d2(t):
-        q, qt, qtt = r2(t)
-        return q - rel, qt, qtt
+def _double_pendulum():
+    """The sibling model file's generic two-body arm (loaded by path, as model files are)."""
+    import importlib.util
+    from pathlib import Path
 
-    return [{"name": "shoulder", "markers": (mg, a1), "motion": d1},
-            {"name": "elbow", "markers": (a1, a2), "motion": d2}]
+    spec = importlib.util.spec_from_file_location("double_pendulum", Path(__file__).with_name("double_pendulum.py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
