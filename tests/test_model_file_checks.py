@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import re
 import textwrap
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -81,14 +80,7 @@ def test_wrong_derivatives_exit_2_with_one_line(tmp_path, capsys):
 
 
 def _drive(fn, **extra) -> Drive:
-    return (_BreakDrive if extra else Drive)(name="d", markers=(0, 1), motion=fn, **extra)
-
-
-@dataclass(frozen=True)
-class _BreakDrive(Drive):
-    """A drive declaring the times where its motion is not smooth (the ``breakpoints`` of the drive contract)."""
-
-    breakpoints: tuple = ()
+    return Drive(name="d", markers=(0, 1), motion=fn, **extra)
 
 
 def _triangle(T: float):
