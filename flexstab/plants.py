@@ -3,10 +3,12 @@
 A model file's response (:data:`MODEL_RESPONSE`) is the modulus of the dominant labelled
 multiplier (drive modes and the first bending mode).  How it is evaluated depends on the model:
 
-* the built-in models of :data:`HILL_MODELS` (the two-link arm, whose stiff undamped axial modes
-  make time-stepping products converge erratically in their step count): Hill's method,
-  :class:`linearize.hill_plant.HillModelPlant`, its harmonic count chosen once at the centre of the
-  tuning ranges (:func:`hill_plant`);
+* a model whose linearisation the engine rule :func:`stability.engines.rule.choose_method` gives to
+  Hill's method (stiff modes whose frozen frequencies change so much over the period that the
+  frozen-modal product would need more than its step budget for the tuning tolerance -- the
+  two-link arm, whose elbow couples the links' axial and bending modes differently along the
+  period): :class:`linearize.hill_plant.HillModelPlant`, its harmonic count chosen once at the
+  centre of the tuning ranges (:func:`hill_plant`);
 * every other model: the Richardson-extrapolated exponential midpoint in the frozen-modal frame,
   :class:`linearize.analysis.ModelPlant`, its step count chosen once at the centre of the tuning
   ranges (:func:`propagator_steps`) unless given.
@@ -25,25 +27,23 @@ import dataclasses
 import logging
 import math
 import warnings
-from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
 from linearize.analysis import ModelPlant
 from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.engines.rule import choose_method, system_properties
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_MODELS", "HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "is_hill_model",
-           "hill_plant", "hill_choice", "StepsChoice", "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
+__all__ = ["HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice",
+           "relative_tolerance", "response_method", "uses_hill", "hill_plant", "hill_choice", "StepsChoice",
+           "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum",
+           "mesh_dependence", "response_note"]
 
 logger = logging.getLogger(__name__)
 
-#: Built-in model files tuned with Hill's method as the response (stiff undamped FE modes make the
-#: exponential-midpoint product converge erratically in its step count; see linearize.hill_plant).
-HILL_MODELS = ("two-link",)
-
-#: Hill harmonic counts tried (fewest first) for a model of :data:`HILL_MODELS`; see
+#: Hill harmonic counts tried (fewest first) for a model evaluated by Hill's method; see
 #: :func:`linearize.hill_plant.select_harmonics`.
 HILL_HARMONICS = (8, 12, 16, 24, 32)
 
@@ -52,24 +52,29 @@ MAX_TUNING_STEPS = 4096
 
 #: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
+#: The modes :data:`MODEL_RESPONSE` covers, in a sentence ("the ... decay at 0.30 per period").
+MODEL_RESPONSE_MODES = "drive modes and bending 1"
 
 Plant = Union[HillModelPlant, ModelPlant]
 
 
-def is_hill_model(definition: Any) -> bool:
-    """Whether ``definition`` (a :class:`~mbs_models.model_file.ModelDefinition`) is a built-in model of
-    :data:`HILL_MODELS` -- by name *and* file, so a user's file that happens to be called ``two-link.py``
-    is not."""
-    from mbs_models.model_file import BUILTIN_MODELS
+def relative_tolerance(config: Optional[TuningConfig]) -> float:
+    """The relative accuracy a tuning response needs: a quarter of the tuning tolerance over rho_d (the
+    fraction the step and harmonic choices meet), ``2.5e-4`` for the default configuration."""
+    config = config if config is not None else TuningConfig()
+    return 0.25 * config.effective_tolerance / abs(config.target)
 
-    name = getattr(definition, "name", None)
-    source = getattr(definition, "source", None)
-    if name not in HILL_MODELS or name not in BUILTIN_MODELS or not source:
-        return False
-    import mbs_models.model_file as mf
 
-    builtin = Path(mf.__file__).with_name("builtin") / BUILTIN_MODELS[name]
-    return Path(source).resolve() == builtin.resolve()
+def response_method(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> str:
+    """The engine rule (:func:`stability.engines.rule.choose_method`) applied to the linearisation at gains 0
+    with the tuning's relative accuracy: ``"hill"``, ``"modal"`` or ``"magnus"`` (the last two are both
+    evaluated by the time-stepping :class:`ModelPlant`)."""
+    return choose_method(system_properties(lin), rtol=relative_tolerance(config))
+
+
+def uses_hill(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> bool:
+    """Whether a model's tuning response is Hill's: it has drives and :func:`response_method` says so."""
+    return bool(lin.B is not None and lin.B.shape[-1]) and response_method(lin, config) == "hill"
 
 
 def _centre(config: TuningConfig) -> tuple[list, list]:
@@ -180,7 +185,7 @@ class PlantChoice:
 def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem,
                      config: Optional[TuningConfig], *, steps: Optional[int] = None) -> PlantChoice:
     """:func:`plant_for` with the record of the harmonic choice (``tune --model`` reports it)."""
-    if lin.B is not None and lin.B.shape[-1] and is_hill_model(definition):
+    if uses_hill(lin, config):
         if steps is not None:
             raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (its harmonics are "
                              "chosen at the centre of the gain ranges): there are no propagator steps to set")
@@ -204,7 +209,7 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
     Parameters
     ----------
     definition : ModelDefinition
-        The model (decides the method: :func:`is_hill_model`).
+        The model (its name is used in messages only: the method is decided by :func:`uses_hill`).
     orbit, lin
         Its periodic orbit and linearisation (gains 0) at the Omega.
     config : TuningConfig or None
@@ -242,14 +247,71 @@ def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: 
     dict
         ``response``, ``spectral_radius_all``, ``spectral_radius_all_mode``,
         ``spectral_radius_all_frequency_hz``, ``spectral_radius_all_error_estimate`` (a stable
-        JSON contract of ``tune --model`` and the study's two-link section).
+        JSON contract of ``tune --model`` and the study's two-link section; the estimate is the
+        relative error estimate of that multiplier itself, not the largest over all moduli),
+        ``verdict_detail`` (:func:`stability.verdict.judge_floquet` with the mode labels).
     """
     from linearize.analysis import analyze
 
     r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
     top = r.modes[0] if r.modes else {}
+    v = r.verdict
+    rho = float(r.floquet.spectral_radius)
     return {"response": MODEL_RESPONSE,
-            "spectral_radius_all": float(r.floquet.spectral_radius),
+            "spectral_radius_all": rho,
             "spectral_radius_all_mode": top.get("mode"),
             "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
-            "spectral_radius_all_error_estimate": float(r.floquet.error_estimate)}
+            "spectral_radius_all_error_estimate": float(v.spectral_radius_error / rho) if rho > 0 else None,
+            "verdict_detail": v.to_dict()}
+
+
+def mesh_dependence(resolve: Any, omega: float, kp: Sequence[float], kd: Sequence[float], elements: int) -> list:
+    """The whole loop's spectral radius of a built-in model at ``elements`` and ``2 elements``.
+
+    ``resolve(e) -> (definition, build options)`` gives the model with ``e`` elements
+    (e.g. :func:`flexstab.options.resolve_model_definition`).
+
+    Returns
+    -------
+    list of dict
+        Per mesh: ``elements``, ``spectral_radius``, ``mode``, ``frequency_hz``, ``error_estimate``
+        (relative, that multiplier's own), ``verdict``.
+    """
+    from linearize.analysis import analyze
+
+    out = []
+    for e in (int(elements), 2 * int(elements)):
+        definition, options = resolve(e)
+        r = analyze(definition, omega, kp=kp, kd=kd, **options)
+        v = r.verdict
+        out.append({"elements": e, "spectral_radius": v.spectral_radius, "mode": v.spectral_radius_label,
+                    "frequency_hz": v.spectral_radius_frequency_hz,
+                    "error_estimate": v.spectral_radius_error / v.spectral_radius if v.spectral_radius else None,
+                    "verdict": v.verdict})
+    return out
+
+
+def response_note(tuned: float, covers: str, verdict: dict, mesh: Optional[list] = None) -> Optional[str]:
+    """Words for a tuned response below the whole loop's spectral radius (``None`` when they are equal);
+    ``covers`` names the tuned modes (e.g. :data:`MODEL_RESPONSE_MODES`).
+
+    E.g. "the drive modes decay at 0.30 per period; axial 9 at 22.1 kHz decays at 0.557, set by the mesh
+    and by structural damping the model does not have".
+    """
+    rho = verdict.get("spectral_radius")
+    if rho is None or not rho > tuned * (1.0 + 1e-9):
+        return None
+    label = verdict.get("spectral_radius_mode") or "another mode"
+    f = verdict.get("spectral_radius_frequency_hz")
+    where = ""
+    if f:
+        where = f" at {f / 1e3:.3g} kHz" if f >= 1e3 else f" at {f:.3g} Hz"
+    text = (f"the {covers} decay at {tuned:.3g} per period; {label}{where} decays at {rho:.3g} per "
+            f"period (the whole loop's spectral radius)")
+    if mesh and len(mesh) > 1:
+        a, b = mesh[0], mesh[1]
+        text += (f"; {b['spectral_radius']:.3g} ({b['mode']}) at {b['elements']} elements instead of "
+                 f"{a['elements']}")
+        if abs(b["spectral_radius"] - a["spectral_radius"]) > 1e-3 * a["spectral_radius"]:
+            text += ": set by the mesh and by structural damping the model does not have (--damping)"
+    return text

@@ -360,8 +360,10 @@ def test_cli_model_file_json(capsys):
 
     o = _oracles()
     rc = main(["validate", "--model", o.PENDULUM, "--omega", "80", "--refinements", "1", "--json"])
-    assert rc == 0
-    d = json.loads(capsys.readouterr().out)
+    cap = capsys.readouterr()
+    # one refinement: an error bar but no verdict, so not a passed check (exit code 1, the reason on stderr)
+    assert rc == 1 and "check failed" in cap.err
+    d = json.loads(cap.out)
     assert d["model"] == "vertical_pendulum" and d["drives"] == [] and len(d["measured_multipliers"]) == 2
     ref = o.mathieu_multipliers(80.0, o._pend.AMPLITUDE, o._pend.DAMPING, False)
     for m in d["multipliers"]:

@@ -166,7 +166,7 @@ def _check_args(args: argparse.Namespace) -> None:
     check_model_arg(getattr(args, "model", None))
     w = getattr(args, "omega_range", None)
     if w is not None and not w[0] < w[1]:
-        raise ValueError(f"--omega-range must have LO < HI, got {w[0]:g} {w[1]:g}")
+        raise ValueError(f"--omega-range: omega range is empty or inverted: LO = {w[0]:g}, HI = {w[1]:g}")
 
 
 def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
@@ -195,7 +195,6 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
                                  plot_gain_chart, plot_omega_chart)
     from flexstab.executor import make_executor
     from flexstab.options import resolve_model_definition
-    from flexstab.plants import is_hill_model
     from linearize.hill_plant import HillModelPlant
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from taguchi.tuning import TuningConfig, check_gain_range, taguchi_tune
@@ -220,9 +219,6 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
         raise ValueError(f"--steps must be >= 1, got {steps}")
     target = args.target if args.target is not None else cfg.target
     definition, options = resolve_model_definition(args.model, cfg, args.elements)
-    if steps is not None and is_hill_model(definition):
-        raise ValueError(f"--steps: model {definition.name} is evaluated by Hill's method (harmonics chosen at the "
-                         "centre of the gain ranges): there are no propagator steps to set")
     out = ensure_out_dir(args.out)
 
     plants = ModelPlants(definition, options, samples=samples)
