@@ -434,8 +434,8 @@ def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], confi
                        integrator: str = "Newmark (beta = 1/4, gamma = 1/2, trapezoidal), index-2 constraints",
                        info: Optional[dict] = None, half_amplitude_map: Optional[np.ndarray] = None) -> FullMapResult:
     """Steps 3-5 of the module docstring on fitted maps (one per step level, coarse to fine): tracked,
-    extrapolated, the ``config.slowest`` largest kept.  Lets a measurement made level by level (e.g. stored
-    between runs) be assembled without repeating the runs."""
+    extrapolated, the ``config.slowest`` largest kept.  Lets a measurement made level by level (e.g. each
+    level stored on disk as it finishes) be assembled without repeating the runs."""
     mults: list = []
     if maps and not diverged:
         from validation.multipliers import MEASURED_FRACTION
