@@ -5,8 +5,8 @@ Per speed ``Omega`` (:class:`CampbellPointTask`, picklable, so the points can ru
 the monodromy matrix (:func:`linearize.analysis.analyze`), then the modes of the point
 (:func:`stability.campbell.floquet_modes`): the principal frequency of each mode by the harmonic content of
 its Floquet solution read in the linearisation's independent displacement coordinates ``z`` (which co-rotate
-with the bodies, as the package's mode labels do), in a window of harmonics centred on the frozen-time modal
-frequency of the mode (so that a structural mode far above ``Omega`` is not aliased), propagated in a
+with the bodies, as the package's mode labels do), of its harmonics' aliases the one nearest plus or minus
+the frozen-time modal frequency of the mode (so that a structural mode far above ``Omega`` is not aliased), propagated in a
 frozen-modal frame of the linearisation (where the stiff part is nearly constant); the mode shape for
 tracking are the displacements ``dq = N(0) z`` at ``t = 0`` in Exudyn's coordinates.  The modes are then tracked across the speeds by MAC
 and an optimal assignment (:func:`stability.campbell.campbell`).
@@ -31,12 +31,17 @@ logger = logging.getLogger(__name__)
 #: The frequency rule, as the JSON output states it.
 PRINCIPAL_RULE = ("principal frequency: Im(log(rho)/T) + k* Omega, k* the harmonic of Omega carrying the largest "
                   "share of the Floquet solution's periodic part, read in the linearisation's independent "
-                  "displacement coordinates (co-rotating with the bodies) over 64 harmonics centred on the "
-                  "frozen-time modal frequency; "
+                  "displacement coordinates (co-rotating with the bodies) at 64 samples, of k*'s aliases k* + 64 m the "
+                  "one nearest +-(the frozen-time modal frequency of the mode's label); "
                   "one mode per conjugate pair (the member with positive frequency); damping ratio "
                   "-Re(lambda)/|lambda| of that representative; 'harmonics' maps k - k* to its share")
 
 
+#: Propagator steps of a speed at which the adaptive solve (``--steps`` not given) cannot meet its
+#: tolerance (a ``FloquetError``): the fixed-step frozen-modal solve of :func:`linearize.analysis.analyze`
+#: with 4096 steps, Richardson-extrapolated, its error estimate in the point's JSON (measured on the slider-crank
+#: at 80 rad/s, where the adaptive solve stopped at 1.7e-9 > 1e-9: estimate 7e-9, 1.0 s CPU; 256 steps: 1e-1).
+FALLBACK_STEPS = 4096
 #: Modes whose multiplier the Floquet engine resolves to fewer digits (``reliable_digits``: a multiplier below
 #: the product's rounding floor, e.g. a strongly PD-damped mode) are left out of the diagram: their
 #: exponents, hence frequency and damping, are rounding noise.  The count is stated per speed.
@@ -80,13 +85,26 @@ class CampbellPointTask:
     def __call__(self, omega: float) -> dict:
         from linearize.analysis import analyze
 
+        from stability.floquet import FloquetError
+
         t0, c0 = time.perf_counter(), time.process_time()
         kp = self.kp if self.kp else 0.0
         kd = self.kd if self.kd else 0.0
-        res = analyze(self.definition(), float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=self.n_steps)
+        definition = self.definition()
+        fallback = None
+        try:
+            res = analyze(definition, float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=self.n_steps)
+        except FloquetError as exc:
+            if self.n_steps is not None:
+                raise
+            # the adaptive solve could not meet its rtol: the fixed-step solve, its estimate stated
+            fallback = f"adaptive solve failed ({exc}); {FALLBACK_STEPS} steps, extrapolated"
+            logger.warning("Omega = %.6g: %s", omega, fallback)
+            res = analyze(definition, float(omega), kp=kp, kd=kd, samples=self.samples, n_steps=FALLBACK_STEPS)
         modes = point_modes(res)
         out = {
             "omega": float(omega),
+            "fallback": fallback,
             "modes": modes,
             "unresolved_modes": _pairs(res.floquet.multipliers) - len(modes),
             "orbit_residual": float(res.orbit.residual),
@@ -248,14 +266,20 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
     shown = branches[:max_branches]
     fmax = max((max((v for v in b["frequency_hz"] if v is not None), default=0.0) for b in shown), default=1.0)
     fmax = max(fmax, 1e-12) * 1.25
-    fig, (ax, az) = plt.subplots(2, 1, figsize=(8, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
+    fig, (ax, az) = plt.subplots(2, 1, figsize=(10.5, 7.5), sharex=True, gridspec_kw={"height_ratios": [3, 2]})
     xs = np.array([x.min(), x.max()])
+    placed: list = []
     for k in range(1, orders + 1):
         ax.plot(xs, k * xs, color="0.6", lw=0.8, ls="--", zorder=1)
         xe = min(x.max(), fmax / k)
-        if xe > x.min():  # the label where the line leaves the axes (top or right edge), inside them
-            ax.annotate(f"{k}P", (xe, k * xe), textcoords="offset points", xytext=(-16, -12), fontsize=8,
-                        color="0.4")
+        ye = k * xe
+        # the label where the line leaves the axes (top or right edge), inside them; lines that leave
+        # close together (a frequency range far above the rotation) share the lowest one's label
+        span = max(float(x.max() - x.min()), 1e-300)
+        if xe > x.min() and all(math.hypot((xe - a) / span, (ye - b) / fmax) > 0.04 for a, b in placed):
+            ax.annotate(f"{k}P", (xe, ye), textcoords="offset points", xytext=(-16, -12 if ye > 0.1 * fmax else 2),
+                        fontsize=8, color="0.4")
+            placed.append((xe, ye))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for n, b in enumerate(shown):
         col = colors[n % len(colors)]
@@ -301,7 +325,8 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
 
         handles.append(Patch(color="red", alpha=0.15))
         labels.append("a mode unstable (ζ < 0)")
-    ax.legend(handles, labels, fontsize=8, loc="lower right", framealpha=0.9)
+    # beside the axes, never over the curves
+    ax.legend(handles, labels, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -32,6 +32,10 @@ def validation_failures(d: Mapping) -> list[str]:
         why = "; the step refinement does not converge" if d.get("step_converged") is False else ""
         failures.append("the multipliers measured from the nonlinear runs do not confirm the predicted ones "
                         f"(agrees = false{why})")
+    full = d.get("full_map") or {}
+    if full.get("unmatched"):
+        failures.append("the full one-period map has slow multipliers the prediction does not have (|mu| = "
+                        + ", ".join(f"{u['modulus']:.6g}" for u in full["unmatched"]) + ")")
     return failures
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import io
 import logging
 import os
 import re
@@ -114,9 +115,10 @@ def _run(args: argparse.Namespace) -> int:
 
         limit_blas_threads(blas_threads(args.blas_threads))  # before any numerical work (docs/running.md)
         # stdout is the command's result only (flexstab.options.result_output): whatever else is printed
-        # while it runs -- Exudyn's solver banners and warnings -- goes to stderr
+        # while it runs -- Exudyn's solver banners and warnings -- goes to stderr with -v, else nowhere
+        # (a failure is reported by its own one line)
         args.result_stdout = sys.stdout
-        with contextlib.redirect_stdout(sys.stderr):
+        with contextlib.redirect_stdout(sys.stderr if args.verbose else io.StringIO()):
             rc = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, inside the handler, not at interpreter exit
         return rc

@@ -12,6 +12,7 @@ Example (every key optional; missing ones take the paper's values)::
     kp_range = [0.0, 60.0]
     kd_range = [0.0, 40.0]
     elements = 8             # ANCF elements of the Exudyn model
+    damping = 1e-5           # structural damping of the beams (as --damping: BETA in s, or "beta=..,bending=..,axial=..")
 
     [robust]                 # robust design (tune --robust): noise factors of the outer array
     tip_mass = [0.05, 0.2]   # payload range in kg (nominal: [manipulator] tip_mass)
@@ -138,6 +139,12 @@ class StudyConfig:
         Initial search ranges of the PD gains (non-negative, low < high).
     elements : int
         ANCF elements of the Exudyn model (>= 1).
+    damping : mbs_models.damping.DampingSpec
+        Structural damping of the beam elements (``--damping``; default none).
+    rtol : float
+        The accuracy contract of printed multipliers (``docs/accuracy.md``): every multiplier with
+        modulus ``>= 1e-6`` of the largest is certified to this relative error or reported with the
+        reason (``--rtol`` overrides it; default 1e-6).
     """
 
     manipulator: ManipulatorParameters = field(default_factory=ManipulatorParameters)
@@ -147,6 +154,8 @@ class StudyConfig:
     kd_range: tuple[float, float] = (0.0, 40.0)
     elements: int = 8
     robust: RobustSettings = field(default_factory=RobustSettings)
+    damping: Any = None
+    rtol: float = 1e-6
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.omega) and self.omega > 0):
@@ -159,6 +168,13 @@ class StudyConfig:
         object.__setattr__(self, "kd_range", check_gain_range(self.kd_range, "kd_range"))
         if isinstance(self.elements, bool) or not isinstance(self.elements, int) or self.elements < 1:
             raise ValueError(f"elements must be an integer >= 1, got {self.elements!r}")
+        from mbs_models.damping import DampingSpec, parse_damping
+
+        if not isinstance(self.damping, DampingSpec):
+            object.__setattr__(self, "damping", parse_damping(self.damping))
+        if isinstance(self.rtol, bool) or not isinstance(self.rtol, (int, float)) \
+                or not (math.isfinite(self.rtol) and 0.0 < self.rtol < 1.0):
+            raise ValueError(f"rtol must be a number in (0, 1), got {self.rtol!r}")
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "StudyConfig":

@@ -165,7 +165,9 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     from flexstab.options import ensure_out_dir, resolve_model_definition
 
     t0, c0 = time.perf_counter(), _cpu()
-    definition, options = resolve_model_definition(model, cfg, opts.elements)
+    damping = getattr(cfg, "damping", None)  # --damping / [study] damping: the beams' structural damping
+    definition, options = resolve_model_definition(model, cfg, opts.elements,
+                                                   **(damping.build_options() if damping is not None else {}))
     out = ensure_out_dir(opts.out)
     from flexstab.study import folder_lock
 
@@ -298,6 +300,17 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
         checks.extend(tuning_check_failures(res.status, res.message, abs(check.dominant_multiplier),
                                             _absolute_estimate(check), opts.target, tcfg.effective_tolerance))
         doc["check"]["failures"] = list(checks)
+        # the whole closed loop at the tuned gains (stability.verdict), beside the tuned response
+        from flexstab.plants import MODEL_RESPONSE_MODES, response_note
+
+        whole = check.verdict.to_dict()
+        doc.update({"tuned_response": float(res.spectral_radius), "tuned_response_modes": MODEL_RESPONSE_MODES,
+                    "spectral_radius": whole["spectral_radius"], "spectral_radius_mode": whole["spectral_radius_mode"],
+                    "spectral_radius_frequency_hz": whole["spectral_radius_frequency_hz"],
+                    "spectral_radius_error_estimate": (whole["spectral_radius_error"] / whole["spectral_radius"]
+                                                       if whole["spectral_radius"] else None),
+                    "verdict": whole["verdict"], "verdict_detail": whole,
+                    "response_note": response_note(float(res.spectral_radius), MODEL_RESPONSE_MODES, whole)})
         (out / "tuning.json").write_text(json.dumps(_ready(doc), indent=2))
         if hill:
             how = (f"{res.status} after {res.evaluations} evaluations by Hill's method ({plant.harmonics} harmonics, "
@@ -315,6 +328,8 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
                  f"{how}."),
             table(["drive", "kp (N·m/rad)", "kd (N·m·s/rad)"],
                   [[n, f"{a:.5g}", f"{b:.5g}"] for n, a, b in zip(base.drives, kp, kd)]),
+            text(f"Whole closed loop at the tuned gains: {whole['message']}."
+                 + (f" In words: {doc['response_note']}." if doc["response_note"] else "")),
             *_multiplier_blocks(check, "Check at the tuned gains, a separate evaluation",
                                 f" (ρ_d = {opts.target:g})"),
         ]

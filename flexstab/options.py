@@ -8,7 +8,8 @@ from pathlib import Path
 
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
            "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
-           "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS"]
+           "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS",
+           "add_damping_option", "resolve_damping"]
 
 _PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -129,10 +130,21 @@ def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
 
     given = {k: v for k, v in builtin_options.items() if v}
     if is_model_file(model):
+        material = given.pop("material_damping", None)
         if elements is not None or given:
             flags = (["--elements"] if elements is not None else []) + ["--" + k.replace("_", "-") for k in given]
             raise ValueError(f"{', '.join(flags)} applies to built-in models only, not to a model file")
-        return load_model_file(model), {}
+        definition = load_model_file(model)
+        if material:
+            # the model-file contract: a build that accepts material_damping receives --damping's beta
+            import inspect
+
+            params = inspect.signature(definition.build).parameters
+            if "material_damping" not in params and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+                raise ValueError(f"--damping: the model file {model} takes no material damping (its build has no "
+                                 f"material_damping keyword; see docs/verdicts.md)")
+            return definition, {"material_damping": material}
+        return definition, {}
     if model not in BUILTIN_MODELS:
         raise ValueError(f"unknown model {model!r}: use reduced, exudyn, {', '.join(sorted(BUILTIN_MODELS))} "
                          f"or a model file PATH.py")
@@ -145,6 +157,35 @@ def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
 
 
 positive_float = _float_type(0.0, True, "finite and > 0")
+
+
+def add_damping_option(parser: argparse.ArgumentParser) -> None:
+    """``--damping``: structural damping of the beams (:mod:`mbs_models.damping`)."""
+    parser.add_argument("--damping", default=None, metavar="SPEC",
+                        help="structural damping of the beam elements: BETA, the Kelvin-Voigt loss time in s "
+                             "(bendingDamping = BETA EI, axialDamping = BETA EA; e.g. 1e-5), or "
+                             "beta=B,bending=X,axial=Y (Exudyn's values added); default [study] damping, else none")
+
+
+def resolve_damping(args: argparse.Namespace, cfg):
+    """The one damping rule: ``--damping`` if given, else ``[study] damping``; the raw
+    ``--bending-damping`` / ``--axial-damping`` values (where a command has them) are added.
+
+    Returns
+    -------
+    mbs_models.damping.DampingSpec
+    """
+    import dataclasses
+
+    from mbs_models.damping import parse_damping
+
+    text = getattr(args, "damping", None)
+    spec = parse_damping(text) if text is not None else getattr(cfg, "damping", None) or parse_damping(None)
+    extra_b = float(getattr(args, "bending_damping", 0.0) or 0.0)
+    extra_a = float(getattr(args, "axial_damping", 0.0) or 0.0)
+    if extra_b or extra_a:
+        spec = dataclasses.replace(spec, bending=spec.bending + extra_b, axial=spec.axial + extra_a)
+    return spec
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:

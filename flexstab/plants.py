@@ -36,9 +36,10 @@ from stability.engines.rule import choose_method, system_properties
 from stability.refine import double_until
 from taguchi.tuning import TuningConfig
 
-__all__ = ["HILL_HARMONICS", "MODEL_RESPONSE", "MAX_TUNING_STEPS", "PlantChoice", "relative_tolerance", "response_method",
-           "uses_hill",
-           "hill_plant", "hill_choice", "StepsChoice", "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum"]
+__all__ = ["HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice",
+           "relative_tolerance", "response_method", "uses_hill", "hill_plant", "hill_choice", "StepsChoice",
+           "propagator_choice", "propagator_steps", "plant_for", "plant_choice_for", "whole_spectrum",
+           "mesh_dependence", "response_note"]
 
 logger = logging.getLogger(__name__)
 
@@ -51,6 +52,8 @@ MAX_TUNING_STEPS = 4096
 
 #: What a model file's tuning response is (the JSON ``response`` field): the plant's labelled dominant multiplier.
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
+#: The modes :data:`MODEL_RESPONSE` covers, in a sentence ("the ... decay at 0.30 per period").
+MODEL_RESPONSE_MODES = "drive modes and bending 1"
 
 Plant = Union[HillModelPlant, ModelPlant]
 
@@ -237,14 +240,71 @@ def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: 
     dict
         ``response``, ``spectral_radius_all``, ``spectral_radius_all_mode``,
         ``spectral_radius_all_frequency_hz``, ``spectral_radius_all_error_estimate`` (a stable
-        JSON contract of ``tune --model`` and the study's two-link section).
+        JSON contract of ``tune --model`` and the study's two-link section; the estimate is the
+        relative error estimate of that multiplier itself, not the largest over all moduli),
+        ``verdict_detail`` (:func:`stability.verdict.judge_floquet` with the mode labels).
     """
     from linearize.analysis import analyze
 
     r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
     top = r.modes[0] if r.modes else {}
+    v = r.verdict
+    rho = float(r.floquet.spectral_radius)
     return {"response": MODEL_RESPONSE,
-            "spectral_radius_all": float(r.floquet.spectral_radius),
+            "spectral_radius_all": rho,
             "spectral_radius_all_mode": top.get("mode"),
             "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
-            "spectral_radius_all_error_estimate": float(r.floquet.error_estimate)}
+            "spectral_radius_all_error_estimate": float(v.spectral_radius_error / rho) if rho > 0 else None,
+            "verdict_detail": v.to_dict()}
+
+
+def mesh_dependence(resolve: Any, omega: float, kp: Sequence[float], kd: Sequence[float], elements: int) -> list:
+    """The whole loop's spectral radius of a built-in model at ``elements`` and ``2 elements``.
+
+    ``resolve(e) -> (definition, build options)`` gives the model with ``e`` elements
+    (e.g. :func:`flexstab.options.resolve_model_definition`).
+
+    Returns
+    -------
+    list of dict
+        Per mesh: ``elements``, ``spectral_radius``, ``mode``, ``frequency_hz``, ``error_estimate``
+        (relative, that multiplier's own), ``verdict``.
+    """
+    from linearize.analysis import analyze
+
+    out = []
+    for e in (int(elements), 2 * int(elements)):
+        definition, options = resolve(e)
+        r = analyze(definition, omega, kp=kp, kd=kd, **options)
+        v = r.verdict
+        out.append({"elements": e, "spectral_radius": v.spectral_radius, "mode": v.spectral_radius_label,
+                    "frequency_hz": v.spectral_radius_frequency_hz,
+                    "error_estimate": v.spectral_radius_error / v.spectral_radius if v.spectral_radius else None,
+                    "verdict": v.verdict})
+    return out
+
+
+def response_note(tuned: float, covers: str, verdict: dict, mesh: Optional[list] = None) -> Optional[str]:
+    """Words for a tuned response below the whole loop's spectral radius (``None`` when they are equal);
+    ``covers`` names the tuned modes (e.g. :data:`MODEL_RESPONSE_MODES`).
+
+    E.g. "the drive modes decay at 0.30 per period; axial 9 at 22.1 kHz decays at 0.557, set by the mesh
+    and by structural damping the model does not have".
+    """
+    rho = verdict.get("spectral_radius")
+    if rho is None or not rho > tuned * (1.0 + 1e-9):
+        return None
+    label = verdict.get("spectral_radius_mode") or "another mode"
+    f = verdict.get("spectral_radius_frequency_hz")
+    where = ""
+    if f:
+        where = f" at {f / 1e3:.3g} kHz" if f >= 1e3 else f" at {f:.3g} Hz"
+    text = (f"the {covers} decay at {tuned:.3g} per period; {label}{where} decays at {rho:.3g} per "
+            f"period (the whole loop's spectral radius)")
+    if mesh and len(mesh) > 1:
+        a, b = mesh[0], mesh[1]
+        text += (f"; {b['spectral_radius']:.3g} ({b['mode']}) at {b['elements']} elements instead of "
+                 f"{a['elements']}")
+        if abs(b["spectral_radius"] - a["spectral_radius"]) > 1e-3 * a["spectral_radius"]:
+            text += ": set by the mesh and by structural damping the model does not have (--damping)"
+    return text

@@ -20,7 +20,7 @@ __all__ = ["LineProgress", "MIN_INTERVAL", "progress_bars", "make_bar", "progres
 
 #: Seconds between two lines of a :class:`LineProgress` (its first line, too, comes only after this
 #: long: a step that ends sooner prints nothing, so quick runs and one-line errors stay one line).
-MIN_INTERVAL = 2.0
+MIN_INTERVAL = 5.0
 
 
 class LineProgress:
@@ -39,6 +39,7 @@ class LineProgress:
         self.n, self.postfix = 0, ""
         self.start = self.last = clock()
         self.lines = 0
+        self.written = -1  # the count of the last line written
         self.closed = False
 
     def _line(self) -> str:
@@ -51,6 +52,7 @@ class LineProgress:
         print(self._line(), file=self.stream, flush=True)
         self.lines += 1
         self.last = self.clock()
+        self.written = self.n
 
     def update(self, n: int = 1) -> None:
         """Count ``n`` more steps; write a line if ``min_interval`` has passed since the last one."""
@@ -62,8 +64,8 @@ class LineProgress:
         self.postfix = str(s)
 
     def close(self) -> None:
-        """Write the last line (if any line was written before), once."""
-        if not self.closed and self.lines:
+        """Write the last line (if any line was written before and the count moved since), once."""
+        if not self.closed and self.lines and self.written != self.n:
             self._write()
         self.closed = True
 

@@ -133,9 +133,13 @@ def compare_nominal_robust(
     objective = PlantNoiseObjective(factory, floquet_options)
     nominal_noise = robust.nominal_noise
     nominal = taguchi_tune(_AtNoise(objective, nominal_noise), tuning, executor=executor)
+    logger.info("nominal tuning: %s, %d evaluations, %.1f s", nominal.status, nominal.evaluations,
+                time.perf_counter() - t0)
     rob = robust_tune(objective, robust, executor=executor)
+    logger.info("robust tuning: %s, %d evaluations, %.1f s", rob.status, rob.evaluations, time.perf_counter() - t0)
     grid = noise_grid(robust.noise, grid_points)
     nc = worst_case(objective, nominal.gains, grid, nominal_noise, executor=executor)
+    logger.info("worst case of the nominal gains over %d grid points, %.1f s", len(grid), time.perf_counter() - t0)
     rc = worst_case(objective, rob.gains, grid, nominal_noise, executor=executor)
     target = tuning.target
     return RobustComparison(

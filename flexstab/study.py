@@ -15,7 +15,12 @@ report can be traced to a file:
    against the predicted multipliers;
 7. ``two_link`` -- the built-in two-link flexible arm (:mod:`flexstab.two_link_report`):
    orbit, Floquet uncontrolled, four-gain Taguchi tuning with an independent check of the
-   tuned value, figures (full study only; ``--quick`` leaves it out unless named).
+   tuned value, figures (full study only; ``--quick`` leaves it out unless named);
+8. ``sensitivity`` -- the verdict of the whole closed loop (:mod:`stability.verdict`) at the
+   reference gains for 2, 4, 8 ANCF elements (``quick``: 2, 4), without and with structural damping.
+
+The report opens with the verdict block (:mod:`flexstab.verdict_report`): uncontrolled, tuned and
+nonlinear check, in words and numbers (also the ``verdict`` key of ``study.json``).
 
 Which Omega
 -----------
@@ -158,6 +163,8 @@ def config_dict(cfg: StudyConfig) -> dict:
         "kp_range": list(cfg.kp_range),
         "kd_range": list(cfg.kd_range),
         "elements": cfg.elements,
+        # structural damping only when set (the hash of an undamped study's configuration is unchanged)
+        **({"damping": cfg.damping.to_dict()} if getattr(cfg.damping, "given", False) else {}),
     }
 
 
@@ -357,7 +364,14 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     # --quick: 16 collocation samples per period (32 in the full study; at 4 elements and 2pi the
     # dominant multipliers at the reference, zero and tuned gains agree to 1e-9 between the two)
     samples = 16 if opts.quick else 32
-    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples)
+    damp = {}
+    if getattr(cfg.damping, "given", False):  # [study] damping / --damping: the beams' structural damping
+        from mbs_models.damping import material_damping_values
+
+        b, a = material_damping_values(cfg.damping.material, cfg.manipulator.bending_stiffness,
+                                       cfg.manipulator.axial_stiffness, cfg.damping.bending, cfg.damping.axial)
+        damp = {"bending_damping": b, "axial_damping": a}
+    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples, **damp)
     # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
     # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
     plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
@@ -381,6 +395,11 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
             tuned = taguchi_tune(GainObjective(plant), tcfg)
             tuned_dominant, loop = tuned.spectral_radius, plant
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
+    # ---- verdicts of the whole closed loop (stability.verdict; the verdict block of the report reads them)
+    verdicts = {"verdict_uncontrolled": _whole_loop_verdict(ef.linearization, 0.0, 0.0),
+                "verdict_reference": ef.verdict.to_dict(),
+                "verdict_tuned": _whole_loop_verdict(ef.linearization, tuned.kp, tuned.kd)}
+    # ---- end of the verdicts
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "samples": samples,
         "target": cfg.target,
@@ -401,14 +420,19 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
         # tuned gains (tuned_dominant is always at the plant's full count, plant.n_steps)
         "tuning_propagator_steps": loop.n_steps, "propagator_steps": plant.n_steps,
         "tuning_step_doubling_estimate": step_check,
+        **verdicts,
     }
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
         text(f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic "
-             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`). 'dominant' = largest "
-             "multiplier of the modes the reduced model has (hub, first bending); the axial and higher bending "
-             "modes are undamped (no structural damping) and sit on the unit circle. Reference gains: "
-             f"{source}."),
+             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`; the reference-gain and "
+             "whole-loop values in the frozen-modal frame, the Taguchi loop's in the linearisation's own "
+             "coordinates). 'dominant' = largest multiplier of the modes the reduced model has (hub, first "
+             "bending); "
+             + (f"structural damping of the beams: {cfg.damping.describe()}. " if damp else
+                "the axial and higher bending modes are undamped (no structural damping) and sit on the unit "
+                "circle. ")
+             + f"Reference gains: {source}."),
         table(["Ω", "uncontrolled: dominant |ρ|", "reference kp, kd", "reference gains: Exudyn dominant |ρ|",
                "reference gains: reduced max|ρ|", "all modes max|ρ|", "Taguchi on Exudyn: kp, kd",
                "Taguchi on Exudyn: dominant |ρ|", "evals"],
@@ -426,8 +450,96 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
                    f"with {plant.n_steps}."))] if opts.quick else []),
         text(f"At the reference gains the Exudyn and reduced models differ by "
              f"{relative(row['reference_gains_dominant_exudyn'] / reduced - 1)} in the dominant multiplier."),
+        # the whole loop's verdicts (stability.verdict) reconcile 'dominant' with 'all modes max|ρ|'
+        text("The whole closed loop (every multiplier, rule of `docs/verdicts.md`): uncontrolled — "
+             f"{verdicts['verdict_uncontrolled']['message']}; reference gains — "
+             f"{verdicts['verdict_reference']['message']}; Taguchi gains — {verdicts['verdict_tuned']['message']}."),
     ]
     return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
+
+
+# ----------------------------------------------------------------------------- verdicts (stability.verdict)
+#: Kelvin-Voigt loss time (s) of the damped rows of the sensitivity stage (mbs_models.damping: zeta ~ 1e-3 at
+#: 30 Hz, the order of the material damping of a metal beam's lowest modes).
+SENSITIVITY_DAMPING = 1e-5
+
+
+def _whole_loop_verdict(lin, kp: float, kd: float, steps: int = 512) -> dict:
+    """:func:`stability.verdict.judge_floquet` of the whole Exudyn linearisation at ``(kp, kd)`` (frozen-modal
+    frame, extrapolated), with the mode labels, as a dict."""
+    from linearize.link_floquet import classify_multipliers
+    from stability.modal import modal_floquet
+    from stability.verdict import judge_floquet
+
+    sys_ = lin.with_gains(kp, kd)
+    res = modal_floquet(sys_, method="magnus2", n_steps=steps, accuracy="moduli", extrapolate=True)
+    modes = classify_multipliers(sys_, res)
+    return judge_floquet(res, labels=[m["mode"] for m in modes],
+                         frequencies=[m["frequency_hz"] for m in modes]).to_dict()
+
+
+def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
+    """The verdict's sensitivity to the mesh (2/4/8 elements; 2/4 in quick mode) and to structural damping
+    (none, and ``SENSITIVITY_DAMPING``) at the reference gains, Exudyn link."""
+    from linearize.link_floquet import exudyn_floquet
+    from mbs_models.damping import material_damping_values
+
+    kp, kd, source = _reference_gains(cfg, opts)
+    p = cfg.manipulator
+    meshes = (2, 4) if opts.quick else (2, 4, 8)
+    rows = []
+    base = cfg.damping if getattr(cfg.damping, "given", False) else None
+    dampings = [("none", 0.0, 0.0)]
+    b, a = material_damping_values(SENSITIVITY_DAMPING, p.bending_stiffness, p.axial_stiffness)
+    dampings.append((f"β = {SENSITIVITY_DAMPING:g} s", b, a))
+    if base is not None:
+        b, a = material_damping_values(base.material, p.bending_stiffness, p.axial_stiffness, base.bending, base.axial)
+        dampings.append((f"configured: {base.describe()}", b, a))
+    for e in meshes:
+        orbit = None
+        for name, b, a in dampings:
+            ex = exudyn_floquet(p, omega=cfg.omega, kp=kp, kd=kd, elements=e, samples=16 if opts.quick else 32,
+                                bending_damping=b, axial_damping=a, verify_orbit=False,
+                                orbit=orbit if (b == 0.0 and a == 0.0) else None)
+            if b == 0.0 and a == 0.0:
+                orbit = ex.orbit
+            v = ex.verdict.to_dict()
+            rows.append({"elements": e, "damping": name, "bending_damping": b, "axial_damping": a,
+                         "verdict": v["verdict"], "spectral_radius": v["spectral_radius"],
+                         "spectral_radius_mode": v["spectral_radius_mode"], "undamped_count": v["undamped_count"],
+                         "margin": v["margin"], "message": v["message"],
+                         "dominant_modulus": float(abs(ex.dominant_multiplier))})
+    (opts.out / "sensitivity.json").write_text(json.dumps({"rows": rows, "kp": kp, "kd": kd, "gains_source": source},
+                                                          indent=2))
+    blocks = [
+        text(f"The verdict of the whole closed loop (every multiplier, rule of `docs/verdicts.md`) at the reference "
+             f"gains ({source}: kp = {kp:.4f}, kd = {kd:.4f}) for {', '.join(map(str, meshes))} ANCF elements, "
+             f"without structural damping and with a Kelvin-Voigt loss time β (bendingDamping = β EI, "
+             f"axialDamping = β EA; `--damping`). " + _sensitivity_words(rows)),
+        table(["elements", "damping", "verdict", "spectral radius (mode)", "undamped multipliers",
+               "dominant |ρ| (hub, bending 1)"],
+              [[r["elements"], r["damping"], r["verdict"], f"{r['spectral_radius']:.10g} ({r['spectral_radius_mode']})",
+                r["undamped_count"], f"{r['dominant_modulus']:.5f}"] for r in rows]),
+    ]
+    return {"json": "sensitivity.json", "title": f"Verdict sensitivity to mesh and damping at Ω = {_w(cfg.omega)}",
+            "blocks": blocks}
+def _sensitivity_words(rows: list) -> str:
+    """What the sensitivity table shows, per damping, from its rows (never a claim the numbers do not make)."""
+    parts = []
+    for damping in dict.fromkeys(r["damping"] for r in rows):
+        sub = [r for r in rows if r["damping"] == damping]
+        verdicts = {r["verdict"] for r in sub}
+        where = ", ".join(f"{r['elements']}" for r in sub)
+        if len(verdicts) == 1:
+            parts.append(f"damping {damping}: {sub[0]['verdict']} at {where} elements")
+        else:
+            parts.append(f"damping {damping}: " + "; ".join(
+                f"{r['verdict']} at {r['elements']} elements ({r['spectral_radius_mode']}, "
+                f"|ρ| = {r['spectral_radius']:.6g})" for r in sub) + " -- the verdict depends on the mesh")
+    return "Measured: " + "; ".join(parts) + "."
+
+
+# ----------------------------------------------------------------------------- end of verdicts
 
 
 def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
@@ -523,6 +635,7 @@ STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
     "exudyn": _stage_exudyn,
     "validation": _stage_validation,
     "two_link": _stage_two_link,
+    "sensitivity": _stage_sensitivity,
 }
 
 #: Section titles (a stage's own title may name the Omega or the paper's table).
@@ -534,6 +647,7 @@ STAGE_TITLES: dict[str, str] = {
     "exudyn": "Exudyn ANCF model",
     "validation": "Nonlinear validation",
     "two_link": "Two-link flexible arm",
+    "sensitivity": "Verdict sensitivity to mesh and damping",
 }
 
 
@@ -650,6 +764,12 @@ def render_report(out: Path) -> tuple[Path, Path]:
              f"{manifest.get('elapsed', float('nan')):.1f} s."
              + (f" Reused from an earlier run with the same inputs: {', '.join(reused)}." if reused else "")),
     ]
+    # ---- the verdict block (flexstab.verdict_report): first section of the report
+    from flexstab.verdict_report import verdict_blocks, verdict_summary
+
+    computed = {k for k, e in manifest["stages"].items() if e.get("status") in ("computed", "reused")}
+    sections.insert(0, ("Verdict", verdict_blocks(verdict_summary(out, omega, computed))))
+    # ---- end of the verdict block
     title = "flexstab study report"
     md_path, html_path = out / "report.md", out / "report.html"
     md_path.write_text(to_markdown(title, preamble, sections))
@@ -727,7 +847,7 @@ def _prepare_out(out: Path) -> None:
 #: Chains of stages that each run in a process of their own beside this one when the study runs on
 #: several processes (``jobs >= 2``): the Exudyn chain (``validation`` reads the gains ``exudyn``
 #: tuned) and the independent two-link section.  Only those processes import Exudyn.
-EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link",))
+EXUDYN_CHAINS = (("exudyn", "validation"), ("two_link", "sensitivity"))
 #: Every stage of :data:`EXUDYN_CHAINS`.
 EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
 #: Stages left out of a ``quick`` study unless named explicitly (the two-link section: its tuning is
@@ -987,7 +1107,11 @@ def _run_study(cfg: StudyConfig, opts: StudyOptions, stages: Sequence[str], out:
     manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed, "cpu": cpu})
     write_manifest()
     md, ht = render_report(out)
-    (out / "study.json").write_text(json.dumps({"elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
+    from flexstab.verdict_report import verdict_summary
+
+    computed = {k for k, e in entries.items() if e.get("status") in ("computed", "reused")}
+    verdict = verdict_summary(out, cfg.omega, computed)
+    (out / "study.json").write_text(json.dumps({"verdict": verdict, "elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
                                                 "jobs": opts.jobs, "config_hash": chash,
                                                 "stages": {k: results[k] for k in stages if k in results}},
                                                indent=2, default=str))

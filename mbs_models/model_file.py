@@ -20,8 +20,9 @@ A *model file* is a plain Python module with a function::
   reference, ``T = 2 pi / omega`` -- or periodic up to whole turns,
   ``motion(t + T) = motion(t) + (2 pi k, 0, 0)`` with an integer ``k`` (a hub
   turning at constant speed: ``(omega t, omega, 0)``; :func:`drive_turns`).
-  An empty sequence is valid (a system excited only by its own rheonomic
-  constraints or periodic loads).
+  An optional key ``breakpoints`` lists the times in ``[0, T)`` where the
+  motion is not smooth (``docs/accuracy.md``).  An empty sequence is valid (a
+  system excited only by its own rheonomic constraints or periodic loads).
 * Machines that turn: the orbit may be periodic up to whole turns of angle
   coordinates (``NodeRigidBody2D`` angles, ``NodeRigidBodyRxyz`` angles),
   ``q(t + T) = q(t) + 2 pi k``.  The turns are read off one simulated period
@@ -125,11 +126,17 @@ class Drive:
     motion : callable
         ``t -> (q, q_t, q_tt)``: the T-periodic reference of the driven
         coordinate and its first two time derivatives.
+    breakpoints : tuple of float, optional
+        Times in ``[0, T)`` where the motion is not smooth (the corners of a
+        trapezoidal velocity profile, a cam law's acceleration jumps: there
+        ``P(t)`` jumps).  Default: none (a smooth motion).  See
+        ``docs/accuracy.md`` for what the analysis does with them.
     """
 
     name: str
     markers: tuple
     motion: Callable[[float], tuple]
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -143,6 +150,14 @@ class Drive:
         object.__setattr__(self, "markers", (int(markers[0]), int(markers[1])))
         if not callable(self.motion):
             raise ModelFileError(f"drive {self.name!r}: motion must be callable t -> (q, q_t, q_tt)")
+        try:
+            points = tuple(float(b) for b in self.breakpoints)
+        except (TypeError, ValueError):
+            raise ModelFileError(f"drive {self.name!r}: breakpoints must be a sequence of times, "
+                                 f"got {self.breakpoints!r}") from None
+        if not all(math.isfinite(b) and b >= 0.0 for b in points):
+            raise ModelFileError(f"drive {self.name!r}: breakpoints must be finite times >= 0, got {self.breakpoints!r}")
+        object.__setattr__(self, "breakpoints", points)
 
     @classmethod
     def coerce(cls, value: Any) -> "Drive":
@@ -151,12 +166,14 @@ class Drive:
             return value
         if isinstance(value, Mapping):
             missing = [k for k in ("name", "markers", "motion") if k not in value]
-            extra = sorted(set(value) - {"name", "markers", "motion"})
+            extra = sorted(set(value) - {"name", "markers", "motion", "breakpoints"})
             if missing:
                 raise ModelFileError(f"a drive misses the key(s) {', '.join(missing)} (needs name, markers, motion)")
             if extra:
-                raise ModelFileError(f"a drive has unknown key(s) {', '.join(map(str, extra))} (allowed: name, markers, motion)")
-            return cls(name=value["name"], markers=value["markers"], motion=value["motion"])
+                raise ModelFileError(f"a drive has unknown key(s) {', '.join(map(str, extra))} "
+                                     f"(allowed: name, markers, motion, breakpoints)")
+            return cls(name=value["name"], markers=value["markers"], motion=value["motion"],
+                       breakpoints=value.get("breakpoints", ()))
         raise ModelFileError(
             f"a drive must be a mapping with keys name, markers, motion (or a Drive), got {type(value).__name__}"
         )

@@ -103,20 +103,18 @@ class HarmonicContent:
     Attributes
     ----------
     harmonics : ndarray of int, shape (S,)
-        Harmonic numbers ``k`` (``-S/2 .. S/2 - 1``) of the columns of ``shares``.
+        Harmonics ``j = k - k*`` (``-S/2 .. S/2 - 1``) relative to each vector's principal one: the
+        columns of ``shares``.
     shares : ndarray, shape (r, S)
-        Per vector, ``|c_k|^2 / sum_k |c_k|^2`` of the output's periodic part with the base exponent
-        ``log(rho) / T``.
+        Per vector, ``|c_k|^2 / sum_k |c_k|^2`` of the output's periodic part at ``k = k* + j``.
     principal : ndarray of int, shape (r,)
-        ``k*``: the harmonic with the largest share.
+        ``k*``: the harmonic with the largest share, relative to the base exponent ``log(rho) / T`` (of its
+        aliases ``k* + m S``, the one chosen by ``centre``).
     closure : ndarray, shape (r,)
         ``|x(T) - rho x(0)| / |x(0)|`` of this module's own propagation (a check on it).
     samples : int
     steps : int
         Magnus-4 steps per period.
-    offset : ndarray of int, shape (r,)
-        Harmonic on which each vector's window is centred (0 without ``centre``): column ``i`` of ``shares``
-        is harmonic ``harmonics[i] + offset``.
     """
 
     harmonics: np.ndarray
@@ -125,7 +123,6 @@ class HarmonicContent:
     closure: np.ndarray
     samples: int
     steps: int
-    offset: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
 
 
 def _propagate(P: PeriodicMatrixFunction, Y0: np.ndarray, samples: int, steps_per_sample: int) -> np.ndarray:
@@ -176,12 +173,12 @@ def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, pe
         ``times -> (m, p, N)``: the output ``y = C(t) x`` whose harmonics are counted (e.g. the
         displacements in the model's coordinates); default the state.
     centre : ndarray, shape (r,), optional
-        A prior frequency per vector (rad/s, e.g. the frozen-time modal frequency): the window of
-        ``samples`` harmonics is centred on the harmonic nearest it instead of on ``log(rho) / T``.  With
-        ``S`` samples harmonics ``S`` apart cannot be told apart (aliasing); a mode far above ``S Omega / 2``
-        (a stiff structural mode of a slowly turning machine) needs this to be assigned its own window.
-        :attr:`HarmonicContent.harmonics` stay relative to ``log(rho) / T`` plus the window's offset,
-        :attr:`HarmonicContent.principal` includes the offset.
+        A prior frequency magnitude per vector (rad/s, e.g. the frozen-time modal frequency).  ``S``
+        samples determine the harmonic only modulo ``S`` (aliasing): of the aliases ``k* + m S`` of the
+        largest share, the one whose frequency ``Im log(rho)/T + k Omega`` lies nearest ``+centre`` or
+        ``-centre`` is taken (a stiff structural mode of a slowly turning machine lies far above
+        ``S Omega / 2``; which sign the vector turns with is not known beforehand).  Without it the alias
+        in ``-S/2 .. S/2 - 1``.
 
     Returns
     -------
@@ -220,26 +217,32 @@ def harmonic_content(P: Any, vectors: np.ndarray, multipliers: np.ndarray, *, pe
     Y = X if output is None else np.einsum("mpi,mir->mpr", np.asarray(output(times)), X)
     lam0 = np.log(mu) / T
     Om = 2.0 * math.pi / T
-    offset = np.zeros(mu.size, dtype=int)
-    if centre is not None:
-        offset = np.rint((np.asarray(centre, dtype=float) - lam0.imag) / Om).astype(int)
-    lam_b = lam0 + 1j * Om * offset
-    periodic = Y[:S] * np.exp(-np.outer(times[:S], lam_b))[:, None, :]
-    c = np.fft.fft(periodic, axis=0) / S  # (S, p, r); row k: harmonic k (mod S)
+    periodic = Y[:S] * np.exp(-np.outer(times[:S], lam0))[:, None, :]
+    c = np.fft.fft(periodic, axis=0) / S  # (S, p, r); row m: harmonic m (mod S)
     power = np.sum(np.abs(c) ** 2, axis=1).T  # (r, S)
-    k = np.fft.fftfreq(S, d=1.0 / S).astype(int)
-    order = np.argsort(k, kind="stable")
-    k, power = k[order], power[:, order]
     total = power.sum(axis=1, keepdims=True)
-    shares = power / np.where(total > 0, total, 1.0)
-    principal = k[np.argmax(shares, axis=1)] + offset
+    power = power / np.where(total > 0, total, 1.0)
+    top = np.argmax(power, axis=1)  # (mod S)
+    principal = ((top + S // 2) % S) - S // 2
+    if centre is not None:
+        prior = np.abs(np.asarray(centre, dtype=float))
+        for i in range(mu.size):
+            # the aliases k = top + m S around +-prior; keep the one nearest either
+            cand = []
+            for target in (prior[i], -prior[i]):
+                m = math.floor((target - lam0[i].imag) / Om - top[i]) // S
+                cand += [top[i] + (m + d) * S for d in (0, 1)]
+            principal[i] = min(cand, key=lambda k: min(abs(lam0[i].imag + k * Om - prior[i]),
+                                                        abs(lam0[i].imag + k * Om + prior[i])))
+    rel = np.arange(-(S // 2), S // 2)
+    shares = np.take_along_axis(power, (top[:, None] + rel[None, :]) % S, axis=1)
     worst = float(np.max(closure)) if closure.size else 0.0
     if worst > CLOSURE_WARNING:
         warnings.warn(f"harmonic content: the propagation reproduces the multipliers only to {worst:.1e} "
                       f"(relative); the harmonic shares may be blurred (raise steps_per_sample or propagate "
                       f"in a frozen-modal frame)", RuntimeWarning, stacklevel=2)
-    return HarmonicContent(harmonics=k, shares=shares, principal=principal, closure=closure, samples=S,
-                           steps=S * int(steps_per_sample), offset=offset)
+    return HarmonicContent(harmonics=rel, shares=shares, principal=principal, closure=closure, samples=S,
+                           steps=S * int(steps_per_sample))
 
 
 @dataclass(frozen=True)
@@ -349,8 +352,7 @@ def floquet_modes(P: Any, monodromy: np.ndarray, *, period: Optional[float] = No
     shapes = Xk.T if shape_map is None else (np.asarray(shape_map) @ Xk).T
     harmonics = []
     for col, i in enumerate(keep):
-        share = {int(k + hc.offset[col] - hc.principal[col]): float(s) for k, s in zip(hc.harmonics, hc.shares[col])
-                 if s >= min_share}
+        share = {int(j): float(s) for j, s in zip(hc.harmonics, hc.shares[col]) if s >= min_share}
         if lam[col].imag < 0:  # report the conjugate: its principal frequency is the positive one
             lam[col] = np.conj(lam[col])
             shapes[col] = np.conj(shapes[col])

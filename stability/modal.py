@@ -201,7 +201,11 @@ class ModalFloquetResult(FloquetResult):
 
 
 def _with_frame(res: FloquetResult, frame: str, levels: int, reason: str = "") -> ModalFloquetResult:
-    """``res`` as a :class:`ModalFloquetResult` recording the frame."""
+    """``res`` as a :class:`ModalFloquetResult` recording the frame (its certification recomputed
+    from its own estimates: the extrapolated and checked solves replace them)."""
+    from stability.floquet import recertify
+
+    res = recertify(res)
     values = {f.name: getattr(res, f.name) for f in fields(FloquetResult) if f.init}
     return ModalFloquetResult(**values, frame=frame, modal_levels=levels, fallback_reason=reason)
 

@@ -15,6 +15,7 @@ place where the first-order matrix ``P(t) = [[0, I], [-M^-1 K, -M^-1 C]]``
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
@@ -170,6 +171,10 @@ class SecondOrderPeriodicSystem:
         Whether the three callables accept arrays of times.
     name : str
         A label carried into results.
+    breakpoints : tuple of float
+        Times in ``[0, T)`` where ``M, C, K`` or a derivative jump (switching times, the corners of
+        a trapezoidal velocity profile); :func:`stability.floquet.floquet` lands its steps on them
+        so that each smooth piece converges at the method's order.  Default: none (smooth).
 
     Notes
     -----
@@ -183,9 +188,17 @@ class SecondOrderPeriodicSystem:
     stiffness: MatrixFunction
     vectorized: bool = False
     name: str = "second-order system"
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "period", check_period(self.period))
+        try:
+            points = tuple(float(b) for b in self.breakpoints)
+        except (TypeError, ValueError):
+            raise ValueError(f"breakpoints must be a sequence of times, got {self.breakpoints!r}") from None
+        if not all(math.isfinite(b) and 0.0 <= b < self.period for b in points):
+            raise ValueError(f"breakpoints must be finite times in [0, period), got {self.breakpoints!r}")
+        object.__setattr__(self, "breakpoints", points)
 
     def matrices(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(M, C, K)`` stacked over ``times`` (shape ``(m, f, f)`` each)."""
@@ -243,6 +256,22 @@ class PeriodicMatrixFunction:
         self._vectorised = callable(getattr(func, "evaluate", None))
         P0 = self._check(self._as_real(func(0.0), "P(0)")[None], "P(0)")
         self.n = P0.shape[-1]
+        self._broadcasts = not self._vectorised and self._accepts_arrays(P0[0])
+
+    def _accepts_arrays(self, P0: np.ndarray) -> bool:
+        """Whether the plain callable also maps an array of times to a stack ``(m, n, n)`` (numpy
+        code often does): tried once on two times and compared with the scalar calls."""
+        probe = np.array([0.0, 0.371 * self.period])
+        try:
+            with warnings.catch_warnings(), np.errstate(all="ignore"):
+                warnings.simplefilter("ignore")
+                stack = np.asarray(self.func(probe))
+                second = np.asarray(self.func(float(probe[1])), dtype=float)
+        except Exception:  # noqa: BLE001 - any failure means: call it per time
+            return False
+        if stack.shape != (2, self.n, self.n) or np.iscomplexobj(stack) or stack.dtype == object:
+            return False
+        return bool(np.array_equal(stack[0], P0) and np.allclose(stack[1], second, rtol=1e-14, atol=0.0))
 
     @staticmethod
     def _as_real(value: Any, what: str) -> np.ndarray:
@@ -272,6 +301,23 @@ class PeriodicMatrixFunction:
         times = np.asarray(times, dtype=float)
         if self._vectorised:
             P = self._as_real(self.func.evaluate(times), "P(t)")
+        elif self._broadcasts and times.ndim == 1:
+            P = self._as_real(self.func(times), "P(t)")
+            if P.shape != (times.size, self.n, self.n):
+                P = self._loop(times)
         else:
-            P = np.array([self._as_real(self.func(t), "P(t)") for t in times])
+            P = self._loop(times)
         return self._check(P, "P(t)")
+
+    def _loop(self, times: np.ndarray) -> np.ndarray:
+        """One call per time; the values converted to one stack at once (the per-value checks only
+        when that fails or a value is complex)."""
+        f = self.func
+        values = [f(t) for t in times.tolist()]
+        if values and not np.iscomplexobj(values[0]):
+            try:
+                return np.array(values, dtype=float)
+            except (TypeError, ValueError):
+                pass
+        return np.array([self._as_real(v, "P(t)") for v in values])
+

@@ -405,6 +405,9 @@ def robust_tune(
         lv_values = [np.linspace(r[0], r[1], s) for r, s in zip(rngs, inner.levels)]
         points = [tuple(float(x) for x in row) for row in to_design(inner, [v.tolist() for v in lv_values])]
         y, errors = _evaluate_crossed(objective, points, outer, executor, guarded=True)
+        logger.info("robust experiment %d: %d inner x %d outer runs evaluated (%d of %d evaluations)",
+                    len(history) + 1, inner.n_runs, len(outer), evaluations + inner.n_runs * len(outer),
+                    tcfg.max_evaluations)
         fails = record(lambda i: i, lambda i: points[i], errors)
         good = [i for i in range(len(points)) if not any((i, j) in errors for j in range(len(outer)))]
         if not good:

@@ -185,3 +185,26 @@ def test_harmonic_content_rejects_bad_input():
         harmonic_content(P, np.eye(4)[:, :1], np.zeros(1))
     with pytest.raises(ValueError, match="speeds but"):
         campbell([1.0, 2.0], [])
+
+
+def test_a_mode_far_above_the_sampled_harmonics_is_found_by_its_prior():
+    """A 403 rad/s oscillator at Omega = 10 rad/s: 64 samples fix its harmonic only modulo 64 (403 = 3 + 40 Omega;
+    the alias in -32..31 reads 237 rad/s).  With the frozen frequency as the prior (even 10 % off, and whichever
+    way the kept vector turns) the rule gives the exact frequency; without it, the wrong one."""
+    W, w_hi, w_lo = 10.0, 403.0, 5.0
+    P = Transformed(W, w_hi, w_lo, z1=0.001, z2=0.02)
+    Phi = P.monodromy()
+    exact_hi = w_hi * math.sqrt(1 - 0.001**2)
+    for scale in (1.0, 1.1, 0.9):
+        fm = floquet_modes(P, Phi, centres=_priors(P, Phi, w_hi * scale, w_lo), steps_per_sample=32)
+        assert np.max(fm.closure) < 1e-4
+        assert np.min(np.abs(fm.frequencies - exact_hi)) < 1e-8 * exact_hi
+    fm = floquet_modes(P, Phi, steps_per_sample=32)
+    assert np.min(np.abs(fm.frequencies - exact_hi)) > 100.0  # aliased without the prior
+
+
+def _priors(P, Phi, hi, lo):
+    """The prior of each eigenvalue (eig order): the damping tells the two oscillators apart."""
+    mu = np.linalg.eigvals(Phi)
+    decay = -np.log(np.abs(mu)) / P.period  # zeta * w: 0.403 for the fast one, 0.1 for the slow one
+    return [hi if d > 0.25 else lo for d in decay]

@@ -158,7 +158,13 @@ def test_auto_picks_magnus_for_the_reduced_model_with_the_same_number():
     model = ReducedModel(omega=2 * math.pi, kp=37.1617, kd=29.2410)
     sol = floquet(model)
     ref = magnus_floquet(model)
-    assert sol.method == "magnus" and np.array_equal(sol.multipliers, ref.multipliers)
+    known = np.asarray(ref.phase_known)
+    assert sol.method == "magnus"
+    tol = max(sol.error_estimate, ref.error_estimate)  # the same engine, each result within its own estimate
+    np.testing.assert_allclose(sol.multipliers[known], ref.multipliers[known], rtol=tol, atol=0)
+    # below the rounding floor of the formed product only the order of magnitude is data (phase unknown)
+    floor = 1e-12 * abs(ref.multipliers[0])
+    assert np.all(np.abs(sol.multipliers[~known]) < floor) and np.all(np.abs(ref.multipliers[~known]) < floor)
     assert abs(sol.spectral_radius - 0.3) < 1e-3  # Table 3 (Omega = 2 pi): the printed gains give rho_d = 0.3
 
 

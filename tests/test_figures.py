@@ -185,3 +185,27 @@ def test_two_link_gain_slices_keep_the_colour_bar_label_clear_of_the_title(tmp_p
     with capture() as saved:
         plot_gain_slices(sl, tmp_path / "slices.png")
     assert saved[0].defects == [], saved[0].defects
+
+
+def test_nonlinear_validation_figure_labels_every_time_axis_it_numbers(tmp_path):
+    """The three rows of the linear-vs-nonlinear figure each numbered their time axis but only the bottom one was
+    labelled (and its legends were 7 pt)."""
+    from validation.plots import plot_validation_figure
+
+    def run(rho, T=1.0, periods=6):
+        t = np.linspace(0, periods * T, 600)
+        hub, tip = 0.01 * rho ** (t / T) * np.cos(7 * t), 1e-4 * rho ** (t / T) * np.sin(30 * t)
+        strob = 0.01 * rho ** np.arange(periods + 1)
+        r = SimpleNamespace(period=T, times=t, hub_error=hub, tip_error=tip, stroboscopic=strob, kp=9.727, kd=6.484,
+                            linear_range_left_at=None, diverged=False, diverged_at=None,
+                            measured_ratio_per_period=rho, predicted_multiplier_exudyn=rho,
+                            predicted_multiplier_reduced=1.01 * rho, periods=periods, prediction=None, exudyn=None)
+        lp = SimpleNamespace(t=t, hub_error=1.01 * hub, tip_error=tip, envelope=lambda s: 0.01 * rho ** (s / T),
+                             envelope_constant=0.01, modulus=rho, stroboscopic=strob)
+        return r, lp
+
+    (r1, l1), (r2, l2) = run(0.3), run(1.4)
+    with capture() as saved:
+        plot_validation_figure([r1, r2], tmp_path / "vf.png", predictions=[l1, l2],
+                               titles=["Ω = 2π: kp = 9.727, kd = 6.484", "Ω = 2π: no control"], suptitle="runs")
+    assert saved[0].defects == [], saved[0].defects

@@ -138,10 +138,21 @@ def test_propagator_step_convergence_and_lead_engine(orbit2):
     assert abs(_hub_multiplier(lin, ref)) == pytest.approx(dom[2], rel=1e-4)
 
 
+#: The README's claim for the dominant multiplier at 2 pi with the Table 3 gains: 8 and 16 elements
+#: "identical to 1e-9" (absolute; one significant digit, so below 1.5e-9).  Measured: 1.14e-9, the same
+#: (3.6e-9 .. 3.9e-9 relative) with 64, 256 and adaptive propagator steps: the propagator's own error
+#: (~1e-6 at 64 steps) is common to both meshes and cancels in the difference.
+MESH_CLAIM = 1.5e-9
+
+
 @pytest.mark.slow
 def test_mesh_independence_8_vs_16_elements():
-    """8 and 16 elements agree to 0.5 % on the dominant multiplier."""
-    r8 = exudyn_floquet(kp=KP, kd=KD, elements=8, samples=16, n_steps=64, verify_orbit=False)
-    r16 = exudyn_floquet(kp=KP, kd=KD, elements=16, samples=16, n_steps=64, verify_orbit=False)
-    assert r16.dominant_mode == r8.dominant_mode == "hub"
-    assert abs(abs(r8.dominant_multiplier) - abs(r16.dominant_multiplier)) < 0.005 * abs(r16.dominant_multiplier)
+    """8 and 16 elements agree on the dominant multiplier to the README's 1e-9, and the mesh changes shrink."""
+    r = {e: exudyn_floquet(kp=KP, kd=KD, elements=e, samples=16, n_steps=64, verify_orbit=False) for e in (4, 8, 16)}
+    assert r[16].dominant_mode == r[8].dominant_mode == r[4].dominant_mode == "hub"
+    mu = {e: abs(x.dominant_multiplier) for e, x in r.items()}
+    assert abs(mu[8] - mu[16]) < MESH_CLAIM
+    # converging under refinement (measured changes 5.6e-9, 1.1e-9): a mesh-dependent value would not shrink
+    assert abs(mu[8] - mu[16]) < abs(mu[4] - mu[8])
+    # the bound can fail: the 4-element mesh is outside it (5.6e-9 from 8 elements)
+    assert abs(mu[4] - mu[8]) > MESH_CLAIM

@@ -288,13 +288,15 @@ def test_unconverged_propagator_is_flagged():
 
     from linearize.analysis import analyze
 
-    with pytest.warns(RuntimeWarning, match="not converged"):
+    with pytest.warns(RuntimeWarning, match="not converged|not certified"):
         res = analyze("single-link", 6 * math.pi, kp=22.2666, kd=6.7208, samples=16, elements=2, verify_orbit=False,
-                      frame="model", n_steps=512)
+                      frame="model", n_steps=512, refine=False)
     assert res.dominant_error_estimate > 1e-4
-    with pytest.warns(RuntimeWarning, match="not converged"):
-        coarse = analyze("single-link", 6 * math.pi, kp=22.2666, kd=6.7208, orbit=res.orbit, n_steps=16)
+    with pytest.warns(RuntimeWarning, match="not converged|not certified"):
+        coarse = analyze("single-link", 6 * math.pi, kp=22.2666, kd=6.7208, orbit=res.orbit, n_steps=16, refine=False)
     assert coarse.dominant_error_estimate > 1e-4
-    with _w.catch_warnings():
-        _w.simplefilter("error", RuntimeWarning)
+    with _w.catch_warnings(record=True) as caught:
+        _w.simplefilter("always", RuntimeWarning)
         analyze("single-link", 6 * math.pi, kp=22.2666, kd=6.7208, orbit=res.orbit)
+    # quiet about the propagator (the accuracy contract may still name small multipliers it missed)
+    assert not [w for w in caught if "not converged" in str(w.message)]

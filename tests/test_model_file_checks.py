@@ -167,3 +167,21 @@ def test_massless_free_node_is_named(tmp_path, capsys):
     from linearize.exudyn_system import ExudynSystem
 
     assert ExudynSystem(build_model(load_model_file(ok), 2 * math.pi)).n == 5
+
+
+@pytest.mark.slow
+def test_study_of_a_massless_free_node_says_so_once(tmp_path):
+    """The whole study of such a model: one line naming the node, exit code 2, nothing on stdout -- not
+    Exudyn's solver banner on stdout and a "redundant constraints" diagnosis once per stage."""
+    import os
+    import subprocess
+    import sys
+
+    path = _file(tmp_path, extra='mbs.AddNode(NodePoint2D(referenceCoordinates=[1.0, 0], name="loose end"))')
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    r = subprocess.run([sys.executable, "-m", "flexstab.cli", "study", "--model", str(path), "--quick", "--out",
+                        str(tmp_path / "out")], capture_output=True, text=True, env=env, timeout=600)
+    errors = [ln for ln in r.stderr.splitlines() if "error" in ln or "failed" in ln]
+    assert r.returncode == 2 and r.stdout == ""
+    assert len(errors) == 1 and "massless free node" in errors[0] and "'loose end'" in errors[0]
+    assert "redundant constraints" not in r.stderr and "SOLVER FAILED" not in r.stderr

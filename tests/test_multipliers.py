@@ -360,8 +360,10 @@ def test_cli_model_file_json(capsys):
 
     o = _oracles()
     rc = main(["validate", "--model", o.PENDULUM, "--omega", "80", "--refinements", "1", "--json"])
-    assert rc == 0
-    d = json.loads(capsys.readouterr().out)
+    cap = capsys.readouterr()
+    # one refinement: an error bar but no verdict, so not a passed check (exit code 1, the reason on stderr)
+    assert rc == 1 and "check failed" in cap.err
+    d = json.loads(cap.out)
     assert d["model"] == "vertical_pendulum" and d["drives"] == [] and len(d["measured_multipliers"]) == 2
     ref = o.mathieu_multipliers(80.0, o._pend.AMPLITUDE, o._pend.DAMPING, False)
     for m in d["multipliers"]:
@@ -542,3 +544,31 @@ def test_two_step_levels_give_no_verdict():
     assert err[0] == pytest.approx(3e-4) and not ok[0]
     three = np.vstack([two, [[0.3 + 0.25e-4]]])
     assert _step_error(three)[2][0]
+
+
+def test_amplitude_error_bar_equals_the_cubic_term_it_bounds():
+    # A diagonal map f(x) = mu x + kappa x^3 measured along e_i with energy s: the central difference
+    # gives mu + kappa s^2 exactly, so the reported (amplitude-s) value is kappa s^2 off, and the
+    # amplitude change mu(s) - mu(s/2) is (3/4) kappa s^2.  The bar must be (4/3) x change = kappa s^2:
+    # it covers the true error, and not by more than the rounding.  A bar of (1/3) x change
+    # (kappa s^2 / 4) would leave three quarters of the error uncovered.
+    mu = np.array([0.6, 0.3])
+    kappa = np.array([40.0, -25.0])
+    s = 1e-2
+    norm = energy_norm(np.eye(1), np.eye(1))  # state [p, v]: unit energy per coordinate, hub mass 1
+    pred = prediction_from_monodromy("diagonal", np.diag(mu), k=2)
+
+    def factory(h):
+        return lambda x, hh: mu * x + kappa * x**3  # step-independent: no step error
+
+    r = measure_multipliers(factory, np.zeros(2), pred, norm,
+                            MultiplierCheckConfig(compare=2, step=0.1, refinements=2, amplitude=s))
+    true_error = np.abs(r.measured - pred.multipliers)
+    order = np.argsort(-mu)
+    assert np.allclose(true_error, np.abs(kappa[order]) * s**2, rtol=1e-6)
+    assert np.allclose(r.amplitude_error, true_error, rtol=1e-6)
+    assert np.all(true_error <= r.errors)
+    # not looser than the error either: beyond the amplitude part only the step bar's floor (no step error here)
+    assert np.all(r.step_error <= 1e-6 * mu.max())
+    assert np.allclose(r.errors - r.step_error, true_error, rtol=1e-6)
+    assert r.agrees

@@ -20,12 +20,21 @@ import pytest
 
 from flexstab.cli import main as cli_main
 
+@pytest.fixture
+def stub_model_file(tmp_path, monkeypatch):
+    """A file ``x.py`` in the working folder: the CLI checks that a model file exists before it imports
+    anything; the tests stub what would be built from it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x.py").write_text("def build(mbs, omega):\n    return []\n")
+
+
 REL = 1e-12
 RANGES = ["--kp-range", "0", "30", "--kd-range", "0", "10"]
 
 
 def _stub_tune_after_checks(monkeypatch):
     import flexstab.commands.tune as tune
+    import flexstab.plants as plants
     import flexstab.two_link as tl
 
     class Check:
@@ -34,6 +43,7 @@ def _stub_tune_after_checks(monkeypatch):
         hill_error_estimate = 0.0
 
     monkeypatch.setattr(tune, "whole_spectrum", lambda *a, **k: {})
+    monkeypatch.setattr(plants, "mesh_dependence", lambda *a, **k: [])
     monkeypatch.setattr(tl, "check_multiplier", lambda *a, **k: Check())
 
 
@@ -70,7 +80,7 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
     s = json.loads((out / "tuning.json").read_text())
     assert s["response_method"] == ("hill" if model == "two-link" else "magnus2")
     assert s["tuning"]["gains"] == t["gains"]  # the same plant ranks the L9 runs alike
-    assert s["tuning"]["spectral_radius"] == pytest.approx(t["spectral_radius"], rel=REL, abs=0)
+    assert s["tuning"]["spectral_radius"] == pytest.approx(t["tuned_response"], rel=REL, abs=0)
 
     kp = ",".join(repr(v) for v in t["gains"][0::2])
     kd = ",".join(repr(v) for v in t["gains"][1::2])
@@ -81,7 +91,7 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
     c = json.loads(capsys.readouterr().out)
     assert c["response_method"] == s["response_method"]
     assert c["omega_chart"]["omega"][0] == w
-    assert c["omega_chart"]["spectral_radius_controlled"][0] == pytest.approx(t["spectral_radius"], rel=REL, abs=0)
+    assert c["omega_chart"]["spectral_radius_controlled"][0] == pytest.approx(t["tuned_response"], rel=REL, abs=0)
     # the discretisation choice is recorded alike: the step choice at the range centre for a
     # time-stepping plant; for Hill the chart's stable propagator_* fields hold the labelling steps and the
     # absolute H vs H/2 estimate, beside tune's names (label_steps, relative hill_error_estimate)
@@ -102,7 +112,7 @@ def test_tune_study_and_chart_give_the_same_response(model, tmp_path, monkeypatc
 
         o = two_link_orbit(w, 1)
         other = ModelPlant(linearize_orbit(o), o).spectral_measure(t["gains"][0::2], t["gains"][1::2])
-        assert abs(other - t["spectral_radius"]) > 1e3 * REL * t["spectral_radius"]
+        assert abs(other - t["tuned_response"]) > 1e3 * REL * t["tuned_response"]
 
 
 def test_hill_plant_caches_are_lru_functions_shared_by_copies_and_pickles():
@@ -152,7 +162,7 @@ def test_chart_plants_are_an_explicit_cache_shared_by_the_tasks(tmp_path):
 
 
 @pytest.mark.parametrize("tty", [True, False])
-def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path, monkeypatch, capsys):
+def test_progress_rule_is_the_same_for_tune_chart_and_study_model(stub_model_file, tty, tmp_path, monkeypatch, capsys):
     """tqdm bars on a terminal stderr, none otherwise, for all three commands (``study --model`` once had it
     inverted: bars off on a terminal); on a non-terminal the study prints one line per stage event instead.
     The commands' work is stubbed: only the flag each passes on is recorded."""
@@ -190,4 +200,10 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(tty, tmp_path,
     assert cli_main(["chart", "--model", "x.py", "--out", str(tmp_path)]) == 0
     assert cli_main(["tune", "--model", "x.py"]) == 1
     assert cli_main(["study", "--model", "x.py", "--out", str(tmp_path)]) == 0
-    assert seen == {"chart": tty, "tune": tty, "study": (tty, tty)}
+    # the progress rule (flexstab.progress.progress_bars): tqdm bars on a terminal, one line per step otherwise
+    from flexstab.progress import LineProgress
+
+    assert set(seen) == {"chart", "tune", "study"}
+    for name in ("chart", "tune"):
+        assert (seen[name].func is not LineProgress) == tty, name
+    assert (seen["study"][0].func is not LineProgress) == tty and seen["study"][1] == tty

@@ -144,7 +144,11 @@ def test_json_stdout_holds_only_the_json_object(monkeypatch, capsys):
     rc = cli_main(["floquet", "--json"])
     cap = capsys.readouterr()
     assert rc == 0 and isinstance(json.loads(cap.out), dict)  # one JSON object, nothing else
-    assert "a library print" in cap.err and "singular" in cap.err  # Exudyn's warning went to stderr
+    assert "a library print" not in cap.err + cap.out and "singular" not in cap.err  # quiet without -v
+    rc = cli_main(["-v", "floquet", "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0 and isinstance(json.loads(cap.out), dict)
+    assert "a library print" in cap.err and "singular" in cap.err  # with -v: Exudyn's warning on stderr
 
 
 # ----------------------------------------------------------------------------- exit codes
@@ -252,8 +256,15 @@ def test_line_progress_writes_one_line_per_step_at_most_every_interval():
             now[0] += 0.5 * MIN_INTERVAL
             bar.update(1)
     lines = buf.getvalue().splitlines()
-    assert lines[0] == "tune: 2/10 eval (20 %), 2.0 s" and lines[-1].startswith("tune: 10/10 eval (100 %)")
-    assert len(lines) == 6  # every second step, and the last line once more on close
+    assert lines[0] == f"tune: 2/10 eval (20 %), {MIN_INTERVAL:.1f} s" and lines[-1].startswith("tune: 10/10 eval (100 %)")
+    assert len(lines) == 5  # every second step; the last step's line is not repeated on close
+    odd = io.StringIO()
+    now[0] = 0.0
+    with LineProgress(total=3, stream=odd, clock=lambda: now[0]) as bar:
+        for _ in range(3):
+            now[0] += 0.6 * MIN_INTERVAL
+            bar.update(1)
+    assert [ln.split(":")[1].split()[0] for ln in odd.getvalue().splitlines()] == ["2/3", "3/3"]  # close: 3/3
     quick = io.StringIO()
     with LineProgress(total=3, stream=quick, clock=lambda: 0.0) as bar:
         bar.update(3)

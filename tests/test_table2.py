@@ -17,6 +17,7 @@ import pytest
 
 from mbs_models.reduced import ReducedModel
 from stability import floquet
+from stability.floquet import DEFAULT_RTOL
 from stability.reference import ReferenceOptions, paper_monodromy
 
 #: Table 2, p. 489: Omega/pi -> printed |rho_1|, |rho_2|, |rho_3| = |rho_4|.
@@ -158,7 +159,7 @@ def test_complex_multipliers_vs_paper_procedure_table2(paper_procedure_8pi):
     assert phase_err <= 10 * default.phase_error_estimate + 1e-10
     ours = floquet(model, accuracy="multipliers")
     assert ours.accuracy == "multipliers"
-    assert ours.error_estimate <= 1e-9 and ours.phase_error_estimate <= 1e-9  # the default rtol
+    assert ours.error_estimate <= DEFAULT_RTOL and ours.phase_error_estimate <= DEFAULT_RTOL  # the default rtol
     # the multipliers themselves, not just their moduli, to the claimed accuracy (x100)
     np.testing.assert_allclose(ours.multipliers, ref, rtol=1e-8)
 

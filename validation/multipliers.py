@@ -227,9 +227,14 @@ class MultiplierCheckConfig:
     @property
     def steps(self) -> tuple:
         """Step sizes ``h, h/2, ...`` (empty while ``step`` is ``None``)."""
-        if self.step is None:
-            return ()
-        return tuple(self.step / 2**j for j in range(self.refinements + 1))
+        return step_halvings(self.step, self.refinements)
+
+
+def step_halvings(step: Optional[float], refinements: int) -> tuple:
+    """``(h, h/2, ..., h/2^refinements)``; empty while ``step`` is ``None`` (the step levels of both measurements)."""
+    if step is None:
+        return ()
+    return tuple(step / 2**j for j in range(refinements + 1))
 
 
 @dataclass(frozen=True)

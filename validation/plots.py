@@ -76,7 +76,7 @@ def plot_validation_figure(
                        for r in results]
     titles = list(titles) if titles is not None else [f"kp = {r.kp:.4g}, kd = {r.kd:.4g}" for r in results]
     ncol = len(results)
-    fig, axes = plt.subplots(3, ncol, figsize=(4.6 * ncol, 9.6), squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(3, ncol, figsize=(4.6 * ncol, 9.6), squeeze=False, sharex="col", layout="constrained")
     for j, (r, lp, title) in enumerate(zip(results, predictions, titles)):
         T = r.period
         ax_h, ax_l, ax_t = axes[0, j], axes[1, j], axes[2, j]

@@ -9,7 +9,7 @@ import sys
 import time
 
 from flexstab.config import load_config
-from flexstab.options import dump_json, ensure_out_dir, gain_list, is_model_file, parse_omega
+from flexstab.options import dump_json, ensure_out_dir, gain_list, is_model_file, parse_omega, result_output
 
 __all__ = ["register", "run", "campbell_report", "parse_omega_range"]
 
@@ -47,7 +47,7 @@ def register(sub) -> None:
                     "Omega, modes tracked by MAC and an optimal assignment; PNG, JSON and CSV in --out.",
     )
     p.add_argument("--model", required=True, metavar="MODEL",
-                   help="a built-in model file (laval-rotor, single-link, two-link) or a model file PATH.py")
+                   help="a built-in model file (laval-rotor, slider-crank, single-link, two-link) or a model file PATH.py")
     p.add_argument("--omega-range", required=True, type=parse_omega_range, metavar="A,B",
                    help="speeds from A to B (rad/s or like 2pi), A < B")
     p.add_argument("--points", type=int, default=DEFAULT_POINTS, help=f"number of speeds (default {DEFAULT_POINTS})")
@@ -192,6 +192,12 @@ def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     s = campbell_report(args, progress=True)
+    with result_output(args):
+        _print(args, s)
+    return 0
+
+
+def _print(args: argparse.Namespace, s: dict) -> None:
     if args.json:
         dump_json(s, sys.stdout)
     else:
@@ -203,4 +209,3 @@ def run(args: argparse.Namespace) -> int:
             print(f"  branch {b['branch']:>3} {b['label'] or 'mode':<14} f = {min(f):.5g} .. {max(f):.5g} Hz, "
                   f"zeta = {min(z):.3g} .. {max(z):.3g}")
         print("figures: " + ", ".join(s["figures"]) + f"; table: {s['csv']}; data: {s['json']}")
-    return 0

@@ -166,7 +166,7 @@ def _check_args(args: argparse.Namespace) -> None:
     check_model_arg(getattr(args, "model", None))
     w = getattr(args, "omega_range", None)
     if w is not None and not w[0] < w[1]:
-        raise ValueError(f"--omega-range must have LO < HI, got {w[0]:g} {w[1]:g}")
+        raise ValueError(f"--omega-range: omega range is empty or inverted: LO = {w[0]:g}, HI = {w[1]:g}")
 
 
 def _fixed_gains(values, n_drives: int, flag: str) -> tuple:

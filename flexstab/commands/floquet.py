@@ -5,8 +5,8 @@ import argparse
 import math
 import sys
 
-from flexstab.options import (add_model_options, check_model_arg, dump_json, gain_list, gains_as_lists,
-                              non_negative_float, result_output)
+from flexstab.options import (add_damping_option, add_model_options, check_model_arg, dump_json, gain_list,
+                              gains_as_lists, non_negative_float, resolve_damping, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -31,15 +31,30 @@ def register(sub) -> None:
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    add_damping_option(p)
     p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
-                   help="structural bending damping of the ANCF elements (Exudyn's bendingDamping; default 0)")
+                   help="added to --damping: Exudyn's bendingDamping of the ANCF elements (N m^2 s; default 0)")
     p.add_argument("--axial-damping", type=non_negative_float, default=0.0,
-                   help="structural axial damping of the ANCF elements (Exudyn's axialDamping; default 0)")
+                   help="added to --damping: Exudyn's axialDamping of the ANCF elements (N s; default 0)")
     p.add_argument("--small-multipliers", choices=["flag", "qr"], default="flag",
                    help="multipliers below the rounding floor of the product: flag them (default) or "
                         "compute their moduli accurately by QR sweeps (log_moduli)")
+    p.add_argument("--rtol", type=_rtol_type, default=None, metavar="R",
+                   help="accuracy contract: every multiplier with modulus >= 1e-6 of the largest is certified "
+                        "to this relative error, refined until it is, or reported as not certified with the "
+                        "reason (default: [study] rtol of --config, else 1e-6; see docs/accuracy.md)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=run)
+
+
+def _rtol_type(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--rtol must be a number, got {text!r}") from None
+    if not (math.isfinite(value) and 0.0 < value < 1.0):
+        raise argparse.ArgumentTypeError(f"--rtol must be in (0, 1), got {text!r}")
+    return value
 
 
 def floquet_report(args: argparse.Namespace) -> dict:
@@ -58,35 +73,44 @@ def floquet_report(args: argparse.Namespace) -> dict:
     from flexstab.config import load_config
     from stability import DEFAULT_METHOD, METHODS, floquet
 
+    from stability.floquet import DEFAULT_RTOL, recertify
+
     cfg = load_config(args.config)
     omega = args.omega if args.omega is not None else cfg.omega
+    rtol = args.rtol if getattr(args, "rtol", None) is not None else cfg.rtol
     method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
     if not builtin:
-        return _model_file_report(args, cfg, omega, method)
+        return _model_file_report(args, cfg, omega, method, rtol)
     args.kp, args.kd = args.kp[0], args.kd[0]
     out: dict = {"model": args.model}
+    damping = resolve_damping(args, cfg)
     if args.model == "reduced":
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
-                                                ("--bending-damping", args.bending_damping != 0.0),
-                                                ("--axial-damping", args.axial_damping != 0.0)) if given]
+                                                ("--damping", damping.given)) if given]
         if exudyn_only:
             raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only")
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        res = floquet(model, method=method, small_multipliers=args.small_multipliers)
+        # the engine refines to min(its default, rtol); certified against rtol
+        res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
         out["constants"] = args.constants
     else:
         from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
 
+        from mbs_models.damping import material_damping_values
+
         elements = args.elements if args.elements is not None else cfg.elements
-        ex = exudyn_floquet(cfg.manipulator, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
-                            bending_damping=args.bending_damping, axial_damping=args.axial_damping)
+        p = cfg.manipulator
+        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
+                                                 damping.bending, damping.axial)
+        ex = exudyn_floquet(p, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
+                            bending_damping=bending, axial_damping=axial)
         res = ex.floquet
         out.update(ex.summary())
-        out.update({"bending_damping": args.bending_damping, "axial_damping": args.axial_damping})
+        out.update({"bending_damping": bending, "axial_damping": axial, "damping": damping.to_dict()})
     out.update(
         {
             "omega": omega,
@@ -95,25 +119,31 @@ def floquet_report(args: argparse.Namespace) -> dict:
             "kd": args.kd,
         }
     )
+    res = recertify(res, rtol)
     out.update(res.to_dict())
+    if "verdict_detail" not in out:  # the reduced model: no mode labels
+        from stability.verdict import judge_floquet
+
+        out["verdict_detail"] = judge_floquet(res).to_dict()
     return out
 
 
-def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str) -> dict:
+def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str, rtol: float) -> dict:
     """Floquet analysis of a model file (``--model PATH.py`` or a built-in model file)."""
     from linearize.analysis import analyze
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from flexstab.options import resolve_model_definition
 
-    model, options = resolve_model_definition(args.model, cfg, args.elements, bending_damping=args.bending_damping,
-                                              axial_damping=args.axial_damping)
+    damping = resolve_damping(args, cfg)
+    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
-                  small_multipliers=args.small_multipliers, **options)
+                  small_multipliers=args.small_multipliers, rtol=rtol, **options)
     out = {"model": args.model}
     out.update(res.summary())
     out["model"] = args.model
     out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
+    out["damping"] = damping.to_dict()
     out.update(res.floquet.to_dict())
     return out
 
@@ -141,7 +171,15 @@ def _table(d: dict) -> str:
         if modes:
             m = modes[i - 1]
             label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
-        lines.append(f"{i:>3}  {re:>14.8g}  {im:>14.8g}  {mod:>14.8g}  {dig:>5.1f}{label}")
+        if re is None or im is None:  # phase unknown (below the rounding floor): the modulus only
+            re_s, im_s = f"{'?':>14}", f"{'?':>14}"
+            label += "  phase unknown"
+        else:
+            re_s, im_s = f"{re:>14.8g}", f"{im:>14.8g}"
+        certified = d.get("certified")
+        if certified and not certified[i - 1] and lg is not None and mod != 0.0 and re is not None:
+            label += "  (not certified)"
+        lines.append(f"{i:>3}  {re_s}  {im_s}  {mod:>14.8g}  {dig:>5.1f}{label}")
     est = d["error_estimate"]
     phase_est = d.get("phase_error_estimate")
     phase = "n/a" if phase_est is None else f"{phase_est:.1e}"
@@ -153,20 +191,30 @@ def _table(d: dict) -> str:
     lines += [
         "",
         f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
+        *([f"verdict          {d['verdict_detail']['message']}"] if d.get("verdict_detail") else []),
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
         f" phases {phase} rad)",
         f"Liouville        |det Phi / exp(int tr P) - 1| = {liouville}",
     ]
+    if d.get("certified") is not None and d.get("rtol") is not None:
+        reasons = [(i, r) for i, r in enumerate(d.get("uncertified_reasons") or [], 1)
+                   if r and "outside the accuracy contract" not in r]
+        lines.append(f"accuracy         rtol {d['rtol']:.0e}: "
+                     + ("every multiplier >= 1e-6 of the largest certified" if not reasons else
+                        "NOT certified: " + "; ".join(f"#{i} {r}" for i, r in reasons)))
     if "drives" in d:
         lines += [
             f"drives: {', '.join(d['drives']) or '(none)'}; dominant multiplier |rho| = {d['dominant_modulus']:.8g}",
             f"orbit residual {d['orbit_residual']:.1e} (shooting check {d['shooting_residual']:.1e}), "
             f"{d['samples']} samples, {d['ode2']} Exudyn coordinates -> {d['independent_coordinates']} independent",
         ]
+        if d.get("turns"):
+            lines.append("periodic up to whole turns per period: "
+                         + ", ".join(f"{k} {v:+d}" for k, v in d["turns"].items()))
     elif d["model"] == "exudyn":
         lines += [
             f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
-            f" ({d['dominant_mode']}); {d['undamped_multipliers']} multipliers of undamped structural modes",
+            f" ({d['dominant_mode']}); {d['undamped_multipliers']} practically undamped multipliers (verdict rule)",
             f"orbit residual {d['orbit_residual']:.1e}, {d['samples']} samples, {d['elements']} elements",
         ]
     return "\n".join(lines)

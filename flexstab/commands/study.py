@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from flexstab.options import omega_type
+from flexstab.options import add_damping_option, omega_type
 
 __all__ = ["register", "run"]
 
@@ -36,6 +36,7 @@ def register(sub) -> None:
     p.add_argument("--samples", type=int, default=None, help="--model: collocation samples per period (default 32)")
     p.add_argument("--elements", type=int, default=None,
                    help="--model: ANCF elements of a built-in model (default: its own; single-link: --config's)")
+    add_damping_option(p)
     p.set_defaults(func=run)
 
 
@@ -86,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"--{flag} applies to --model (the paper's study takes [study] omega from --config)")
         if args.stages is not None and not args.stages.strip():
             raise ValueError("--stages is empty; name one or more of: table2, table3, charts, transients, exudyn, "
-                             "validation")
+                             "validation, two_link, sensitivity")
         if args.jobs < 1:
             raise ValueError(f"--jobs must be >= 1, got {args.jobs}")
     else:
@@ -101,7 +102,12 @@ def run(args: argparse.Namespace) -> int:
         validate_scheduler_address(args.scheduler)  # fail before hours of work, not after
     from flexstab.config import load_config
 
+    import dataclasses
+
+    from flexstab.options import resolve_damping
+
     cfg = load_config(args.config)
+    cfg = dataclasses.replace(cfg, damping=resolve_damping(args, cfg))  # --damping over [study] damping
     if args.model is not None:
         return run_model(args, cfg)
     from flexstab.study import StudyOptions, run_study

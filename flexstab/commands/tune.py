@@ -7,8 +7,9 @@ import math
 import sys
 from typing import TYPE_CHECKING, Any, Optional
 
-from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, gain_pairs,
-                              gains_as_lists, positive_float, resolve_omega, result_output)
+from flexstab.options import (add_damping_option, add_model_options, check_model_arg, check_range_arg, dump_json,
+                              gain_pairs, gains_as_lists, positive_float, resolve_damping, resolve_omega,
+                              result_output)
 
 #: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
 #: there), imported on first use so that parsing the command line imports no numerical package.
@@ -56,6 +57,7 @@ def register(sub) -> None:
     p.add_argument("--tolerance", type=positive_float, default=None, help="default 1e-3 * rho_d")
     p.add_argument("--max-evaluations", type=int, default=600, metavar="N")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    add_damping_option(p)
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: auto)")
     p.add_argument("--compare", action="store_true", help="also run the direct optimisers (Nelder-Mead, DE)")
@@ -68,25 +70,39 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def build_plant(model: str, cfg, omega: float, constants: str, elements=None):
-    """The plant object (``with_gains(kp, kd)``) for the chosen model."""
+def build_plant(model: str, cfg, omega: float, constants: str, elements=None, damping=None):
+    """The plant object (``with_gains(kp, kd)``) for the chosen model (``damping``: a
+    :class:`~mbs_models.damping.DampingSpec`, default ``cfg.damping``)."""
+    damping = damping if damping is not None else getattr(cfg, "damping", None)
+    given = damping is not None and damping.given
     if model not in ("reduced", "exudyn"):
         from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
 
-        definition, options = resolve_model_definition(model, cfg, elements)
+        definition, options = resolve_model_definition(model, cfg, elements,
+                                                       **(damping.build_options() if given else {}))
         plant = model_plant(definition, omega, **options)
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
         return plant
     if model == "reduced":
+        if given:
+            raise ValueError("--damping applies to the Exudyn and model-file models, not to --model reduced")
         from mbs_models.reduced import ReducedModel
 
         return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
     from linearize.link_floquet import exudyn_plant  # the Exudyn linearisation
 
+    extra = {}
+    if given:
+        from mbs_models.damping import material_damping_values
+
+        p = cfg.manipulator
+        b, a = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness, damping.bending,
+                                       damping.axial)
+        extra = {"bending_damping": b, "axial_damping": a}
     # prepared: the linearisation is interpolated, solved and balanced once, not per gain pair
-    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True)
+    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True, **extra)
 
 
 def robust_report(args: argparse.Namespace) -> dict:
@@ -275,8 +291,9 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
-    from flexstab.plants import MAX_TUNING_STEPS
     from taguchi.tuning import recentre, taguchi_tune
+
+    MAX_TUNING_STEPS = sys.modules[__name__].MAX_TUNING_STEPS  # the re-export (patchable in tests)
 
     from linearize.hill_plant import HillModelPlant
 
@@ -387,21 +404,21 @@ def tune_report(args: argparse.Namespace) -> dict:
         if model_file:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
     from flexstab.executor import make_executor
-    from flexstab.plants import plant_choice_for, whole_spectrum
     from linearize.hill_plant import HillModelPlant
     from stability import floquet
     from taguchi.direct import direct_tune
 
     harmonics_choice = steps_choice = None
-    plant = build_plant(args.model, cfg, omega, args.constants, args.elements)
+    damping = resolve_damping(args, cfg)
+    plant = build_plant(args.model, cfg, omega, args.constants, args.elements, damping)
     n_drives = len(plant.drives) if model_file else 1
     if model_file:
         tcfg = tuning_config(n_drives, specs)
         oa = tcfg.orthogonal_array()
         # the one plant rule of tune, study and chart --model: Hill where the engine rule says so (harmonics chosen at the
         # range centre, recorded), else the frozen-modal product with its steps chosen at the range centre
-        unreachable = unreachable_mode(plant.orbit, omega, tcfg)
-        choice = plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
+        unreachable = unreachable_mode(getattr(plant, "orbit", None), omega, tcfg)
+        choice = sys.modules[__name__].plant_choice_for(plant.orbit.model, plant.orbit, plant.linearization, tcfg)
         plant, harmonics_choice, steps_choice = choice.plant, choice.harmonics, choice.steps
         if unreachable is not None:
             print(f"flexstab tune: {unreachable['message']}", file=sys.stderr, flush=True)
@@ -441,7 +458,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     out["kp"], out["kd"] = kp, kd
     gains_as_lists(out)  # the JSON typing rule: one value per drive, a list also for one drive
     if model_file and getattr(plant, "orbit", None) is not None:
-        out.update(whole_spectrum(plant.orbit, omega, kp, kd))
+        out.update(sys.modules[__name__].whole_spectrum(plant.orbit, omega, kp, kd))
     if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap
         out["propagator_choice"] = steps_choice.to_dict()
     if hill:
@@ -489,16 +506,73 @@ def tune_report(args: argparse.Namespace) -> dict:
         out["verified_method"] = f"floquet, {check.method}, {check.n_steps} steps"
     if args.compare:
         out["direct"] = [direct_tune(objective, tcfg, m).to_dict() for m in ("nelder-mead", "differential-evolution")]
+    out["damping"] = damping.to_dict()
+    out.update(whole_loop_fields(args, cfg, out, plant, kp, kd, damping))
     return out
 
 
+def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, kd, damping) -> dict:
+    """The tune JSON's honest fields: ``tuned_response`` (what the tuning drove to the target, and
+    ``tuned_response_modes``, which modes it covers), ``spectral_radius`` (of the whole closed loop) with
+    its ``spectral_radius_mode``, ``..._frequency_hz``, ``..._error_estimate`` (relative, that
+    multiplier's own), ``spectral_radius_mesh`` (built-in models: the same at twice the elements),
+    ``verdict`` / ``verdict_detail`` (:func:`stability.verdict.judge`) and ``response_note`` (words,
+    when the tuned response is below the spectral radius)."""
+    from flexstab.plants import MODEL_RESPONSE_MODES, mesh_dependence, response_note
+    from stability.verdict import judge_floquet
+
+    tuned = float(out["spectral_radius"])  # TaguchiResult's spectral_radius: the tuned response
+    fields: dict = {"tuned_response": tuned}
+    model_file = args.model not in ("reduced", "exudyn")
+    mesh = None
+    if model_file:
+        fields["tuned_response_modes"] = MODEL_RESPONSE_MODES
+        verdict = out.get("verdict_detail") or {}
+        if args.model in ("single-link", "two-link"):
+            from flexstab.options import resolve_model_definition
+
+            elements = out.get("elements") or (args.elements or cfg.elements)
+            mesh = mesh_dependence(lambda e: resolve_model_definition(args.model, cfg, e, **damping.build_options()),
+                                   out["omega"], list(kp) if isinstance(kp, list) else [kp],
+                                   list(kd) if isinstance(kd, list) else [kd], int(elements))
+    elif args.model == "exudyn":
+        from linearize.link_floquet import classify_multipliers
+        from stability.modal import modal_floquet
+
+        base = getattr(plant, "plant", plant)
+        lin = base.linearization.with_gains(kp, kd)
+        res = modal_floquet(lin, method="magnus2", n_steps=512, accuracy="moduli", extrapolate=True)
+        modes = classify_multipliers(lin, res)
+        verdict = judge_floquet(res, labels=[m["mode"] for m in modes],
+                                frequencies=[m["frequency_hz"] for m in modes]).to_dict()
+        fields["tuned_response_modes"] = "hub and bending 1 (the paper's modes)"
+    else:
+        from stability import floquet
+
+        verdict = judge_floquet(floquet(plant.with_gains(kp, kd))).to_dict()
+        fields["tuned_response_modes"] = "modes of the reduced model (hub and bending 1: all it has)"
+    fields.update({"spectral_radius": verdict.get("spectral_radius"),
+                   "spectral_radius_mode": verdict.get("spectral_radius_mode"),
+                   "spectral_radius_frequency_hz": verdict.get("spectral_radius_frequency_hz"),
+                   "spectral_radius_error_estimate": (verdict["spectral_radius_error"] / verdict["spectral_radius"]
+                                                      if verdict.get("spectral_radius") else None),
+                   "verdict": verdict.get("verdict"), "verdict_detail": verdict})
+    if mesh is not None:
+        fields["spectral_radius_mesh"] = mesh
+    fields["response_note"] = response_note(tuned, fields["tuned_response_modes"], verdict, mesh)
+    return fields
+
+
 def _response_name(d: dict) -> str:
-    return "dominant |rho| (drive modes, bending 1)" if d.get("response") else "max|rho|"
+    return "tuned response, dominant |rho| (drive modes, bending 1)" if d.get("response") else "tuned response, max|rho|"
 
 
 def run(args: argparse.Namespace) -> int:
     if getattr(args, "robust", False):
-        d = robust_report(args)
+        from flexstab.progress import progress_log
+
+        with progress_log("flexstab.robust", "tune"), progress_log("taguchi.robust", "tune"):  # stages, on stderr
+            d = robust_report(args)
         with result_output(args):
             if args.json:
                 dump_json(d, sys.stdout)
@@ -526,17 +600,26 @@ def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
         gains = f"kp = {d['gains'][0]:.6g}   kd = {d['gains'][1]:.6g}"
         if d.get("drives"):
             gains = f"drive {d['drives'][0]}: {gains}"
-        print(f"{gains}   {_response_name(d)} = {d['spectral_radius']:.6g} "
+        print(f"{gains}   {_response_name(d)} = {d.get('tuned_response', d['spectral_radius']):.6g} "
               f"(re-checked: {d['verified_spectral_radius']:.6g})")
     else:
         for j, drive in enumerate(d.get("drives") or [f"{j + 1}" for j in range(len(names) // 2)]):
             print(f"drive {drive}: {names[2 * j]} = {d['gains'][2 * j]:.6g}   "
                   f"{names[2 * j + 1]} = {d['gains'][2 * j + 1]:.6g}")
-        print(f"{_response_name(d)} = {d['spectral_radius']:.6g} (re-checked: {d['verified_spectral_radius']:.6g})")
-    if d.get("spectral_radius_all") is not None:
-        freq = d.get("spectral_radius_all_frequency_hz")
-        print(f"whole spectrum: max|rho| = {d['spectral_radius_all']:.6g} ({d['spectral_radius_all_mode']}"
-              + (f", {freq:.4g} Hz" if freq else "") + ")")
+        print(f"{_response_name(d)} = {d.get('tuned_response', d['spectral_radius']):.6g} "
+              f"(re-checked: {d['verified_spectral_radius']:.6g})")
+    if d.get("spectral_radius") is not None and d.get("verdict_detail"):
+        freq = d.get("spectral_radius_frequency_hz")
+        err = d.get("spectral_radius_error_estimate")
+        mode = d.get("spectral_radius_mode")
+        print(f"whole loop: spectral radius {d['spectral_radius']:.6g}"
+              + (f" ({mode}" + (f", {freq:.4g} Hz" if freq else "") + ")" if mode else "")
+              + (f", relative error estimate {err:.1e}" if err is not None else ""))
+        for m in d.get("spectral_radius_mesh") or []:
+            print(f"  at {m['elements']} elements: {m['spectral_radius']:.6g} ({m['mode']}) -> {m['verdict']}")
+        print(f"verdict: {d['verdict_detail']['message']}")
+        if d.get("response_note"):
+            print(f"note: {d['response_note']}")
     print(f"{d['evaluations']} Floquet evaluations in {len(d['iterations'])} iterations, {d['elapsed']:.2f} s")
     for f in d.get("failed_runs") or []:
         print(f"failed run (iteration {f['iteration']}, run {f['run']}) at "
@@ -589,12 +672,10 @@ def _print_tune(args: argparse.Namespace, d: dict, rc: int) -> int:
 def check_failure(d: dict) -> Optional[str]:
     """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
 
-    Not accepted: the tuning did not converge (it stopped early as unreachable or stalled: its message,
-    :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
+    Not accepted: the tuning did not converge (e.g. it stopped early as unreachable or stalled, its
+    message says why: :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
     (``verified_spectral_radius``, by ``verified_method``) lies outside ``rho_d +- tolerance``.
     """
-    if d.get("status") in ("target unreachable", "search stalled"):  # the message is the one line
-        return d["message"]
     if not d["converged"]:
         return f"not converged: {d['message']}"
     v = d.get("verified_spectral_radius")

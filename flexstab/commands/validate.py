@@ -5,6 +5,9 @@ from the periodic orbit perturbed along the predicted Floquet vectors) is
 measured with generalised-alpha at ``rho_inf = 1`` and steps ``h, h/2, h/4``;
 its eigenvalues are compared with the predicted multipliers in modulus and
 phase within the measurement's error bar (:mod:`validation.multipliers`).
+With ``--full-map`` (model files) the whole one-period map is also measured
+from random constraint-consistent perturbations (:mod:`validation.full_map`);
+a resolved slow multiplier without a predicted partner is a failed check.
 
 Gains: ``--kp``/``--kd`` if given (a missing one is 0; one value per drive,
 comma-separated, or one value for all); if neither is given, the study's rule
@@ -71,6 +74,13 @@ def register(sub) -> None:
                    help="periods of the multi-period growth run (default: 3 if the prediction is unstable, else 0)")
     p.add_argument("--predict-reference", choices=("periodic", "rigid"), default="periodic",
                    help="reference motion of the prediction under test (default: the periodic orbit)")
+    p.add_argument("--full-map", action="store_true",
+                   help="also measure the whole one-period map from random constraint-consistent perturbations "
+                        "(model files; Newmark/trapezoidal, index-2 constraints; see docs/validation.md) and reject "
+                        "a prediction that misses a slow mode it finds (exit 1)")
+    p.add_argument("--full-map-step", default=None,
+                   help="coarsest step of the full-map runs in s (default: the same rule as --step)")
+    p.add_argument("--workers", default=None, help="worker processes for the full-map runs (default: 2; 1: serial)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="DIR", default=None,
                    help="also write validation.json and validation.png (complex plane) to DIR")
@@ -137,6 +147,8 @@ def validation_report(args: argparse.Namespace):
     """Run the validation requested by ``args``; return ``(dict, MultiplierValidation)``."""
     if args.model != "exudyn":
         return _model_file_report(args)
+    if getattr(args, "full_map", False):
+        raise ValueError("--full-map applies to model files (e.g. --model single-link), not to the built-in 'exudyn' link")
     # every argument is checked before the numerical imports and the configuration
     omega = parse_omega(args.omega) if args.omega is not None else None
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
@@ -219,6 +231,12 @@ def _model_file_report(args: argparse.Namespace):
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
     spectral_radius = _spectral_radius(args)
+    full_step = _number("full-map-step", args.full_map_step, minimum=0.0, strict=True) \
+        if getattr(args, "full_map_step", None) is not None else None
+    if full_step is not None and full_step >= T:
+        raise ValueError(f"--full-map-step must be smaller than the period T = {T:.6g} s, got {args.full_map_step!r}")
+    workers = _number("workers", getattr(args, "workers", None), minimum=1, integer=True) \
+        if getattr(args, "workers", None) is not None else 2
     if args.out is not None:
         ensure_out_dir(args.out)
     from mbs_models.model_file import resolve_model
@@ -233,7 +251,27 @@ def _model_file_report(args: argparse.Namespace):
     d = res.to_dict()
     d["gains_source"] = "command line" if (kps or kds) else "none given (0 for every drive)"
     d.setdefault("elements", definition.options.get("elements"))
+    if getattr(args, "full_map", False):
+        d["full_map"] = _full_map(args.model, options, omega, kps, kds, samples, full_step, refinements,
+                                  None if args.amplitude is None else amplitude, workers)
     return d, res
+
+
+def _full_map(model, options, omega, kps, kds, samples, step, refinements, amplitude, workers) -> dict:
+    """The ``full_map`` block: :func:`validation.full_map.measure_model_full_map` against the linearisation."""
+    from flexstab.executor import make_executor
+    from linearize.analysis import analyze
+    from validation.closed_loop import exudyn_console
+    from validation.full_map import FullMapConfig, full_map_report, measure_model_full_map
+
+    cfg = FullMapConfig(step=step, refinements=max(refinements, 2), amplitude=amplitude)
+    kp, kd = (kps if kps else 0.0), (kds if kds else 0.0)
+    with make_executor("process" if workers > 1 else "serial", max_workers=workers) as ex:
+        result, runner = measure_model_full_map(model, omega, kp, kd, samples=samples, config=cfg,
+                                                executor=None if workers == 1 else ex, chunks=workers, **options)
+    with exudyn_console(True):
+        analysis = analyze(runner.definition, omega, kp=kp, kd=kd, samples=samples, orbit=runner.orbit)
+    return full_map_report(result, analysis)
 
 
 def _c(z) -> str:
@@ -297,6 +335,19 @@ def _text(d: dict) -> str:
         )
     if d["diverged"]:
         lines.append(f"DIVERGED at t = {f(d['diverged_at'], '.4g')} s: {d['reason']}")
+    fm = d.get("full_map")
+    if fm:
+        lines.append(f"full one-period map ({fm['n_perturbations']} random perturbations, {fm['integrator']}, "
+                     f"h = {', '.join(f'{h:g}' for h in fm['steps'])} s): slowest multipliers")
+        for row in fm["partners"]:
+            partner = (f"predicted {row['predicted']:.6f} ({row['mode']})" if row["predicted"] is not None
+                       else "no predicted partner")
+            state = ("not resolved (no verdict)" if not row["resolved"]
+                     else ("agrees" if row["agrees"] else "NO PREDICTED PARTNER within the bars"))
+            lines.append(f"  |mu| = {row['modulus']:.6f} +- {f(row['error_bar'])}: {partner} -> {state}")
+        lines.append("full map: " + ("agrees (every resolved slow multiplier predicted)" if fm["agrees"] else
+                                     f"REJECTS the prediction: {len(fm['unmatched'])} resolved slow multiplier(s) "
+                                     "without a predicted partner" if fm["unmatched"] else "no verdict"))
     t = d["timings"]
     lines.append(f"time: prediction {t.get('prediction', 0):.2f} s, alternatives {t.get('alternatives', 0):.2f} s, "
                  f"measurement {t.get('measurement', 0):.2f} s, total {t.get('total', 0):.2f} s")

@@ -30,6 +30,7 @@ from exudyn.itemInterface import (CoordinateConstraint, CoordinateSpringDamper, 
                                   NodeRigidBody2D, ObjectANCFCable2D, ObjectJointGeneric, ObjectMassPoint2D,
                                   ObjectRigidBody2D)
 
+from mbs_models.damping import material_damping_values
 from mbs_models.parameters import ManipulatorParameters
 
 #: Mass of the hub body: the hub centre is held at O by constraints, so its mass
@@ -38,7 +39,7 @@ HUB_PLACEHOLDER_MASS = 1.0
 
 
 def build(mbs, omega, elements=8, params=None, bending_damping=0.0, axial_damping=0.0,
-          mean_angle=0.5 * math.pi, amplitude=0.5 * math.pi, gravity=True):
+          mean_angle=0.5 * math.pi, amplitude=0.5 * math.pi, gravity=True, material_damping=0.0):
     """Add the single link to ``mbs``; return its hub drive.
 
     Parameters
@@ -56,6 +57,9 @@ def build(mbs, omega, elements=8, params=None, bending_damping=0.0, axial_dampin
     mean_angle, amplitude : float
         Fundamental motion of the hub.
     gravity : bool
+    material_damping : float
+        Kelvin-Voigt loss time ``beta`` in s (``--damping``, :mod:`mbs_models.damping`): adds
+        ``beta EI`` to ``bendingDamping`` and ``beta EA`` to ``axialDamping``.
     """
     if params is None:
         params = ManipulatorParameters()
@@ -78,6 +82,8 @@ def build(mbs, omega, elements=8, params=None, bending_damping=0.0, axial_dampin
     for c in range(2):  # hub centre fixed at O
         mbs.AddObject(CoordinateConstraint(markerNumbers=[m_ground, hub_markers[c]]))
 
+    bending_damping, axial_damping = material_damping_values(material_damping, p.bending_stiffness,
+                                                             p.axial_stiffness, bending_damping, axial_damping)
     template = ObjectANCFCable2D(massPerLength=p.mass_per_length, bendingStiffness=p.bending_stiffness,
                                  axialStiffness=p.axial_stiffness, bendingDamping=float(bending_damping),
                                  axialDamping=float(axial_damping))

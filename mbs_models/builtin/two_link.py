@@ -79,6 +79,8 @@ from exudyn.itemInterface import (
     ObjectRigidBody2D,
 )
 
+from mbs_models.damping import material_damping_values
+
 __all__ = ["TwoLinkParameters", "HarmonicMotion", "build", "DEFAULT_ELEMENTS", "NODE_NAMES"]
 
 #: Default ANCF elements per link.  Two cubic elements per link already give the
@@ -180,6 +182,7 @@ def build(
     axial_damping: float = 0.0,
     gravity: float | None = None,
     parameters: TwoLinkParameters | None = None,
+    material_damping: float = 0.0,
 ) -> list[dict]:
     """Add the two-link flexible arm to ``mbs`` and return its two drives.
 
@@ -199,6 +202,9 @@ def build(
         ``axialDamping``), default 0 (undamped beams, as in the paper).
     parameters : TwoLinkParameters, optional
         All other data (default: the arm's design values).
+    material_damping : float
+        Kelvin-Voigt loss time ``beta`` in s (``--damping``, :mod:`mbs_models.damping`): adds
+        ``beta EI`` to ``bendingDamping`` and ``beta EA`` to ``axialDamping`` of both links.
 
     Returns
     -------
@@ -266,6 +272,8 @@ def build(
     for c in range(2):
         mbs.AddObject(CoordinateConstraint(markerNumbers=[m_ground, hub_coord[c]]))
 
+    bending_damping, axial_damping = material_damping_values(
+        material_damping, p.youngs_modulus * p.second_moment, p.youngs_modulus * p.area, bending_damping, axial_damping)
     template = ObjectANCFCable2D(
         massPerLength=p.mass_per_length,
         bendingStiffness=p.youngs_modulus * p.second_moment,

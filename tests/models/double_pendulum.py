@@ -40,7 +40,17 @@ def _en(phi):
 
 
 def build(mbs, omega):
-    r1, r2 = motions(omega)
+    return build_arm(mbs, motions(omega), M1=M1, J1=J1, C1=C1, L1=L1, M2=M2, J2=J2, C2=C2, alpha=ALPHA)
+
+
+def build_arm(mbs, motions, *, M1, J1, C1, L1, M2, J2, C2, alpha):
+    """Two rigid bodies on revolute joints, gravity, joint dampers, shoulder and elbow drives.
+
+    ``motions = (r1, r2)``: absolute shoulder angle and relative elbow angle, each
+    ``t -> (q, q_t, q_tt)``; body ``i`` has mass ``Mi``, inertia ``Ji`` about its centre of
+    mass at ``Ci`` from its proximal joint, and ``L1`` is the shoulder-elbow distance.
+    """
+    r1, r2 = motions
     p1, w1, _ = r1(0.0)
     rel, wrel, _ = r2(0.0)
     p2, w2 = p1 + rel, w1 + wrel
@@ -66,8 +76,8 @@ def build(mbs, omega):
                                          loadVector=[0, -G, 0]))
     a1 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n1, coordinate=2))
     a2 = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n2, coordinate=2))
-    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[mg, a1], damping=ALPHA))
-    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[a1, a2], damping=ALPHA))
+    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[mg, a1], damping=alpha))
+    mbs.AddObject(CoordinateSpringDamper(markerNumbers=[a1, a2], damping=alpha))
 
     def d1(t):
         q, qt, qtt = r1(t)
