@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import warnings
 from typing import Any, Optional, Sequence, Union
 
@@ -34,6 +33,7 @@ from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmoni
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.engines.rule import choose_method, system_properties
+from stability.refine import double_until
 from taguchi.tuning import TuningConfig
 
 __all__ = ["HILL_HARMONICS", "MODEL_RESPONSE", "MODEL_RESPONSE_MODES", "MAX_TUNING_STEPS", "PlantChoice",
@@ -146,16 +146,9 @@ def propagator_choice(plant: Any, tcfg: TuningConfig) -> StepsChoice:
     """
     kp, kd = _centre(tcfg)
     tol = tcfg.effective_tolerance
-    n = plant.n_steps
-    r = plant.spectral_measure(kp, kd)
-    estimate, converged = math.nan, False
-    while 2 * n <= MAX_TUNING_STEPS:
-        r2 = dataclasses.replace(plant, n_steps=2 * n).spectral_measure(kp, kd)
-        estimate = 4.0 / 3.0 * abs(r - r2)
-        if estimate <= 0.25 * tol:
-            converged = True
-            break
-        n, r = 2 * n, r2
+    ref = double_until(lambda n: dataclasses.replace(plant, n_steps=n).spectral_measure(kp, kd), int(plant.n_steps),
+                       MAX_TUNING_STEPS, 0.25 * tol)
+    n, estimate, converged = ref.n, ref.estimate, ref.converged
     if not converged:
         msg = (f"propagator steps: the step-doubling estimate {estimate:.2e} at the centre of the gain ranges "
                f"(kp={kp} kd={kd}) is above tolerance / 4 = {0.25 * tol:.2e} at MAX_TUNING_STEPS = "
