@@ -109,7 +109,31 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             signal.signal(signal.SIGTERM, previous_sigterm)
 
 
+def _one_line_warnings(command: str):
+    """A ``warnings.formatwarning`` giving ``flexstab CMD: warning: MESSAGE`` (one line, no source path
+    or code line): the library warns through :mod:`warnings`, the command line reports it.  Only the
+    format is replaced, so a caller recording warnings (``warnings.catch_warnings(record=True)``)
+    still receives them."""
+
+    def format_warning(message, category, filename, lineno, line=None) -> str:
+        text = " ".join(str(message).split())
+        return f"flexstab {command}: warning: {text}\n"
+
+    return format_warning
+
+
 def _run(args: argparse.Namespace) -> int:
+    import warnings
+
+    previous_format = warnings.formatwarning
+    warnings.formatwarning = _one_line_warnings(args.command)
+    try:
+        return _run_command(args)
+    finally:
+        warnings.formatwarning = previous_format
+
+
+def _run_command(args: argparse.Namespace) -> int:
     try:
         from flexstab.threads import blas_threads, limit_blas_threads
 

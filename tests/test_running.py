@@ -347,3 +347,33 @@ def test_manifest_says_interrupted_after_sigterm(tmp_path):
         p.kill()
     assert p.returncode == 143 and "interrupted (SIGTERM)" in err
     assert json.loads(manifest.read_text())["status"] == "interrupted"
+
+
+def test_library_warnings_reach_the_terminal_as_one_line(capsys):
+    """A warning the library raises while a command runs is one line ``flexstab CMD: warning: ...``
+    (no source path, no code line); the format is restored afterwards.  The check can fail: Python's
+    default format prints the file and line of the ``warnings.warn`` call."""
+    import warnings
+
+    from flexstab import cli
+
+    before = warnings.formatwarning
+    fmt = cli._one_line_warnings("floquet")
+    text = fmt(RuntimeWarning("multipliers not certified\n to rtol 1e-06"), RuntimeWarning, "/x/plants.py", 278)
+    assert text == "flexstab floquet: warning: multipliers not certified to rtol 1e-06\n"
+    default = before("multipliers not certified", RuntimeWarning, "/x/plants.py", 278, "r = 1")
+    assert "plants.py:278" in default and len(default.splitlines()) > 1
+    # through the command (its own process: pytest records warnings in-process): an unreachable rtol
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    model = Path(__file__).with_name("models") / "rigid_two_link.py"
+    run = subprocess.run([sys.executable, "-c", "import sys; from flexstab.cli import main; sys.exit(main(sys.argv[1:]))",
+                          "floquet", "--model", str(model), "--rtol", "1e-14"], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr
+    warned = [ln for ln in run.stderr.splitlines() if "warning" in ln]
+    assert warned and all(ln.startswith("flexstab floquet: warning: ") for ln in warned)
+    assert ".py:" not in run.stderr and "RuntimeWarning" not in run.stderr
+    assert warnings.formatwarning is before
