@@ -21,7 +21,7 @@ def register(sub) -> None:
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
                    help="reduced (default), exudyn (dominant damped multiplier; slower: use --grid ~11), a built-in "
-                        "model file (single-link, two-link) or a model file PATH.py (dominant labelled multiplier; "
+                        "model file (single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py (dominant labelled multiplier; "
                         "gain chart over one drive's (kp, kd), Omega chart with the orbit continued in Omega)")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and built-in models)")
     p.add_argument("--drive", default=None, metavar="NAME",

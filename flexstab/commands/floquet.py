@@ -19,7 +19,7 @@ def register(sub) -> None:
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
                    help="reduced (default; paper Eqs. 20-25), exudyn (hand-derived Exudyn link), a built-in "
-                        "model file (single-link) or a model file PATH.py (see README, 'Bring your own model')")
+                        "model file (single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py (docs/model-files.md)")
     add_model_options(p)
     p.add_argument("--kp", type=gain_list, default=(0.0,), metavar="KP",
                    help="proportional gain(s): one value, or one per drive a,b,... (N m/rad)")
@@ -90,7 +90,8 @@ def floquet_report(args: argparse.Namespace) -> dict:
         exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
                                                 ("--damping", damping.given)) if given]
         if exudyn_only:
-            raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only")
+            raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
+                             "(built-in or PATH.py), not to --model reduced")
         from mbs_models.reduced import ReducedModel
 
         model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)

@@ -27,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every stage (default: reuse finished stages whose inputs are unchanged)")
     p.add_argument("--model", default=None, metavar="MODEL",
-                   help="study a model file PATH.py (or a built-in model file: single-link, two-link) instead of "
+                   help="study a model file PATH.py (or a built-in model file: single-link, two-link, laval-rotor, slider-crank) instead of "
                         "the paper's study: orbit, labelled multipliers, Taguchi-tuned gains of every drive, charts, "
                         "nonlinear validation (target and gain ranges from --config)")
     p.add_argument("--omega", type=omega_type, default=None, metavar="W",
