@@ -75,6 +75,21 @@ def frozen_result(cls: Any = None, *, repr: bool = True) -> Any:  # noqa: A002 -
             freeze_arrays(self)
 
         klass.__init__ = __init__
+        own_setstate = klass.__dict__.get("__setstate__")
+
+        def __setstate__(self, state: Any) -> None:
+            # unpickling (a result returned by a worker process) bypasses __init__: freeze here too
+            if own_setstate is not None:
+                own_setstate(self, state)
+            else:
+                slots = None
+                if isinstance(state, tuple) and len(state) == 2:
+                    state, slots = state
+                for name, value in {**(state or {}), **(slots or {})}.items():
+                    object.__setattr__(self, name, value)
+            freeze_arrays(self)
+
+        klass.__setstate__ = __setstate__
         if repr:
             klass.__repr__ = short_repr
         return klass

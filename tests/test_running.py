@@ -3,6 +3,7 @@ stdout, exit codes, the JSON typing rule of gains, frozen results, progress, the
 interrupted manifest.  Each test also shows the wrong behaviour it rejects."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -220,6 +221,35 @@ def test_results_hold_read_only_arrays_and_print_short():
     copy[0] = 0  # a copy is the caller's to change
     tuned = taguchi_tune(lambda g: 0.9 * math.exp(-0.02 * (g[0] + g[1])), TuningConfig(max_evaluations=30))
     assert all(not a.flags.writeable for a in vars(tuned).values() if isinstance(a, np.ndarray))
+
+
+@dataclasses.dataclass(frozen=True)
+class _PlainResult:
+    """A frozen dataclass without :func:`stability.frozen.frozen_result` (module level: picklable)."""
+
+    x: object
+
+
+def test_a_result_back_from_a_worker_process_stays_read_only():
+    """Unpickling (how a process pool returns a result) bypasses ``__init__``; the arrays must still be
+    read-only and equal.  The check can fail: a plain frozen dataclass comes back writable."""
+    import pickle
+
+    import numpy as np
+
+    from mbs_models.reduced import ReducedModel
+    from stability import floquet
+
+    res = floquet(ReducedModel(2 * math.pi, kp=10.0, kd=2.0))
+    back = pickle.loads(pickle.dumps(res))
+    np.testing.assert_array_equal(back.multipliers, res.multipliers)
+    with pytest.raises(ValueError, match="read-only"):
+        back.multipliers[0] = 0
+    with pytest.raises(ValueError, match="read-only"):
+        back.monodromy[0, 0] = 0
+
+    plain = pickle.loads(pickle.dumps(_PlainResult(np.zeros(2))))
+    plain.x[0] = 1.0  # what the decorator prevents
 
 
 def test_frozen_result_leaves_the_callers_array_writable():
