@@ -86,29 +86,6 @@ def _check(args: argparse.Namespace) -> None:
                          f"(e.g. single-link instead of exudyn)")
 
 
-def _progress(total: int, show_bar: bool):
-    """A callback ``(i, point)`` printing one line per finished speed (stderr), or a tqdm bar on a TTY."""
-    if show_bar:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, desc="campbell", unit="speed", leave=False)
-
-        def step(i: int, point: dict) -> None:
-            bar.set_postfix_str(f"Ω = {point['omega']:.4g} rad/s")
-            bar.update(1)
-
-        return step, bar.close
-
-    done = [0]
-
-    def line(i: int, point: dict) -> None:
-        done[0] += 1
-        print(f"campbell: speed {done[0]}/{total} done: Ω = {point['omega']:.6g} rad/s, {len(point['modes'])} modes, "
-              f"{point['cpu_seconds']:.2f} s CPU", file=sys.stderr, flush=True)
-
-    return line, lambda: None
-
-
 def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
     """Compute the diagram requested by ``args``; write PNG, JSON and CSV; return the JSON-ready summary."""
     import concurrent.futures as cf
@@ -118,6 +95,7 @@ def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
     from flexstab.campbell import (PRINCIPAL_RULE, CampbellPointTask, branch_table, campbell_tables,
                                    modes_from_points, plot_campbell)
     from flexstab.executor import SerialExecutor, make_executor
+    from flexstab.progress import make_bar, progress_bars
     from flexstab.options import resolve_model_definition
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from stability.campbell import MIN_MAC, campbell
@@ -135,10 +113,16 @@ def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
                              options=options, kp=kp, kd=kd, samples=samples, n_steps=args.steps)
     out_dir = ensure_out_dir(args.out)
     t0, c0 = time.perf_counter(), time.process_time()
-    step, close = _progress(omegas.size, progress and sys.stderr.isatty())
+    # the command line's progress rule (flexstab.progress): tqdm on a terminal, lines on a pipe
+    bar = make_bar(progress_bars() if progress else False, total=omegas.size, desc="campbell", unit="speed")
+
+    def step(i: int, point: dict) -> None:
+        bar.set_postfix_str(f"Ω = {point['omega']:.6g} rad/s, {len(point['modes'])} modes, "
+                            f"{point['cpu_seconds']:.2f} s CPU")
+        bar.update(1)
+
+    close = bar.close
     points: list = [None] * omegas.size
-    if not progress:
-        step = lambda i, p: None  # noqa: E731
     with make_executor("auto", max_workers=args.workers, n_tasks=omegas.size) as ex:
         try:
             if isinstance(ex, SerialExecutor):
