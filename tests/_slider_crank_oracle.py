@@ -140,6 +140,17 @@ def _match(ref: np.ndarray, other: np.ndarray) -> np.ndarray:
     return np.array(out)
 
 
+def _richardson(levels: list) -> dict:
+    """Two Richardson passes over the h, h/2, h/4 levels of a second-order rule (h^2, then h^4), the
+    change of the last pass as the estimate, and the observed ratio of the level changes (4 at order 2)."""
+    m1, m2, m4 = levels
+    r1 = (4 * m2 - m1) / 3
+    r2 = (4 * m4 - m2) / 3
+    ext = (16 * r2 - r1) / 15
+    ratio = float(np.max(np.abs(m2 - m1)) / max(float(np.max(np.abs(m4 - m2))), 1e-300))
+    return {"levels": levels, "extrapolated": ext, "estimate": float(np.max(np.abs(ext - r2))), "ratio": ratio}
+
+
 def multipliers(omega: float, steps: int = 2000, keep: int = 4) -> dict:
     """The ``keep`` largest multipliers at ``steps``, ``2 steps``, ``4 steps`` per period and extrapolated.
 
@@ -161,13 +172,7 @@ def multipliers(omega: float, steps: int = 2000, keep: int = 4) -> dict:
         mu = np.linalg.eigvals(Phi)
         mu = mu[np.argsort(-np.abs(mu))][:keep]
         levels.append(mu if not levels else _match(levels[0], mu))
-    m1, m2, m4 = levels
-    r1 = (4 * m2 - m1) / 3
-    r2 = (4 * m4 - m2) / 3
-    ext = (16 * r2 - r1) / 15
-    ratio = float(np.max(np.abs(m2 - m1)) / max(float(np.max(np.abs(m4 - m2))), 1e-300))
-    return {"levels": levels, "extrapolated": ext, "estimate": float(np.max(np.abs(ext - r2))), "ratio": ratio,
-            "defect": max(defects), "steps": steps, "orbits": orbits}
+    return {**_richardson(levels), "defect": max(defects), "steps": steps, "orbits": orbits}
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -296,10 +301,4 @@ def closed_loop_multipliers(constant: dict, omega: float, kp: float, kd: float, 
         mu = np.linalg.eigvals(Phi)
         mu = mu[np.argsort(-np.abs(mu))][:keep]
         levels.append(mu if not levels else _match(levels[0], mu))
-    m1, m2, m4 = levels
-    r1 = (4 * m2 - m1) / 3
-    r2 = (4 * m4 - m2) / 3
-    ext = (16 * r2 - r1) / 15
-    ratio = float(np.max(np.abs(m2 - m1)) / max(float(np.max(np.abs(m4 - m2))), 1e-300))
-    return {"levels": levels, "extrapolated": ext, "estimate": float(np.max(np.abs(ext - r2))), "ratio": ratio,
-            "defect": max(defects), "orbit_gap": gap}
+    return {**_richardson(levels), "defect": max(defects), "orbit_gap": gap}
