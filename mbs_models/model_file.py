@@ -427,12 +427,6 @@ def drive_turns(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE)
     return int(turns or 0)
 
 
-def check_periodic(drive: Drive, period: float, tol: float = PERIODICITY_TOLERANCE) -> None:
-    """Raise :class:`ModelFileError` unless ``drive.motion`` is ``period``-periodic, possibly up to whole
-    turns (:func:`drive_turns`)."""
-    drive_turns(drive, period, tol)
-
-
 def _near_breakpoint(t: float, breakpoints: Sequence[float], period: float, margin: float) -> bool:
     for b in breakpoints:
         d = (float(t) - float(b)) % period

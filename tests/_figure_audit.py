@@ -56,15 +56,6 @@ def _drawn_texts(fig: Figure) -> list:
     return out
 
 
-def _owner(fig: Figure, t) -> str:
-    for i, ax in enumerate(fig.axes):
-        if t in ax.xaxis.get_ticklabels(which="both"):
-            return f"ax{i}.x"
-        if t in ax.yaxis.get_ticklabels(which="both"):
-            return f"ax{i}.y"
-    return ""
-
-
 def audit(fig: Figure, *, min_points: float = 8.0, pad: float = 1.0) -> list[str]:
     """The layout defects of ``fig`` (empty list: none); see the module docstring."""
     texts = _drawn_texts(fig)
