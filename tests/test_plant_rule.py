@@ -48,7 +48,7 @@ def _stub_tune_after_checks(monkeypatch):
 
 
 def _stub_study_tail(monkeypatch):
-    import flexstab.commands.chart as chart
+    import flexstab.chart_runs as chart
     import validation.multipliers as vm
 
     def stub(*a, **k):
@@ -169,14 +169,14 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(stub_model_fil
     import sys
     from types import SimpleNamespace
 
-    import flexstab.commands.chart as chart
+    import flexstab.chart_runs as chart
     import flexstab.commands.tune as tune
     import flexstab.model_study as ms
 
     seen: dict = {}
     monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
 
-    def fake_charts(args, progress=True, cfg=None):
+    def fake_charts(opts, cfg, progress=True):
         seen["chart"] = progress
         return {"gain_chart": None, "figures": []}
 
