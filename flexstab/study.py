@@ -45,7 +45,10 @@ the report blocks of its section and the SHA-256 of every file it wrote; its
 data JSON carries the same hashes under ``"study"``.  A rerun with unchanged
 inputs reuses the finished stages (the report says which), and the report is
 rendered only from stages whose records and files match the manifest, so it
-never mixes runs (:func:`render_report` raises otherwise).
+never mixes runs (:func:`render_report` raises otherwise).  The records, hashes
+and the manifest are :mod:`flexstab.provenance`'s; the stages run on
+:class:`flexstab.stages.StageRunner`, as those of a model file's study do
+(:mod:`flexstab.model_study`).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.

@@ -260,3 +260,19 @@ def test_a_second_run_reuses_every_stage_and_a_changed_input_reruns_what_it_reac
                                                            "charts": "computed", "validation": "computed"}
     assert json.loads((out / "tuning.json").read_text())["target"] == 0.35
     assert json.loads((out / "tuning.stage.json").read_text())["inputs"]["target"] == 0.35
+
+
+def test_interrupted_model_study_says_so_in_its_manifest(tmp_path, monkeypatch, capsys):
+    """Ctrl-C inside a stage: exit 130, ``manifest.json`` "interrupted", the folder's lock released (the model
+    study runs on the paper study's stage runner; it had no manifest).  A stand-in ``analyze`` is interrupted."""
+    import linearize.analysis as la
+    from flexstab.stages import LOCK_FILE
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(la, "analyze", interrupted)
+    assert cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(tmp_path)]) == 130
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and manifest["stages"] == {}
+    assert not (tmp_path / LOCK_FILE).exists() and not (tmp_path / "report.md").exists()
