@@ -10,7 +10,7 @@ beside the report:
    ``rho_d`` on the plant of :func:`flexstab.plants.plant_for` (the rule of
    ``tune --model`` and ``chart --model``: Hill's method for the built-in
    two-link, else the frozen-modal product, with
-   :func:`flexstab.model_tuning.tune_model_plant`'s step-doubling check at the
+   :func:`flexstab.tuning.tune_model_plant`'s step-doubling check at the
    tuned gains) and the labelled multipliers at the tuned gains from a separate
    evaluation (:func:`~linearize.analysis.analyze` with twice the loop's steps,
    at least its default and at most 4096 -- a Hill loop: its default -- with its
@@ -184,7 +184,7 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
                      t0: float, c0: float) -> StudyResult:
     """:func:`run_model_study` in its locked output folder."""
     from flexstab import provenance as pv
-    from flexstab.model_tuning import factor_ranges, tune_model_plant
+    from flexstab.tuning import factor_ranges, tune_model_plant
     from flexstab.options import gain_pairs
     from flexstab.plants import MAX_TUNING_STEPS, plant_choice_for
     from flexstab.stages import Stage, StageOutput, StageRunner, stage_section

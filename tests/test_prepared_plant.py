@@ -66,7 +66,7 @@ def test_tuning_on_the_prepared_plant_equals_the_plant(plant2):
 def test_cli_builds_prepared_exudyn_plants(monkeypatch):
     """``tune --model exudyn`` and ``chart --model exudyn`` get a prepared plant from ``exudyn_plant``."""
     import linearize.link_floquet as ef
-    from flexstab.commands import tune
+    from flexstab import tuning as tune
 
     seen = {}
 

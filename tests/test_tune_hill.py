@@ -76,7 +76,7 @@ def test_fallback_records_come_back_from_workers(pool):
     import concurrent.futures as cf
     import multiprocessing
 
-    from flexstab.model_tuning import DrivesObjective, FallbackRecorder
+    from flexstab.tuning import DrivesObjective, FallbackRecorder
 
     plant = _Falling()
     inner = (cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) if pool

@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from flexstab.commands.tune import DrivesObjective
+from flexstab.tuning import DrivesObjective
 from flexstab.options import dump_json
 from stability.floquet import FloquetError
 from stability.hill import HillError
