@@ -72,15 +72,19 @@ def record_path(out: Path, name: str) -> Path:
     return Path(out) / f"{name}.stage.json"
 
 
-def load_record(out: Path, name: str) -> Optional[dict]:
-    """The record of stage ``name`` in ``out``, or ``None`` when it is missing or unreadable."""
-    p = record_path(out, name)
-    if not p.exists():
+def _read_json(path: Path) -> Optional[dict]:
+    """The JSON in ``path``, or ``None`` when the file is missing or unreadable."""
+    if not path.exists():
         return None
     try:
-        return json.loads(p.read_text())
+        return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError):
         return None
+
+
+def load_record(out: Path, name: str) -> Optional[dict]:
+    """The record of stage ``name`` in ``out``, or ``None`` when it is missing or unreadable."""
+    return _read_json(record_path(out, name))
 
 
 def write_record(out: Path, record: Mapping[str, Any]) -> Path:
@@ -120,13 +124,7 @@ def stamp_json(path: Path, stamp: Mapping[str, Any]) -> None:
 
 def read_manifest(out: Path) -> Optional[dict]:
     """``out/manifest.json``, or ``None`` when it is missing or unreadable."""
-    p = Path(out) / MANIFEST
-    if not p.exists():
-        return None
-    try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
+    return _read_json(Path(out) / MANIFEST)
 
 
 def write_manifest(out: Path, manifest: Mapping[str, Any]) -> None:
