@@ -221,10 +221,10 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
 
     A :class:`~linearize.hill_plant.HillModelPlant` has no propagator steps to refine: one pass, and
     ``passes`` is empty.  A ``plant`` with ``n_steps`` (a :class:`~linearize.analysis.ModelPlant`,
-    e.g. from :func:`propagator_steps`) is tuned
+    e.g. from :func:`flexstab.plants.propagator_steps`) is tuned
     with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
     compared (error estimate ``4/3 |r_n - r_2n|``: the Richardson-extrapolated 4th-order value has
-    ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`propagator_steps`); above a quarter of
+    ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`flexstab.plants.propagator_steps`); above a quarter of
     the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
     budget is per pass), up to :data:`MAX_TUNING_STEPS`.
 
@@ -568,7 +568,7 @@ def whole_loop_fields(opts: TuneOptions, cfg: Any, out: dict, plant: Any, kp, kd
 
 
 def check_failure(d: dict) -> Optional[str]:
-    """One line saying why the tuning in ``d`` (:func:`tune_report`) is not accepted, or ``None``.
+    """One line saying why the tuning in ``d`` (:func:`tune_gains`) is not accepted, or ``None``.
 
     Not accepted: the tuning did not converge (e.g. it stopped early as unreachable or stalled, its
     message says why: :func:`taguchi.tuning.taguchi_tune`), or the independent re-check at the tuned gains
