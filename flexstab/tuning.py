@@ -1,8 +1,9 @@
 """Tuning the PD gains: the library half of ``flexstab tune`` and of ``flexstab study --model``.
 
-:func:`tune_gains` runs the tuning of a :class:`TuneOptions` (the reduced model, the Exudyn link or a model
-file) with its independent re-check and the whole loop's verdict, :func:`robust_tuning` the robust design
-(``tune --robust``), :func:`check_failure` says why a result is not accepted.  :func:`tune_model_plant` tunes the ``2 N`` gains of a plant with ``N`` drives (one ``(kp, kd)`` pair per
+:func:`tune_gains` runs the tuning of a :class:`TuneOptions` (the reduced model, the Exudyn link or a
+model file) with its independent re-check and the whole loop's verdict, :func:`robust_tuning` the robust
+design (``tune --robust``), and :func:`check_failure` says why a result is not accepted.
+:func:`tune_model_plant` tunes the ``2 N`` gains of a plant with ``N`` drives (one ``(kp, kd)`` pair per
 drive, :class:`DrivesObjective`) and, for a time-stepping plant, checks the tuned response with twice the
 propagator steps; :func:`factor_ranges` gives the factors' names and ranges, :func:`build_plant` the
 plant of a model name and :func:`unreachable_mode` the multiplier no drive can move.
@@ -224,9 +225,10 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     e.g. from :func:`flexstab.plants.propagator_steps`) is tuned
     with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
     compared (error estimate ``4/3 |r_n - r_2n|``: the Richardson-extrapolated 4th-order value has
-    ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`flexstab.plants.propagator_steps`); above a quarter of
-    the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
-    budget is per pass), up to :data:`MAX_TUNING_STEPS`.
+    ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see
+    :func:`flexstab.plants.propagator_steps`); above a quarter of the tolerance the tuning runs again
+    from the initial ranges with ``2 n`` steps (the evaluation budget is per pass), up to
+    :data:`flexstab.plants.MAX_TUNING_STEPS`.
 
     Returns
     -------
