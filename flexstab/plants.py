@@ -33,6 +33,7 @@ from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmoni
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.engines.rule import choose_method, system_properties
+from stability.gains import Gains
 from stability.refine import double_until
 from taguchi.tuning import TuningConfig
 
@@ -79,8 +80,8 @@ def uses_hill(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> 
 
 def _centre(config: TuningConfig) -> tuple[list, list]:
     """``(kp, kd)`` per drive at the centre of the initial ranges of ``config``."""
-    centre = [0.5 * (lo + hi) for lo, hi in config.factor_ranges]
-    return centre[0::2], centre[1::2]
+    centre = Gains.from_interleaved([0.5 * (lo + hi) for lo, hi in config.factor_ranges])
+    return list(centre.kp), list(centre.kd)
 
 
 def hill_choice(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:

@@ -49,6 +49,7 @@ from linearize.analysis import UNDAMPED_TOLERANCE, label_multipliers
 from linearize.fourier import trig_interpolate
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.gains import GainArgument
 from stability.hill import TAIL_LIMIT, HillError, pair_error_estimate
 
 if TYPE_CHECKING:
@@ -68,13 +69,9 @@ __all__ = [
     "MAX_FALLBACK_STEPS",
     "select_harmonics",
     "HarmonicsChoice",
-    "HillGainObjective",
 ]
 
 logger = logging.getLogger(__name__)
-
-#: Gains of the drives: one value for every drive, or one per drive.
-Gains = Union[float, Sequence[float]]
 
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
@@ -326,8 +323,12 @@ class HillModelPlant:
     def n_steps(self) -> int:  # the tune command reports it
         return self.label_steps
 
-    def with_gains(self, kp: Gains, kd: Gains) -> LinearizedPeriodicSystem:
+    def with_gains(self, kp: GainArgument, kd: GainArgument) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
+
+    def _per_drive(self, values: GainArgument, name: str) -> list:
+        """One float per drive (a float: the same for every drive; checked by the linearisation)."""
+        return [float(v) for v in self.linearization.gains(values, name)]
 
     def budget(self, rho: float) -> float:
         """Absolute error allowed in one run's response ``|rho|``: ``RUN_BUDGET`` times the tolerance, at least
@@ -338,7 +339,7 @@ class HillModelPlant:
     def _workspace(self, steps: int) -> Any:
         return _labelling_workspace(self._key, int(steps))
 
-    def labelled(self, kp: Gains, kd: Gains,
+    def labelled(self, kp: GainArgument, kd: GainArgument,
                  steps: Optional[int] = None) -> tuple[LinearizedPeriodicSystem, Any, list]:
         """``(lin, floquet_result, modes)`` of the labelling pass."""
         lin = self.with_gains(kp, kd)
@@ -359,7 +360,7 @@ class HillModelPlant:
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
 
-    def measure(self, kp: Gains, kd: Gains, *, error_estimate: bool = False, guard: bool = True) -> HillMeasure:
+    def measure(self, kp: GainArgument, kd: GainArgument, *, error_estimate: bool = False, guard: bool = True) -> HillMeasure:
         """Dominant drive-mode / ``bending 1`` multiplier, measured and labelled by Hill.
 
         Candidates: every magnus2 multiplier labelled as a main mode, and every other
@@ -389,6 +390,7 @@ class HillModelPlant:
         """
         from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
 
+        kp, kd = self._per_drive(kp, "kp"), self._per_drive(kd, "kd")
         steps = self.label_steps
         main = set(self.orbit.drive_names) | {"bending 1"}
         for _ in range(3):
@@ -489,6 +491,7 @@ class HillModelPlant:
         """
         from linearize.analysis import TUNING_PROPAGATOR_STEPS, ModelPlant, _dominant, _multiplier_estimate
 
+        kp, kd = self._per_drive(kp, "kp"), self._per_drive(kd, "kd")
         plant = ModelPlant(self.linearization, self.orbit)
         steps = TUNING_PROPAGATOR_STEPS
         while True:
@@ -509,13 +512,12 @@ class HillModelPlant:
                            modal_error_estimate=rel, harmonics=self.harmonics, run_error_estimate=est,
                            modal_steps=steps)
 
-    def spectral_measure(self, kp: Gains, kd: Gains) -> float:
+    def spectral_measure(self, kp: GainArgument, kd: GainArgument) -> float:
         """``|rho|`` of the dominant labelled multiplier (Hill); a response from another method is recorded in
         :attr:`fallback_runs`."""
         m = self.measure(kp, kd)
         if m.method != "hill":
-            g = [float(v) for pair in zip(np.broadcast_to(kp, len(self.drives)), np.broadcast_to(kd, len(self.drives)))
-                 for v in pair]
+            g = [v for pair in zip(self._per_drive(kp, "kp"), self._per_drive(kd, "kd")) for v in pair]
             self.fallback_runs.append({"gains": g, "method": m.method, "error_estimate": m.run_error_estimate,
                                        "modal_steps": m.modal_steps, "spectral_radius": float(abs(m.dominant))})
         return float(abs(m.dominant))
@@ -569,16 +571,3 @@ def select_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[fl
                   f"(tolerance / 20) at kp={list(kp)} kd={list(kd)}; using {H} (estimate {est:.2e}, method "
                   f"{m.method}{', truncated' if m.truncated else ''})", RuntimeWarning, stacklevel=2)
     return HarmonicsChoice(plant=p, harmonics=H, converged=False, error_estimate=est, tolerance=tolerance)
-
-
-class HillGainObjective:
-    """``(kp1, kd1, kp2, kd2, ...) -> |rho|`` of :meth:`HillModelPlant.spectral_measure` (picklable)."""
-
-    def __init__(self, plant: HillModelPlant) -> None:
-        self.plant = plant
-
-    def __call__(self, gains: Sequence[float]) -> float:
-        g = [float(v) for v in gains]
-        if len(g) % 2:
-            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
-        return self.plant.spectral_measure(g[0::2], g[1::2])

@@ -78,11 +78,12 @@ def orbit_2pi():
 
 @pytest.mark.parametrize("gains", [(0.0, 0.0, 0.0, 0.0), GAINS_2PI])
 def test_drive_mode_multiplier_against_rigid_two_link(orbit_2pi, gains):
-    from flexstab.two_link import LabelledGainObjective
+    from flexstab.two_link import LabelledPlant
+    from taguchi.tuning import GainObjective
 
     o, lin = orbit_2pi
     assert o.residual <= o.tolerance
-    flexible = LabelledGainObjective(lin, o, {"method": "magnus2", "n_steps": 1024, "error_estimate": False})(gains)
+    flexible = GainObjective(LabelledPlant(lin, o, {"method": "magnus2", "n_steps": 1024, "error_estimate": False}))(gains)
     rigid = abs(rigid_multipliers(2 * math.pi, gains)[0])
     assert abs(flexible - rigid) <= ELASTIC_TOLERANCE * rigid, (flexible, rigid)
     # rejects a wrong model: the rigid arm without gravity is far outside the bound
