@@ -248,13 +248,13 @@ def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: 
     from linearize.analysis import analyze
 
     r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
-    top = r.modes[0] if r.modes else {}
+    top = r.modes[0] if r.modes else None
     v = r.verdict
     rho = float(r.floquet.spectral_radius)
     return {"response": MODEL_RESPONSE,
             "spectral_radius_all": rho,
-            "spectral_radius_all_mode": top.get("mode"),
-            "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
+            "spectral_radius_all_mode": top.mode if top is not None else None,
+            "spectral_radius_all_frequency_hz": top.frequency_hz if top is not None else None,
             "spectral_radius_all_error_estimate": float(v.spectral_radius_error / rho) if rho > 0 else None,
             "verdict_detail": v.to_dict()}
 

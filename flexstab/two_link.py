@@ -108,7 +108,7 @@ def tuning_objective(lin: Any, floquet_options: Optional[dict] = None) -> GainOb
     return GainObjective(lin, floquet_options or TUNING_FLOQUET, unit_circle_tolerance=UNDAMPED_TOLERANCE)
 
 
-def main_dominant(multipliers: Sequence[complex], modes: Sequence[dict], drive_names: Sequence[str]) -> complex:
+def main_dominant(multipliers: Sequence[complex], modes: Sequence[Any], drive_names: Sequence[str]) -> complex:
     """Largest multiplier of a drive mode or of ``bending 1`` off the unit circle.
 
     The rule of ``linearize.analysis`` (the modes a rigid or one-mode model
@@ -117,7 +117,7 @@ def main_dominant(multipliers: Sequence[complex], modes: Sequence[dict], drive_n
     """
     main = set(drive_names) | {"bending 1"}
     for mu, m in zip(multipliers, modes):
-        if m["mode"] in main and not m["undamped"]:
+        if m.mode in main and not m.undamped:
             return complex(mu)
     return dominant_damped(multipliers)
 

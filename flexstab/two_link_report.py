@@ -167,7 +167,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
             "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
             "dominant_modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
             "hill_error_estimate": fl.measure.hill_error_estimate,
-            "labelled": [{"modulus": float(abs(mu)), "mode": m["mode"], "undamped": m["undamped"]}
+            "labelled": [{"modulus": float(abs(mu)), "mode": m.mode, "undamped": m.undamped}
                          for mu, m in zip(fl.floquet.multipliers, fl.modes) if abs(mu) > 1e-6][:12],
             "cpu_seconds": fl.cpu_seconds,
         }

@@ -396,8 +396,8 @@ class HillModelPlant:
         for _ in range(3):
             lin, res, modes = self.labelled(kp, kd, steps)
             floor = max(NOISE_FACTOR * float(res.noise_floor), 1e-300)
-            upper = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
-                     if not m["undamped"] and np.imag(mu) >= 0 and abs(mu) > floor]
+            upper = [(m.mode, complex(mu)) for mu, m in zip(res.multipliers, modes)
+                     if not m.undamped and np.imag(mu) >= 0 and abs(mu) > floor]
             mains = sorted((p for p in upper if p[0] in main), key=lambda p: -abs(p[1]))
             top = abs(mains[0][1]) if mains else 0.0
             picks = [p for p in mains if abs(p[1]) >= RELATIVE_CUTOFF * top][:MAX_REFINED]
@@ -406,8 +406,8 @@ class HillModelPlant:
                 mu = complex(res.multipliers[0])
                 warnings.warn(f"Hill plant: no multiplier to refine at kp={list(kp)} kd={list(kd)} (all undamped or "
                               f"below the rounding floor): the unrefined magnus2 multiplier |rho| = {abs(mu):.6g} "
-                              f"({modes[0]['mode']}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
-                return HillMeasure(dominant=mu, mode=modes[0]["mode"], estimate=mu, label_steps=steps,
+                              f"({modes[0].mode}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
+                return HillMeasure(dominant=mu, mode=modes[0].mode, estimate=mu, label_steps=steps,
                                    confirmed=False, method="magnus2-unrefined")
             try:
                 h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks],
@@ -507,7 +507,7 @@ class HillModelPlant:
                                 f"estimate {est:.1e} > budget {self.budget(abs(mu)):.1e} at {steps} steps")
             steps *= 2
         i = int(np.argmin(np.abs(np.asarray(res.multipliers) - mu)))
-        return HillMeasure(dominant=mu, mode=modes[i]["mode"], estimate=mu, label_steps=label_steps,
+        return HillMeasure(dominant=mu, mode=modes[i].mode, estimate=mu, label_steps=label_steps,
                            confirmed=False, method="modal-magnus2", tail=tail, residual=residual,
                            modal_error_estimate=rel, harmonics=self.harmonics, run_error_estimate=est,
                            modal_steps=steps)

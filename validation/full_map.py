@@ -769,7 +769,7 @@ def predicted_spectrum(analysis: Any) -> tuple[np.ndarray, list, np.ndarray]:
     absolute error estimate (``|mu| 10^-reliable_digits``; 0 where the result has none)."""
     res = analysis.floquet
     mu = np.asarray(res.multipliers, dtype=complex)
-    labels = [m["mode"] for m in analysis.modes]
+    labels = [m.mode for m in analysis.modes]
     digits = getattr(res, "reliable_digits", None)
     if digits is None:
         err = np.zeros(mu.size)

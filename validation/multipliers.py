@@ -1469,9 +1469,9 @@ def validate_model_multipliers(
                              orbit=orbit)
             name += f" with kp = {predicted_gains[0]}, kd = {predicted_gains[1]}"
         res = tested.floquet
-        prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
+        prediction = _refined_prediction(name, res, tested.linearization, [m.mode for m in tested.modes],
                                          config.compare, None,
-                                         [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
+                                         [float(m.frequency_hz or 0.0) for m in tested.modes],
                                          config.steps[-1], frame="modal", start_steps=MODAL_START_STEPS)
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]

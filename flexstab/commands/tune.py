@@ -339,15 +339,15 @@ def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
         return None
     j = int(np.argmin(np.abs(np.asarray(r.floquet.multipliers) - r.dominant_multiplier)))
     tuned = r.modes[j]
-    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.get("drive_shares", {}).items())
+    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.drive_shares.items())
     gains = ", ".join(f"{name} = {v:.4g}" for name, v in zip(tcfg.names, centre))
     msg = (f"note: at the range centre ({gains}) the closed loop's largest multiplier |rho| = "
-           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top['mode']}', a mode no drive moves "
+           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top.mode}', a mode no drive moves "
            f"(drive shares {shares}): PD gains cannot bring max|rho| below it; tuning the dominant multiplier "
-           f"of the modes the drives move ('{tuned['mode']}', |rho| = {abs(r.dominant_multiplier):.5g})")
-    return {"modulus": float(r.floquet.spectral_radius), "mode": top["mode"],
-            "drive_shares": dict(top.get("drive_shares", {})), "gains": centre[: 2 * n],
-            "tuned_mode": tuned["mode"], "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
+           f"of the modes the drives move ('{tuned.mode}', |rho| = {abs(r.dominant_multiplier):.5g})")
+    return {"modulus": float(r.floquet.spectral_radius), "mode": top.mode,
+            "drive_shares": dict(top.drive_shares), "gains": centre[: 2 * n],
+            "tuned_mode": tuned.mode, "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
 
 
 def tune_report(args: argparse.Namespace) -> dict:
