@@ -25,6 +25,7 @@ import numpy as np
 from flexstab.plants import hill_plant  # the one copy of the harmonics-at-the-range-centre rule
 from linearize.hill_plant import HillModelPlant
 from stability.gains import Gains
+from stability.refine import pair_estimate
 from taguchi.tuning import GainObjective, TaguchiResult, TuningConfig, taguchi_tune
 
 if TYPE_CHECKING:
@@ -347,7 +348,7 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
         streamed[int(n)] = complex(w[int(np.argmin(np.abs(w - m.dominant)))])
         secs[f"magnus2_{n}"] = time.perf_counter() - t0
     mods = [abs(streamed[int(n)]) for n in steps]
-    est = 4.0 / 3.0 * abs(mods[-1] - mods[-2]) if len(mods) > 1 else math.nan
+    est = pair_estimate(mods[-2], mods[-1]) if len(mods) > 1 else math.nan
     modal = None
     if modal_steps:
         # a third method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-

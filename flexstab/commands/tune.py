@@ -271,6 +271,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
+    from stability.refine import pair_estimate
     from taguchi.tuning import GainObjective, recentre, taguchi_tune
 
     MAX_TUNING_STEPS = sys.modules[__name__].MAX_TUNING_STEPS  # the re-export (patchable in tests)
@@ -295,7 +296,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
                         plant.n_steps)
             tcfg = full_cfg
             continue
-        if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
+        if (not res.converged or pair_estimate(res.spectral_radius, r2) <= 0.25 * tcfg.effective_tolerance
                 or finer.n_steps > MAX_TUNING_STEPS):
             return res, plant, passes
         logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
