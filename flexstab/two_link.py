@@ -332,7 +332,7 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
                      harmonics: int = 32, modal_steps: Optional[int] = 512) -> TunedCheck:
     """Dominant labelled multiplier at ``gains`` by Hill, by streamed magnus2 products at ``steps`` and
     (``modal_steps``) by the Richardson-extrapolated magnus2 product in frozen-modal coordinates."""
-    from stability import floquet
+    from stability.engines import floquet
 
     gg = Gains.from_interleaved(gains)
     g = list(gg.interleaved())
@@ -344,7 +344,7 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
     for n in steps:
         t0 = time.perf_counter()
         # fixed step count: floquet() streams large products in chunks (memory O(n^2) in the steps)
-        w = np.asarray(floquet(lg, method="magnus2", n_steps=int(n), error_estimate=False).multipliers)
+        w = np.asarray(floquet(lg, method="magnus", order=2, n_steps=int(n), error_estimate=False).multipliers)
         streamed[int(n)] = complex(w[int(np.argmin(np.abs(w - m.dominant)))])
         secs[f"magnus2_{n}"] = time.perf_counter() - t0
     mods = [abs(streamed[int(n)]) for n in steps]
@@ -353,10 +353,8 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
     if modal_steps:
         # a third method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-
         # extrapolated from modal_steps and modal_steps / 2 (fourth order), with its own error estimate
-        from stability.modal import modal_floquet
-
         t0 = time.perf_counter()
-        r = modal_floquet(lg, method="magnus2", n_steps=int(modal_steps), extrapolate=True)
+        r = floquet(lg, method="modal", order=2, n_steps=int(modal_steps), extrapolate=True)
         w = np.asarray(r.multipliers)
         modal = {"steps": int(modal_steps), "multiplier": complex(w[int(np.argmin(np.abs(w - m.dominant)))]),
                  "error_estimate": float(r.error_estimate)}

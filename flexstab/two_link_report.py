@@ -102,10 +102,10 @@ def _check_tuned(lin: Any, gains: Sequence[float], near: complex) -> dict:
     """The tuned dominant multiplier by the frozen-modal product (independent of the loop's Hill response)."""
     import numpy as np
 
-    from stability.modal import modal_floquet
+    from stability.engines import floquet
 
     g = Gains.from_interleaved(gains)
-    r = modal_floquet(lin.with_gains(g.kp, g.kd), method="magnus2", n_steps=CHECK_MODAL_STEPS, extrapolate=True)
+    r = floquet(lin.with_gains(g.kp, g.kd), method="modal", order=2, n_steps=CHECK_MODAL_STEPS, extrapolate=True)
     w = np.asarray(r.multipliers)
     z = complex(w[int(np.argmin(np.abs(w - near)))])
     return {"method": f"frozen-modal magnus2, {CHECK_MODAL_STEPS}/{CHECK_MODAL_STEPS // 2} steps extrapolated",

@@ -388,7 +388,8 @@ class HillModelPlant:
         :func:`select_harmonics`, which judges a count by its own stricter rule): no harmonic escalation, a
         truncated response is replaced by a one-pass frozen-modal value.
         """
-        from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
+        from stability.engines import floquet
+        from stability.hill import RESIDUAL_LIMIT
 
         kp, kd = self._per_drive(kp, "kp"), self._per_drive(kd, "kd")
         steps = self.label_steps
@@ -410,8 +411,8 @@ class HillModelPlant:
                 return HillMeasure(dominant=mu, mode=modes[0].mode, estimate=mu, label_steps=steps,
                                    confirmed=False, method="magnus2-unrefined")
             try:
-                h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks],
-                                     harmonics=self.harmonics, error_estimate=error_estimate)
+                h = floquet(lin, method="hill", targets=[p[1] for p in picks], harmonics=self.harmonics,
+                            error_estimate=error_estimate).detail
             except HillError as exc:  # no eigenvalue near a candidate / singular shift: the tuning run goes on
                 logger.warning("Hill's method failed at gains kp=%s kd=%s (%s); using the frozen-modal magnus2 "
                                "product", kp, kd, exc)
