@@ -26,14 +26,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import warnings
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Optional, Sequence
 
 from linearize.analysis import ModelPlant
 from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.engines.rule import choose_method, system_properties
-from stability.gains import Gains
+from stability.gains import Gains, MeasuredPlant
 from stability.refine import double_until
 from taguchi.tuning import TuningConfig
 
@@ -55,9 +55,6 @@ MAX_TUNING_STEPS = 4096
 MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tuned quantity)"
 #: The modes :data:`MODEL_RESPONSE` covers, in a sentence ("the ... decay at 0.30 per period").
 MODEL_RESPONSE_MODES = "drive modes and bending 1"
-
-Plant = Union[HillModelPlant, ModelPlant]
-
 
 def relative_tolerance(config: Optional[TuningConfig]) -> float:
     """The relative accuracy a tuning response needs: a quarter of the tuning tolerance over rho_d (the
@@ -197,7 +194,7 @@ def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPerio
 
 
 def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
-              *, steps: Optional[int] = None) -> Plant:
+              *, steps: Optional[int] = None) -> MeasuredPlant:
     """The tuning plant of a model at one Omega: the one rule of ``tune``, ``study`` and ``chart --model``.
 
     Parameters
@@ -216,6 +213,7 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
     Returns
     -------
     HillModelPlant or ModelPlant
+        Both :class:`stability.gains.Plant` and :class:`stability.gains.MeasuredPlant`.
 
     Raises
     ------

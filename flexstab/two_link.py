@@ -52,7 +52,6 @@ __all__ = [
     "CHECK_STEPS",
     "main_dominant",
     "LabelledPlant",
-    "gain_slices",
     "gain_slices_hill",
 ]
 
@@ -79,7 +78,7 @@ TUNED_GAINS = {
     4: (21.6015625, 7.900390625, 5.888671875, 1.8779296875),
 }
 #: Initial gain ranges (kp1, kd1, kp2, kd2) of the four-gain tuning; see the 2-D slices
-#: (``gain_slices``) in the study for why they bracket rho_d = 0.3 at both Omega.
+#: (``gain_slices_hill``) in the study for why they bracket rho_d = 0.3 at both Omega.
 TUNING_RANGES = ((0.0, 40.0), (0.0, 10.0), (0.0, 10.0), (0.0, 3.0))
 
 
@@ -236,20 +235,10 @@ def _slices(obj: Any, fixed: Sequence[float], ranges: Sequence, points: int, exe
                       shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
 
 
-def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: Sequence = TUNING_RANGES,
-                points: int = 9, executor: Any = None, floquet_options: Optional[dict] = None) -> GainSlices:
-    """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1).
-
-    With ``orbit`` the response is the labelled dominant multiplier (:class:`LabelledPlant`).
-    """
-    obj = (GainObjective(LabelledPlant(lin, orbit, floquet_options)) if orbit is not None
-           else tuning_objective(lin, floquet_options))
-    return _slices(obj, fixed, ranges, points, executor)
-
-
 def gain_slices_hill(lin: Any, orbit: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES,
                      points: int = 9, executor: Any = None, harmonics: int = 12) -> GainSlices:
-    """:func:`gain_slices` with the tuning response (Hill's method, :class:`HillModelPlant`)."""
+    """``|rho|`` of the tuning response (Hill's method, :class:`HillModelPlant`) on a ``points x points`` grid
+    of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1)."""
     obj = GainObjective(HillModelPlant(lin, orbit, harmonics=harmonics))
     return _slices(obj, fixed, ranges, points, executor)
 
