@@ -700,14 +700,12 @@ class ModelPlant:
         """Floquet multipliers at ``(kp, kd)``: exponential midpoint in the frozen-modal frame of the
         system *at these gains* (one frame, Richardson-extrapolated; see :data:`TUNING_PROPAGATOR_STEPS`)."""
         from stability.engines import floquet
-        from stability.floquet import DEFAULT_RTOL
 
         lin = self.with_gains(kp, kd)
         steps = n_steps or self.n_steps
-        # without a frozen-modal basis: the modal engine's one fallback policy (warns, adaptive engine, to
-        # stability.floquet's default rtol as before)
-        return floquet(lin, method="modal", rtol=DEFAULT_RTOL, levels=1, order=2, n_steps=steps,
-                       error_estimate=False, accuracy="moduli", extrapolate=True).detail
+        # without a frozen-modal basis: the modal engine's one fallback policy (warns, adaptive engine)
+        return floquet(lin, method="modal", levels=1, order=2, n_steps=steps, error_estimate=False,
+                       accuracy="moduli", extrapolate=True).detail
 
     def spectral_measure(self, kp, kd) -> float:
         lin = self.with_gains(kp, kd)

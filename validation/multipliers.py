@@ -966,8 +966,6 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     0.3946463: the default 512 steps are 5.7e-5 off, more than the nonlinear measurement's
     error bar, which detected it.
     """
-    from stability import floquet
-
     mu_sorted = np.asarray(res.multipliers)
     T = float(lin.period)
 
@@ -983,14 +981,11 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             out.append(lab)
         return out
 
-    if frame == "modal":
-        from stability.modal import modal_floquet
+    from stability.engines import floquet
 
-        def propagate(steps: int) -> Any:
-            return modal_floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
-    else:
-        def propagate(steps: int) -> Any:
-            return floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    def propagate(steps: int) -> Any:  # the exponential midpoint product, in the frozen-modal frame or the model's
+        return floquet(lin, method="modal" if frame == "modal" else "magnus", order=2, n_steps=steps,
+                       error_estimate=False, accuracy="moduli").detail
     if start_steps is not None:
         n = int(start_steps)
         previous = np.asarray(propagate(n).monodromy)
