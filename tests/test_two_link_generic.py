@@ -100,11 +100,12 @@ def test_noise_plant_of_the_robust_design_against_rigid_two_link(noise):
     Omega (elastic tolerance as above; E enters only through the elastic correction).  Rejects the
     nominal payload/Omega: outside the bound."""
     from flexstab.two_link import TwoLinkNoisePlant
+    from stability.gains import Gains
 
     omega = 2 * math.pi
     plant = TwoLinkNoisePlant(omega, elements=1)(noise)
     g = GAINS_2PI
-    flexible = plant.spectral_measure(*g)
+    flexible = plant.spectral_measure(*Gains.from_interleaved(g).arguments())
     w = omega * noise["omega_scale"]
     rigid = abs(rigid_multipliers(w, g, tip_mass=noise["tip_mass"])[0])
     assert abs(flexible - rigid) <= ELASTIC_TOLERANCE * rigid, (flexible, rigid)

@@ -1431,7 +1431,6 @@ def validate_model_multipliers(
     from linearize.analysis import analyze
     from linearize.exudyn_system import ExudynSystem
     from mbs_models.model_file import build_model, resolve_model
-    from stability import floquet
     from validation.closed_loop import exudyn_console
 
     tic = time.perf_counter()

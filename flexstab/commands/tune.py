@@ -388,7 +388,7 @@ def tune_report(args: argparse.Namespace) -> dict:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
     from flexstab.executor import make_executor
     from linearize.hill_plant import HillModelPlant
-    from stability import floquet
+    from stability.engines import floquet
     from stability.gains import MeasuredPlant
     from taguchi.direct import direct_tune
 
@@ -484,7 +484,7 @@ def tune_report(args: argparse.Namespace) -> dict:
 
             out["elements"] = args.elements or DEFAULT_ELEMENTS
     else:
-        check = floquet(plant.with_gains(kp, kd))
+        check = floquet(plant.with_gains(kp, kd), method="magnus").detail
         out["verified_spectral_radius"] = check.spectral_radius
         out["verified_error_estimate"] = check.error_estimate
         out["verified_method"] = f"floquet, {check.method}, {check.n_steps} steps"
@@ -531,9 +531,9 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
                                 frequencies=[m["frequency_hz"] for m in modes]).to_dict()
         fields["tuned_response_modes"] = "hub and bending 1 (the paper's modes)"
     else:
-        from stability import floquet
+        from stability.engines import floquet
 
-        verdict = judge_floquet(floquet(plant.with_gains(kp, kd))).to_dict()
+        verdict = judge_floquet(floquet(plant.with_gains(kp, kd), method="magnus").detail).to_dict()
         fields["tuned_response_modes"] = "modes of the reduced model (hub and bending 1: all it has)"
     fields.update({"spectral_radius": verdict.get("spectral_radius"),
                    "spectral_radius_mode": verdict.get("spectral_radius_mode"),
