@@ -59,7 +59,8 @@ class Plant(Protocol):
     ``kp``/``kd`` as :meth:`Gains.arguments` gives them (a float per gain for one drive, one
     value per drive otherwise).  Implemented by :class:`mbs_models.reduced.ReducedModel`,
     :class:`linearize.system.LinearizedPeriodicSystem` and the tuning plants of
-    :mod:`linearize.analysis` and :mod:`linearize.hill_plant`.
+    :mod:`linearize.analysis` and :mod:`linearize.hill_plant`.  (:class:`GainParametrisedSystem` is
+    not one: its ``with_gains`` takes the gain vector of Eq. (1) whole.)
     """
 
     def with_gains(self, kp: GainArgument, kd: GainArgument) -> Any:
