@@ -63,7 +63,7 @@ from taguchi.analysis import TaguchiAnalysis, analyze
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_ratio
 from stability.gains import Gains
-from taguchi.tuning import STATUS_FAILED, TuningConfig, _Guarded, plant_response, recentre
+from taguchi.tuning import LOOP_FLOQUET_OPTIONS, STATUS_FAILED, TuningConfig, _Guarded, plant_response, recentre
 
 __all__ = [
     "NoiseFactor",
@@ -536,7 +536,7 @@ class PlantNoiseObjective:
 
     def __init__(self, factory: Callable[[Mapping[str, float]], Any], floquet_options: Optional[dict] = None) -> None:
         self.factory = factory
-        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.floquet_options = dict(floquet_options or LOOP_FLOQUET_OPTIONS)
 
     def __call__(self, gains: Sequence[float], noise: Mapping[str, float]) -> float:
         return plant_response(self.factory(noise), Gains.from_interleaved(gains), self.floquet_options)

@@ -93,6 +93,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
@@ -122,6 +123,7 @@ __all__ = [
     "STATUS_UNREACHABLE",
     "STATUS_STALLED",
     "RUN_FAILURES",
+    "LOOP_FLOQUET_OPTIONS",
     "UNREACHABLE_PATIENCE",
     "UNREACHABLE_SAFETY",
     "COLLAPSED_RTOL",
@@ -146,6 +148,9 @@ COLLAPSED_RTOL = 1e-13
 #: the numerical failures the engines raise.  Not the ``ArithmeticError`` base, whose built-in
 #: ``ZeroDivisionError``/``OverflowError`` are programming errors and must propagate.
 RUN_FAILURES = (FloquetError, HillError, ModalBasisError, np.linalg.LinAlgError, FloatingPointError)
+#: :func:`stability.floquet` options of a run inside the loop (:class:`GainObjective`): a fixed number of
+#: sub-intervals without step doubling; the caller re-checks the final gains with the adaptive method.
+LOOP_FLOQUET_OPTIONS = MappingProxyType({"n_steps": 256, "error_estimate": False})
 
 
 class GainObjective:
@@ -164,9 +169,8 @@ class GainObjective:
         **floquet_options)`` (e.g. :class:`mbs_models.reduced.ReducedModel` or a
         linearisation).  Must be picklable for process or Dask executors.
     floquet_options : dict
-        Keyword arguments for :func:`stability.floquet` (a :class:`~stability.gains.Plant` only).
-        The default uses a fixed number of sub-intervals without step doubling (fast inside the
-        loop); the final gains are re-checked by the caller with the default adaptive method.
+        Keyword arguments for :func:`stability.floquet` (a :class:`~stability.gains.Plant` only);
+        default :data:`LOOP_FLOQUET_OPTIONS`.
     unit_circle_tolerance : float, optional
         If given (a :class:`~stability.gains.Plant` only), the response is the largest modulus
         among the multipliers off the unit circle (``| |rho| - 1 | >= tolerance``): the
@@ -179,7 +183,7 @@ class GainObjective:
         if not isinstance(plant, (MeasuredPlant, Plant)):
             raise ValueError("plant must provide with_gains(kp, kd) or spectral_measure(kp, kd)")
         self.plant = plant
-        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.floquet_options = dict(floquet_options or LOOP_FLOQUET_OPTIONS)
         self.unit_circle_tolerance = unit_circle_tolerance
 
     def __call__(self, gains: Sequence[float]) -> float:
@@ -197,7 +201,7 @@ def plant_response(plant: Any, gains: Gains, floquet_options: Optional[dict] = N
     kp, kd = gains.arguments()
     if isinstance(plant, MeasuredPlant):
         return float(plant.spectral_measure(kp, kd))
-    res = floquet(plant.with_gains(kp, kd), **dict(floquet_options or {"n_steps": 256, "error_estimate": False}))
+    res = floquet(plant.with_gains(kp, kd), **dict(floquet_options or LOOP_FLOQUET_OPTIONS))
     if unit_circle_tolerance is None:
         return float(res.spectral_radius)
     moduli = np.abs(np.asarray(res.multipliers))
