@@ -55,7 +55,8 @@ import scipy.linalg
 from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
-from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
+from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
+                               sample_times, trig_interpolate)
 from mbs_models.model_file import BuiltModel, ModelDefinition, ModelFileError, build_model, resolve_model
 
 __all__ = [
@@ -69,6 +70,8 @@ __all__ = [
     "TangentBlocks",
     "find_orbit",
     "tangent_blocks",
+    "apply_map",
+    "whole_turn_map",
     "whole_turn_shift",
 ]
 
@@ -284,10 +287,26 @@ class PeriodicOrbit:
     timings: dict = field(default_factory=dict, repr=False)
     cpu_timings: dict = field(default_factory=dict, repr=False)
     shift: Optional[np.ndarray] = field(default=None, repr=False)
+    signs: Optional[np.ndarray] = field(default=None, repr=False)
+    references: Optional[np.ndarray] = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        if self.shift is None:
-            object.__setattr__(self, "shift", np.zeros(self.q.shape[1]))
+        n = self.q.shape[1]
+        for name, default in (("shift", 0.0), ("signs", 1.0), ("references", 0.0)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, default))
+
+    @property
+    def antiperiodic(self) -> np.ndarray:
+        """Indices of the coordinates whose absolute value changes sign over a period (the Euler
+        parameters of a body that turns): ``q(t + T) + ref = -(q(t) + ref)``."""
+        return np.flatnonzero(self.signs < 0)
+
+    def map_state(self, q: np.ndarray, v: np.ndarray, periods: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """The orbit map applied ``periods`` times to a state: ``(g^j(q), S^j v)``
+        (:func:`apply_map`; ``S = diag(signs)``)."""
+        j = int(periods)
+        return apply_map(q, self.shift, self.signs, self.references, j), self.signs ** j * np.asarray(v, dtype=float)
 
     @property
     def samples(self) -> int:
@@ -304,7 +323,7 @@ class PeriodicOrbit:
         j = round(float(t) / self.period)
         if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)):
             return self.state(float(t))[0]
-        return self.q[0] + j * self.shift
+        return self.map_state(self.q[0], self.q_t[0], j)[0]
 
     @property
     def size(self) -> int:
@@ -314,8 +333,14 @@ class PeriodicOrbit:
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
         ramp = np.multiply.outer(np.asarray(t, dtype=float), self.shift / self.period)
-        return (trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
-                trig_interpolate(self.q_tt, self.period, t))
+        out = [trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
+               trig_interpolate(self.q_tt, self.period, t)]
+        a = self.antiperiodic
+        if a.size:  # Euler parameters of a turning body: antiperiodic (absolute values)
+            for k, (samples, offset) in enumerate(((self.q[:, a], self.references[a]), (self.q_t[:, a], 0.0),
+                                                   (self.q_tt[:, a], 0.0))):
+                out[k][..., a] = antiperiodic_interpolate(samples + offset, self.period, t) - offset
+        return tuple(out)
 
     def torque(self, t: float | np.ndarray) -> np.ndarray:
         """Feed-forward torques at ``t`` (shape ``(d,)`` or ``(m, d)``)."""
@@ -615,6 +640,12 @@ class _Collocation:
         self.s = self.n + self.m + self.d
         self.exudyn_jacobian: Optional[bool] = None  # decided (checked) at the first tangent
         self.R = np.array([[dr.evaluate(t)[0] for dr in built.drives] for t in self.times]).reshape(self.K, self.d)
+        #: ODE2 indices of Euler parameters / rotation vectors: their inertia terms cancel structurally on a
+        #: steady spin (``G p = 0`` for Euler parameters: ``M p'' = 0`` when ``p'' || p``), so the force scale
+        #: of the residual takes their terms' sizes ``|M| |q''|`` (else a force-free spinning orbit's relative
+        #: residual is 0 / 0)
+        self.parameter_rows = np.array(sorted(int(i) for _, idx, _ in self.system.rotation_parameters()
+                                              for i in idx), dtype=int)
         self.set_shift(np.zeros(self.n))
         #: drift ``q(T) - q(0) - shift`` of the simulated guess period and its samples' periodic
         #: part (None before the guess)
@@ -629,16 +660,31 @@ class _Collocation:
         self._exudyn_jacobians: Optional[bool] = None
         self._assembly: Optional[structured.NewtonAssembly] = None
 
-    def set_shift(self, shift: np.ndarray) -> None:
-        """Whole-turn shift ``s`` (``q(t + T) = q(t) + s``): the unknowns are the periodic part
-        ``p = q - s t / T`` (see :func:`find_orbit`)."""
+    def set_shift(self, shift: np.ndarray, signs: Optional[np.ndarray] = None,
+                  references: Optional[np.ndarray] = None) -> None:
+        """The map ``g`` of the orbit, ``q(t + T) = g(q(t))``: a whole-turn shift ``s`` of angles and, for
+        coordinates with ``signs = -1`` (the Euler parameters of a body that turns), a sign flip of the
+        absolute value ``q + references``.  The unknowns are the periodic part ``p = q - s t / T``, and for
+        sign-flipping rows ``q`` itself, differentiated as a T-antiperiodic function (see :func:`find_orbit`)."""
         self.shift = np.asarray(shift, dtype=float).copy()
         self.ramp = self.times[:, None] * (self.shift[None, :] / self.T)
+        self.signs = np.ones(self.n) if signs is None else np.asarray(signs, dtype=float).copy()
+        self.references = np.zeros(self.n) if references is None else np.asarray(references, dtype=float).copy()
+        self.anti = np.flatnonzero(self.signs < 0)
+        if self.anti.size:
+            self.D1a, self.D2a = antiperiodic_differentiation_matrices(self.T, self.K)
+            self.solver, self.pattern = "dense", None  # per-coordinate derivative matrices: dense Newton
 
     def coords(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(q, q', q'')`` at the samples from the unknowns ``X`` (periodic part plus the ramp)."""
+        """``(q, q', q'')`` at the samples from the unknowns ``X`` (periodic part plus the ramp; the
+        sign-flipping rows antiperiodic in their absolute value)."""
         P = X[:, :self.n]
-        return P + self.ramp, self.D1 @ P + self.shift / self.T, self.D2 @ P
+        Q, V, A = P + self.ramp, self.D1 @ P + self.shift / self.T, self.D2 @ P
+        if self.anti.size:
+            Pa = P[:, self.anti] + self.references[self.anti]
+            V[:, self.anti] = self.D1a @ Pa
+            A[:, self.anti] = self.D2a @ Pa
+        return Q, V, A
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
         """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
@@ -686,7 +732,11 @@ class _Collocation:
         for k in range(self.K):
             t = float(self.times[k])
             f = sys_.rhs(Q[k], V[k], t)
-            Ma = sys_.mass(Q[k], t) @ A[k]
+            Mk = sys_.mass(Q[k], t)
+            Ma = Mk @ A[k]
+            if self.parameter_rows.size:  # see _Collocation.parameter_rows
+                r_ = self.parameter_rows
+                fscale = max(fscale, float(np.max(np.abs(Mk[:, r_]) @ np.abs(A[k, r_]))))
             r = Ma - f - self.B @ U[k]
             if self.m:
                 r += sys_.constraint_jacobian(Q[k], t).T @ L[k]
@@ -712,6 +762,10 @@ class _Collocation:
         # row block k, column block j: D1_kj C_k + D2_kj M_k (+ K_k on the diagonal)
         J[:, :n, :, :n] = self.D1[:, None, :, None] * tb.C[:, :, None, :]
         J[:, :n, :, :n] += self.D2[:, None, :, None] * tb.M[:, :, None, :]
+        if self.anti.size:  # columns of sign-flipping coordinates: the antiperiodic derivatives
+            a = self.anti
+            J[:, :n, :, a] = (self.D1a[:, None, :, None] * tb.C[:, :, None, a]
+                              + self.D2a[:, None, :, None] * tb.M[:, :, None, a])
         k = np.arange(Kn)
         J[k, :n, k, :n] += tb.K
         if m:
@@ -951,10 +1005,10 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     except ExudynRunError as exc:
         logger.info("orbit guess: %s; starting from the initial state at every sample", exc)
         qT, Qs = None, np.broadcast_to(q0, (col.K, col.n))
-    if not np.any(col.shift):
-        col.set_shift(whole_turn_shift(col.system, col.built, None if qT is None else qT - q0))
+    if not np.any(col.shift) and not col.anti.size:
+        col.set_shift(*whole_turn_map(col.system, col.built, None if qT is None else qT - q0))
     if qT is not None:
-        col.guess_drift = qT - q0 - col.shift
+        col.guess_drift = qT - apply_map(q0, col.shift, col.signs, col.references)
     X[:, :col.n] = Qs - col.ramp
     col._guess_samples = X[:, :col.n].copy()
     return X
@@ -966,7 +1020,35 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
 WHOLE_TURN_WINDOW = 0.5 * math.pi
 
 
-def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[np.ndarray]) -> np.ndarray:
+def apply_map(q: np.ndarray, shift: np.ndarray, signs: np.ndarray, references: np.ndarray, times: int = 1) -> np.ndarray:
+    """``g^times(q)`` for the orbit map ``g(q) = signs (q + references) - references + shift`` (ODE2
+    coordinates; ``signs`` is -1 on the Euler parameters of a turning body, +1 elsewhere; the rates map
+    as ``v -> signs v``)."""
+    q = np.asarray(q, dtype=float)
+    for _ in range(int(times)):
+        q = signs * (q + references) - references + shift
+    return q
+
+
+def whole_turn_map(system: ExudynSystem, built: BuiltModel,
+                   advance: Optional[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(shift, signs, references)`` of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): the
+    whole turns of angles (:func:`whole_turn_shift`) and the sign flips of the Euler parameters of
+    bodies that turn (``NodeRigidBodyEP``: after a whole turn the parameters come back as ``-p``).
+
+    Raises
+    ------
+    mbs_models.model_file.ModelFileError
+        A rotation-vector node turns (no smooth orbit in its coordinates), or as :func:`whole_turn_shift`.
+    """
+    signs, refs = np.ones(system.n), np.zeros(system.n)
+    if advance is not None:
+        signs, refs = _rotation_parameter_flips(system, built, np.asarray(advance, dtype=float))
+    return whole_turn_shift(system, built, advance, signs, refs), signs, refs
+
+
+def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[np.ndarray],
+                     signs: Optional[np.ndarray] = None, references: Optional[np.ndarray] = None) -> np.ndarray:
     """The shift ``s`` of an orbit periodic up to whole turns, ``q(t + T) = q(t) + s``.
 
     Rule (the model-file contract): ``s_i = 2 pi k_i``, ``k_i = round(advance_i / 2 pi)`` when
@@ -984,8 +1066,8 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
     """
     n = system.n
     s = np.zeros(n)
-    if advance is not None:
-        _check_rotation_parameters(system, built, np.asarray(advance, dtype=float))
+    signs = np.ones(n) if signs is None else np.asarray(signs, dtype=float)
+    references = np.zeros(n) if references is None else np.asarray(references, dtype=float)
     rot = system.rotation_coordinates()
     if advance is not None and rot.size:
         a = np.asarray(advance, dtype=float)[rot]
@@ -1007,33 +1089,35 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
             raise ModelFileError(f"model {built.definition.name}: the drives' whole turns per period "
                                  f"({', '.join(str(int(round(k / (2 * math.pi)))) for k in turns)}) cannot be "
                                  f"placed on their coordinates")
-    if np.any(s):
-        _check_invariance(system, built, s)
+    if np.any(s) or np.any(signs < 0):
+        _check_invariance(system, built, s, signs, references)
         logger.info("orbit periodic up to whole turns: %s", {system.coordinate_labels()[i] + f"[{i}]":
                                                               int(round(s[i] / (2 * math.pi))) for i in np.flatnonzero(s)})
     return s
 
 
-def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> None:
-    """Raise :class:`ModelFileError` when a node with Euler parameters or a rotation vector makes a whole
-    turn in the simulated period (``advance = q(T) - q(0)``): its parameters come back with the opposite
-    sign (Euler parameters) or pass the singular length 2 pi (rotation vector), so no smooth orbit periodic
-    up to whole turns exists in its coordinates -- Newton would otherwise settle on another orbit (e.g.
-    the body at rest)."""
+def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> tuple:
+    """``(signs, references)``: -1 and the reference values on the Euler parameters of every
+    ``NodeRigidBodyEP`` node whose parameters come back with the opposite sign over the simulated period
+    (``advance = q(T) - q(0)``; a body making an odd number of whole turns), +1 and 0 elsewhere.
+
+    Raises :class:`ModelFileError` when a rotation-vector node turns: its vector passes the singular
+    length 2 pi, so no smooth orbit periodic up to whole turns exists in its coordinates (Newton would
+    otherwise settle on another orbit, e.g. the body at rest)."""
     q0 = np.asarray(system.q_initial, dtype=float)
+    signs, refs = np.ones(system.n), np.zeros(system.n)
     for kind, idx, ref in system.rotation_parameters():
         p0, pT = q0[idx] + ref, q0[idx] + advance[idx] + ref
         if kind == "RigidBodyEP":
-            turned = float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0))
-            what = "its Euler parameters come back with the opposite sign"
-        else:
-            turned = float(np.linalg.norm(pT - p0)) >= math.pi
-            what = "its rotation vector passes the singular length 2 pi"
-        if turned:
+            if float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0)):
+                signs[idx], refs[idx] = -1.0, ref
+        elif float(np.linalg.norm(pT - p0)) >= math.pi:
             raise ModelFileError(
-                f"model {built.definition.name}: a {kind} node turns by a whole turn per period ({what}); an "
-                f"orbit periodic up to whole turns needs the turning angle as a coordinate: use "
-                f"NodeRigidBodyRxyz (its angles advance by 2 pi k) or NodeRigidBody2D for the turning body")
+                f"model {built.definition.name}: a {kind} node turns by a whole turn per period (its rotation "
+                f"vector passes the singular length 2 pi); an orbit periodic up to whole turns needs the turning "
+                f"angle as a coordinate or Euler parameters: use NodeRigidBodyRxyz (its angles advance by 2 pi k), "
+                f"NodeRigidBodyEP (its parameters change sign) or NodeRigidBody2D for the turning body")
+    return signs, refs
 
 
 #: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
@@ -1042,17 +1126,21 @@ def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance:
 INVARIANCE_TOLERANCE = 1e-8
 
 
-def _check_invariance(system: ExudynSystem, built: BuiltModel, s: np.ndarray) -> None:
+def _check_invariance(system: ExudynSystem, built: BuiltModel, s: np.ndarray, signs: np.ndarray,
+                      references: np.ndarray) -> None:
+    """The model must be the same after the map: ``f(g(q), S v, t + T) = S f(q, v, t)`` and
+    ``C(g(q), t + T) = C(q, t)`` (``S = diag(signs)``) at a generic state."""
     T = built.period
     rng = np.random.default_rng(3)
     q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
     v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
     t = 0.37 * T
-    f0, f1 = system.rhs(q, v, t), system.rhs(q + s, v, t + T)
+    gq = apply_map(q, s, signs, references)
+    f0, f1 = signs * system.rhs(q, v, t), system.rhs(gq, signs * v, t + T)
     bad = np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))
     what = "forces"
     if not np.any(bad) and system.m:
-        c0, c1 = system.constraints(q, t), system.constraints(q + s, t + T)
+        c0, c1 = system.constraints(q, t), system.constraints(gq, t + T)
         bad = np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))
         what = "constraints"
     if np.any(bad):
@@ -1150,15 +1238,19 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
 
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
-                     shift: Optional[np.ndarray] = None) -> float:
+                     shift: Optional[np.ndarray] = None, signs: Optional[np.ndarray] = None,
+                     references: Optional[np.ndarray] = None) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
-    s = np.zeros(Q.shape[1]) if shift is None else np.asarray(shift, dtype=float)
+    n = Q.shape[1]
+    s = np.zeros(n) if shift is None else np.asarray(shift, dtype=float)
+    sg = np.ones(n) if signs is None else np.asarray(signs, dtype=float)
+    refs = np.zeros(n) if references is None else np.asarray(references, dtype=float)
     try:
         qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
     except ExudynRunError:
         return math.inf
-    x0 = np.concatenate([Q[0] + s, V[0]])
+    x0 = np.concatenate([apply_map(Q[0], s, sg, refs), sg * V[0]])
     xT = np.concatenate([qT, vT])
     P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
     # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
@@ -1257,7 +1349,7 @@ def find_orbit(
     ok = False
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
             guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
-        col.set_shift(guess.shift)
+        col.set_shift(guess.shift, guess.signs, guess.references)
         X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
         if not ok:
@@ -1283,7 +1375,7 @@ def find_orbit(
     reached = None
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
-        shift = col.shift
+        shift = (col.shift, col.signs, col.references)
         X, h2, ok, col, tb, reached, h_target = _continuation(definition, float(omega), samples, tol,
                                                               max_iterations, X, solver, shift)
         history += h2
@@ -1314,7 +1406,7 @@ def find_orbit(
     lap("tangent")
     shooting = math.nan
     if verify:
-        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift)
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.signs, col.references)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1330,7 +1422,8 @@ def find_orbit(
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
-        timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(),
+        timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
+        references=col.references.copy(),
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
@@ -1338,7 +1431,7 @@ def find_orbit(
 
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
-                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[np.ndarray] = None):
+                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None):
     """Natural continuation in omega from :data:`CONTINUATION_START` omega.  Returns ``(X, history, ok,
     col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
     converged (``None``: none), ``at_target`` the residuals of the solves at omega itself (an
@@ -1349,7 +1442,7 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
         if shift is not None:
-            col.set_shift(shift)  # whole turns per period do not depend on omega
+            col.set_shift(*shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
         Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
         history += hist
