@@ -148,6 +148,8 @@ class ModelFloquetResult:
             "orbit_residual": self.orbit_residual,
             "shooting_residual": float(self.orbit.shooting_residual),
             "turns": self.orbit.summary()["turns"],
+            "sign_flips": self.orbit.summary()["sign_flips"],
+            "structural_multipliers": 1 if self.orbit.autonomous else 0,
             "samples": self.orbit.samples,
             "ode2": self.orbit.size,
             "independent_coordinates": self.linearization.size,

@@ -256,6 +256,15 @@ class PeriodicOrbit:
         Whole turns per period: ``q(t + T) = q(t) + shift`` (zero for a T-periodic orbit;
         :func:`whole_turn_shift`).  ``q`` holds the coordinates themselves (with the turns);
         ``q_t``, ``q_tt``, the multipliers and torques are T-periodic.
+    signs, references : ndarray, shape (n,)
+        The rest of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): ``signs`` is -1 on the
+        Euler parameters of a body that turns an odd number of times per period (their absolute values
+        ``q + references`` change sign), +1 elsewhere.  The rates map by ``S = diag(signs)``.
+    autonomous : bool
+        The model has no drives and does not depend on time: the orbit is one of a family of time
+        shifts (e.g. a free spin turned about its axis), its phase was fixed by a phase condition, and
+        one multiplier 1 is structural (the family's direction), not a property of the motion's
+        stability.
     wall_time : float
     timings, cpu_timings : dict
         Wall-clock and CPU seconds per stage: ``build`` (model and collocation set-up),
@@ -289,6 +298,7 @@ class PeriodicOrbit:
     shift: Optional[np.ndarray] = field(default=None, repr=False)
     signs: Optional[np.ndarray] = field(default=None, repr=False)
     references: Optional[np.ndarray] = field(default=None, repr=False)
+    autonomous: bool = False
 
     def __post_init__(self) -> None:
         n = self.q.shape[1]
@@ -359,6 +369,9 @@ class PeriodicOrbit:
             "iterations": self.iterations,
             "turns": {f"{self.coordinate_labels[i] if self.coordinate_labels else 'q'}[{int(i)}]":
                       int(round(float(self.shift[i]) / (2 * math.pi))) for i in np.flatnonzero(self.shift)},
+            "sign_flips": [f"{self.coordinate_labels[i] if self.coordinate_labels else 'q'}[{int(i)}]"
+                           for i in self.antiperiodic],
+            "autonomous": bool(self.autonomous),
             "torque_max": [float(v) for v in np.max(np.abs(self.torques), axis=0)] if self.torques.size else [],
         }
 
@@ -646,6 +659,7 @@ class _Collocation:
         #: residual is 0 / 0)
         self.parameter_rows = np.array(sorted(int(i) for _, idx, _ in self.system.rotation_parameters()
                                               for i in idx), dtype=int)
+        self.autonomous = False  # set_autonomous
         self.set_shift(np.zeros(self.n))
         #: drift ``q(T) - q(0) - shift`` of the simulated guess period and its samples' periodic
         #: part (None before the guess)
@@ -659,6 +673,8 @@ class _Collocation:
         self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
         self._assembly: Optional[structured.NewtonAssembly] = None
+        if _is_autonomous(self.system, built):
+            self.set_autonomous()
 
     def set_shift(self, shift: np.ndarray, signs: Optional[np.ndarray] = None,
                   references: Optional[np.ndarray] = None) -> None:
@@ -711,6 +727,8 @@ class _Collocation:
         """``(solve, tangent)``: the factorised Newton matrix at ``X`` and its blocks."""
         if self.pattern is None:
             J, tb = self.jacobian(X)
+            if self.autonomous:
+                return _solve_with_phase(J, self.phase_direction(X)), tb
             return _solve(J), tb
         tb = self.tangent(X)
         if self._assembly is None:
@@ -718,6 +736,20 @@ class _Collocation:
                                                        stiffness_pattern=self.pattern.force | self.pattern.reaction)
         J = self._assembly(tb.M, tb.K, tb.C, tb.Cq)  # sparse_newton_matrix, structure kept between calls
         return structured.sparse_solver(J), tb
+
+    def set_autonomous(self) -> None:
+        """Fix the phase of an orbit of an autonomous model (:func:`_is_autonomous`): the orbit is one of a
+        family (any time shift of it is another, e.g. a free spin turned about its axis), the collocation
+        Newton matrix is singular along the family, and each Newton step is made orthogonal to it (AUTO's
+        phase condition in its incremental form, :func:`_solve_with_phase`).  Dense Newton."""
+        self.autonomous = True
+        self.solver, self.pattern = "dense", None
+
+    def phase_direction(self, X: np.ndarray) -> np.ndarray:
+        """``d X(t + delta) / d delta`` at ``delta = 0`` (the tangent of the family of time-shifted orbits)
+        in the unknowns: the coordinates' rates, and ``D1`` of the multipliers and torques."""
+        _, V, _ = self.coords(X)
+        return np.hstack([V, self.D1 @ X[:, self.n:]]).reshape(-1)
 
     def split(self, X: np.ndarray):
         n, m = self.n, self.m
@@ -795,6 +827,54 @@ def _solve(J: np.ndarray):
             "the collocation Newton matrix is singular: redundant constraints, or a drive on a coordinate "
             "the model's constraints already fix", [])
     return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
+
+
+def _solve_with_phase(J: np.ndarray, w: np.ndarray):
+    """Newton steps ``dX`` of a singular collocation matrix ``J`` whose null space is the family
+    direction ``w`` (an autonomous model): ``[J; w^T] dX = [-r; 0]`` in least squares (column-scaled as
+    :func:`_solve`).  The stacked matrix has full column rank when ``null J = span(w)``, also when the
+    multiplier 1 of the family is defective (a conserved quantity: then ``w`` lies in the range of ``J``
+    and the bordered square system would be singular); at an orbit of the family the system is
+    consistent, so the steps converge as Newton's do."""
+    scale = np.maximum(np.max(J, axis=0), -np.min(J, axis=0))
+    if not np.all(np.isfinite(scale)):
+        raise OrbitConvergenceError("the collocation Newton matrix contains NaN or inf (the model's forces "
+                                    "are not finite along the guess)", [])
+    scale[scale == 0] = 1.0
+    row = w / scale
+    big = float(np.max(np.abs(row)))
+    A = np.vstack([J / scale, (row / big)[None, :] if big > 0 else row[None, :]])
+    Qf, Rf = np.linalg.qr(A)
+    diag = np.abs(np.diagonal(Rf))
+    if not np.all(diag > 1e-14 * max(float(np.max(diag)), 1e-300)):
+        raise OrbitConvergenceError(
+            "the collocation Newton matrix is singular beyond the phase of the orbit: redundant constraints, "
+            "or a family of orbits with more than one parameter", [])
+
+    def solve(r: np.ndarray) -> np.ndarray:
+        b = np.concatenate([r, [0.0]])
+        return scipy.linalg.solve_triangular(Rf, Qf.T @ b, check_finite=False) / scale
+
+    return solve
+
+
+def _is_autonomous(system: ExudynSystem, built: BuiltModel) -> bool:
+    """True when the model has no drives and its forces and constraints do not depend on time (compared
+    at a generic state at two times): its periodic orbits then come in families of time shifts."""
+    if built.drives:
+        return False
+    T = built.period
+    rng = np.random.default_rng(5)
+    q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    f0, f1 = system.rhs(q, v, 0.21 * T), system.rhs(q, v, 0.64 * T)
+    if np.any(np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))):
+        return False
+    if system.m:
+        c0, c1 = system.constraints(q, 0.21 * T), system.constraints(q, 0.64 * T)
+        if np.any(np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))):
+            return False
+    return True
 
 
 def _weights(col: _Collocation, X: np.ndarray, qscale: float) -> np.ndarray:
@@ -1113,10 +1193,10 @@ def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: 
                 signs[idx], refs[idx] = -1.0, ref
         elif float(np.linalg.norm(pT - p0)) >= math.pi:
             raise ModelFileError(
-                f"model {built.definition.name}: a {kind} node turns by a whole turn per period (its rotation "
-                f"vector passes the singular length 2 pi); an orbit periodic up to whole turns needs the turning "
-                f"angle as a coordinate or Euler parameters: use NodeRigidBodyRxyz (its angles advance by 2 pi k), "
-                f"NodeRigidBodyEP (its parameters change sign) or NodeRigidBody2D for the turning body")
+                f"model {built.definition.name}: a Node{kind} turns by a whole turn per period (its rotation "
+                f"vector reaches the singular length 2 pi, where no smooth orbit continues): give the turning body "
+                f"a NodeRigidBodyEP (its Euler parameters change sign, handled) or a NodeRigidBodyRxyz (its angles "
+                f"advance by 2 pi k)")
     return signs, refs
 
 
@@ -1423,7 +1503,7 @@ def find_orbit(
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
         timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
-        references=col.references.copy(),
+        references=col.references.copy(), autonomous=bool(col.autonomous),
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
