@@ -143,13 +143,34 @@ def _polar(W: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
+#: :func:`corotating_frame` co-rotates free planar points with their best-fit rotation about the origin only
+#: when its samples are resolved about as well as the points' own (spectral tail, :func:`_spectral_tail`,
+#: at most this factor above theirs).  The basis derivatives are spectral derivatives of ``F N_hat``: a
+#: frame that the samples alias makes them wrong, not merely inaccurate (measured: an unbalanced rotor
+#: whose whirl passes 5e-5 m from the origin, multipliers 0.55 off with the fit, 4e-10 without).
+FRAME_RESOLUTION = 100.0
+
+
+def _spectral_tail(z: np.ndarray) -> float:
+    """Largest, over the columns of ``z`` (``(K, p)`` samples over one period), of the share of the upper
+    half of the resolved harmonics (``K/4 <= |k| <= K/2``) in the sum of all harmonic amplitudes: ~eps for
+    a function the samples resolve, O(1) for one they alias."""
+    c = np.abs(np.fft.fft(np.asarray(z, dtype=complex), axis=0))
+    k = np.abs(np.fft.fftfreq(c.shape[0], 1.0 / c.shape[0]))
+    total = np.sum(c, axis=0)
+    share = np.sum(c[k >= c.shape[0] / 4], axis=0) / np.maximum(total, 1e-300)
+    return float(np.max(share)) if share.size else 0.0
+
+
 def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
     """Block rotations ``R(theta_i(t))`` of the planar vector coordinates, shape ``(K, n, n)``.
 
     Each planar vector (node position, ANCF slope) is rotated by the angle its
     node has turned since ``t = 0``: the slope direction of an ANCF node, the
     angle of a rigid body, else the mass-weighted best-fit (2D Kabsch)
-    rotation of all planar vectors.  Coordinates that are not planar vectors
+    rotation of all planar vectors about the origin -- when the samples resolve it
+    (:data:`FRAME_RESOLUTION`; a point whirling close round the origin turns its fit
+    through half a turn between two samples), else the identity.  Coordinates that are not planar vectors
     keep the identity.  Any T-periodic orthogonal frame gives the same
     multipliers; in this one the stiff element stiffness of a swinging beam is
     nearly constant (it turns only with the beam's curvature), which the
@@ -170,6 +191,14 @@ def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
     x = Q[:, ix] + rx
     y = Q[:, iy] + ry
     fit = np.arctan2(np.sum(w * (x[0] * y - y[0] * x), axis=1), np.sum(w * (x[0] * x + y[0] * y), axis=1))
+    if any(ang[0] == "fit" for *_, ang in pairs):
+        tail_fit, tail_points = _spectral_tail(np.exp(1j * fit)[:, None]), _spectral_tail(x + 1j * y)
+        if tail_fit > FRAME_RESOLUTION * max(tail_points, 1e-14):
+            # e.g. one point whirling on a circle that passes close to the origin: its best-fit rotation
+            # about the origin is its polar angle, which swings through ~pi within a sample or two
+            logger.info("the best-fit rotation of the planar points is not resolved by the %d samples (spectral "
+                        "tail %.1e, the points' own %.1e): no co-rotation for them", Kn, tail_fit, tail_points)
+            fit = np.zeros(Kn)
     for p_idx, (a, b, _, _, ang) in enumerate(pairs):
         if ang[0] == "slope":
             _, i_sx, i_sy, r_sx, r_sy = ang
