@@ -53,7 +53,7 @@ def test_rotor_on_a_turning_hub_matches_the_hand_written_model(reference, node):
 def test_euler_parameter_orbit_closes_under_the_sign_flip():
     """``q(T) = g(q(0))`` along the orbit: the interpolated orbit one period on equals the map of its start
     (and not the start itself: the body turned), and the rates come back as ``S v``."""
-    res = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5)
+    res = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5, hub="drive")
     o = res.orbit
     ep = o.antiperiodic
     assert ep.tolist() == [9, 10, 11, 12]
@@ -69,11 +69,11 @@ def test_drive_form_euler_parameters_equal_tait_bryan_angles():
     """The hub released under PD (the drive form): the same machine with an EP rotor and with an Rxyz rotor
     -- two different coordinate sets, one with a sign-flip map and one with a 2 pi shift -- has the same
     multipliers; a different gain (a wrong answer) does not."""
-    ep = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5, n_steps=None, node="EP", rtol=1e-10)
-    rx = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5, n_steps=None, node="Rxyz", rtol=1e-10)
+    ep = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5, n_steps=None, node="EP", hub="drive", rtol=1e-10)
+    rx = analyze(HUB_ROTOR, W, kp=20.0, kd=0.5, n_steps=None, node="Rxyz", hub="drive", rtol=1e-10)
     assert len(ep.floquet.multipliers) == len(rx.floquet.multipliers) == 14
     assert _distance(ep.floquet.multipliers, rx.floquet.multipliers) <= TOLERANCE
-    other = analyze(HUB_ROTOR, W, kp=21.0, kd=0.5, n_steps=None, node="Rxyz", rtol=1e-10)
+    other = analyze(HUB_ROTOR, W, kp=21.0, kd=0.5, n_steps=None, node="Rxyz", hub="drive", rtol=1e-10)
     assert _distance(ep.floquet.multipliers, other.floquet.multipliers) > 100 * TOLERANCE
 
 
@@ -96,7 +96,7 @@ def test_free_spin_fixes_its_phase_and_reports_the_structural_multiplier():
 def test_cli_reports_the_sign_flips(capsys):
     from flexstab.cli import main
 
-    code = main(["floquet", "--model", HUB_ROTOR, "--omega", "30", "--kp", "20", "--kd", "0.5", "--json"])
+    code = main(["floquet", "--model", HUB_ROTOR, "--omega", "30", "--json"])
     d = json.loads(capsys.readouterr().out)
     assert code in (0, 1)  # a verdict, not a refusal (exit 2)
     assert d["sign_flips"] == [f"rotor[{i}]" for i in range(9, 13)] and d["turns"] == {"hub[3]": 1}

@@ -2,7 +2,7 @@
 
 The hub (a ``NodeRigidBodyRxyz`` held at the origin) turns about x at omega: by a drive on its first
 angle (``hub="drive"``, released under PD by the gains) or by a rheonomic ``CoordinateConstraint`` with
-offset ``omega t`` (``hub="constraint"``).  The rotor is a 3D rigid body with Euler parameters
+offset ``omega t`` (``hub="constraint"``, the default).  The rotor is a 3D rigid body with Euler parameters
 (``node="EP"``, the default) or Tait-Bryan angles (``node="Rxyz"``), joined to the hub by four
 isotropic ``CartesianSpringDamper`` pads at off-axis points, so that it turns with the hub: after one
 period its Euler parameters come back with the opposite sign.  Gravity along -y.
@@ -16,7 +16,7 @@ PADS = [(0.2, 0.05, 0.0), (0.2, -0.05, 0.0), (-0.2, 0.0, 0.05), (-0.2, 0.0, -0.0
 K, C = 4.0e3, 2.0
 
 
-def build(mbs, omega, node="EP", hub="drive", gravity=9.81):
+def build(mbs, omega, node="EP", hub="constraint", gravity=9.81):
     ground = mbs.AddNode(NodePointGround())
     mg = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
     nh = mbs.AddNode(NodeRigidBodyRxyz(referenceCoordinates=[0] * 6, initialVelocities=[0, 0, 0, omega, 0, 0]))
