@@ -102,3 +102,17 @@ def test_cli_reports_the_sign_flips(capsys):
     assert d["sign_flips"] == [f"rotor[{i}]" for i in range(9, 13)] and d["turns"] == {"hub[3]": 1}
     assert d["structural_multipliers"] == 0
     assert math.isfinite(d["spectral_radius"])
+
+
+@pytest.mark.slow
+def test_validate_measures_the_euler_parameter_rotor_in_exudyn(capsys):
+    """The nonlinear Exudyn run, read back through the orbit map (``q(T) - g(q(0))`` mapped by ``S``),
+    measures the predicted dominant multipliers within its error bar, and the extrapolated measurement is
+    close to the prediction (measured 3.7e-6 relative)."""
+    from flexstab.cli import main
+
+    main(["validate", "--model", HUB_ROTOR, "--omega", "30", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert d["agrees"] and d["step_converged"]
+    for row in d["multipliers"]:
+        assert row["relative_error"] < 1e-4
