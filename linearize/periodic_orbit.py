@@ -728,7 +728,11 @@ class _Collocation:
         if self.pattern is None:
             J, tb = self.jacobian(X)
             if self.autonomous:
-                return _solve_with_phase(J, self.phase_direction(X)), tb
+                w = self.phase_direction(X)
+                qscale = max(1.0, float(np.max(np.abs(X[:, :self.n]))))
+                if float(np.max(np.abs(w[:self.K * self.s].reshape(self.K, self.s)[:, :self.n]))) > \
+                        PHASE_MOTION * qscale / self.T:  # an equilibrium has no phase to fix
+                    return _solve_with_phase(J, w), tb
             return _solve(J), tb
         tb = self.tangent(X)
         if self._assembly is None:
@@ -741,9 +745,9 @@ class _Collocation:
         """Fix the phase of an orbit of an autonomous model (:func:`_is_autonomous`): the orbit is one of a
         family (any time shift of it is another, e.g. a free spin turned about its axis), the collocation
         Newton matrix is singular along the family, and each Newton step is made orthogonal to it (AUTO's
-        phase condition in its incremental form, :func:`_solve_with_phase`).  Dense Newton."""
+        phase condition in its incremental form, :func:`_solve_with_phase`).  With the dense Newton matrix
+        (the structured one is left without it); an equilibrium (no motion) has no phase to fix."""
         self.autonomous = True
-        self.solver, self.pattern = "dense", None
 
     def phase_direction(self, X: np.ndarray) -> np.ndarray:
         """``d X(t + delta) / d delta`` at ``delta = 0`` (the tangent of the family of time-shifted orbits)
@@ -827,6 +831,11 @@ def _solve(J: np.ndarray):
             "the collocation Newton matrix is singular: redundant constraints, or a drive on a coordinate "
             "the model's constraints already fix", [])
     return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
+
+
+#: An autonomous orbit whose coordinates' rates stay below this times (coordinate scale / T) is an
+#: equilibrium: no family of time shifts, no phase condition.
+PHASE_MOTION = 1e-9
 
 
 def _solve_with_phase(J: np.ndarray, w: np.ndarray):
@@ -1503,7 +1512,8 @@ def find_orbit(
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
         timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
-        references=col.references.copy(), autonomous=bool(col.autonomous),
+        references=col.references.copy(), autonomous=bool(col.autonomous) and float(np.max(np.abs(V))) >
+        PHASE_MOTION * max(1.0, float(np.max(np.abs(Q)))) / col.T,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)

@@ -65,6 +65,7 @@ def test_euler_parameter_orbit_closes_under_the_sign_flip():
     assert o.shooting_residual < 1e-5  # Exudyn's own integrator from q(0) lands on g(q(0))
 
 
+@pytest.mark.slow
 def test_drive_form_euler_parameters_equal_tait_bryan_angles():
     """The hub released under PD (the drive form): the same machine with an EP rotor and with an Rxyz rotor
     -- two different coordinate sets, one with a sign-flip map and one with a 2 pi shift -- has the same
@@ -116,3 +117,15 @@ def test_validate_measures_the_euler_parameter_rotor_in_exudyn(capsys):
     assert d["agrees"] and d["step_converged"]
     for row in d["multipliers"]:
         assert row["relative_error"] < 1e-4
+
+
+def test_an_autonomous_equilibrium_has_no_phase_to_fix():
+    """The 3D pendulum with its support at rest: nothing depends on time, but the orbit is the equilibrium,
+    not a family -- solved without the phase condition, no structural multiplier reported, and the
+    multipliers are the hand-derived pendulum's (tests/test_held_out_models.py)."""
+    from test_held_out_models import MODELS as HELD_OUT, pendulum_reference
+
+    res = analyze(str(HELD_OUT / "forced_pendulum_3d.py"), W, n_steps=None, amplitude=0.0)
+    assert not res.orbit.autonomous and res.summary()["structural_multipliers"] == 0
+    assert _distance(res.floquet.multipliers, pendulum_reference(W, amplitude=0.0)) <= TOLERANCE
+    assert _distance(res.floquet.multipliers, pendulum_reference(W)) > 1e-3
