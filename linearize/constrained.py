@@ -341,9 +341,12 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
     flips = signs is not None and np.any(np.asarray(signs) < 0)
     sg = np.asarray(signs, dtype=float) if flips else None
     if flips and frame is not None:
-        Ff = np.asarray(frame)
-        if not np.allclose(Ff, np.eye(n)):
-            raise ConstraintBasisError("a co-rotating frame and Euler-parameter sign flips together are not supported")
+        # the frame must leave the sign-flipping coordinates alone (then it commutes with S and
+        # N = F N_hat is S-periodic with N_hat); the co-rotating frame turns planar vectors only
+        a = np.asarray(sg) < 0
+        if not (np.allclose(F[:, a][:, :, a], np.eye(int(a.sum()))) and np.allclose(F[:, a][:, :, ~a], 0.0)
+                and np.allclose(F[:, ~a][:, :, a], 0.0)):
+            raise ConstraintBasisError("a frame that turns the sign-flipping coordinates has no S-periodic basis")
     if drives is None or drives.shape[1] == 0:
         N = _transport(Ch, times, period, sg)
     else:
@@ -428,8 +431,7 @@ def linearize_orbit(
     kdv = _gains(kd, d, "kd") if d else np.zeros(0)
     signs = getattr(orbit, "signs", None)
     flips = signs is not None and np.any(np.asarray(signs) < 0)
-    N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period,
-                                    frame=None if flips else corotating_frame(orbit),
+    N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period, frame=corotating_frame(orbit),
                                     drives=orbit.drive_vectors, stiffness=tb.K, signs=signs if flips else None)
     B = orbit.drive_vectors
     Kf = tb.K if reaction_stiffness else tb.K_force

@@ -1383,6 +1383,14 @@ def find_orbit(
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
 
+    Periodic up to the orbit map ``q(t + T) = g(q(t))`` read off one simulated period
+    (:func:`whole_turn_map`): whole turns of angles (the unknowns are the periodic part
+    ``q - s t / T``) and the sign flip of the Euler parameters of a body that turns an odd number of times
+    (those rows are T-antiperiodic, differentiated by the antiperiodic spectral matrices).  An autonomous
+    model (no drives, nothing depends on time: a free spin) has a family of time-shifted orbits; its phase
+    is fixed by a phase condition (:meth:`_Collocation.set_autonomous`) and
+    :attr:`PeriodicOrbit.autonomous` says that one multiplier 1 is structural.
+
     Parameters
     ----------
     model : ModelDefinition, str, path or callable
