@@ -16,6 +16,8 @@ variational equation integrated with the same steps, exact to rounding (no diffe
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.integrate
 from scipy.spatial.transform import Rotation
@@ -125,5 +127,11 @@ def monodromy(W: float, g: float = 0.0) -> np.ndarray:
     return _jacobian(orbit(W, g), W, g)
 
 
+@functools.lru_cache(maxsize=8)
+def _multipliers(W: float, g: float) -> tuple:
+    return tuple(np.linalg.eigvals(monodromy(W, g)))
+
+
 def multipliers(W: float, g: float = 0.0) -> np.ndarray:
-    return np.linalg.eigvals(monodromy(W, g))
+    """Multipliers at shaft speed ``W`` and gravity ``g`` (cached: ~3 s CPU each)."""
+    return np.array(_multipliers(float(W), float(g)))
