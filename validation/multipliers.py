@@ -1471,7 +1471,10 @@ def validate_model_multipliers(
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)
         q0, v0 = orbit.q[0].copy(), orbit.q_t[0].copy()
-        turns = np.asarray(orbit.shift, dtype=float)  # q0(t + T) = q0(t) + turns (whole turns of angles)
+        # the orbit map q0(t + T) = g(q0(t)): whole turns of angles, sign flips S of the Euler parameters of a
+        # turning body (the basis is S-periodic, N(T) = S N(0)); S = S^-1
+        S = np.asarray(orbit.signs, dtype=float)
+        qT0, _ = orbit.map_state(q0, v0)
         norm = energy_norm(lin.M[0], lin.K[0])
         if d:
             # the hub-mass scale of the amplitude: the first driven coordinate's mass
@@ -1484,8 +1487,9 @@ def validate_model_multipliers(
 
         def start(x: np.ndarray, t0: float = 0.0) -> None:
             dz, dzt = x[:r], x[r:]
-            q_ref = q0 + round(t0 / T) * turns  # the orbit at t0 = j T
-            q, v = _consistent_state(constraints, q_ref + N0 @ dz, v0 + N0 @ dzt + N0t @ dz, t0, T)
+            q_ref, v_ref = orbit.map_state(q0, v0, round(t0 / T))  # the orbit at t0 = j T
+            Sj = S ** round(t0 / T)
+            q, v = _consistent_state(constraints, q_ref + Sj * (N0 @ dz), v_ref + Sj * (N0 @ dzt + N0t @ dz), t0, T)
             sd.SetODE2Coordinates(q, configuration=ini)
             sd.SetODE2Coordinates_t(v, configuration=ini)
 
@@ -1496,8 +1500,8 @@ def validate_model_multipliers(
                 raise RuntimeError("Exudyn time integration did not succeed")
             qT = np.array(sd.GetODE2Coordinates())
             vT = np.array(sd.GetODE2Coordinates_t())
-            ez = N0p @ (qT - q0 - turns)
-            ezt = N0p @ (vT - v0 - N0t @ ez)
+            ez = N0p @ (S * (qT - qT0))
+            ezt = N0p @ (S * vT - v0 - N0t @ ez)
             return np.concatenate([ez, ezt])
 
         def factory(h: float):
@@ -1527,8 +1531,11 @@ def validate_model_multipliers(
                     raise RuntimeError("Exudyn time integration did not succeed")
                 qT = np.array(sd.GetODE2Coordinates())
                 vT = np.array(sd.GetODE2Coordinates_t())
-                ez = N0p @ (qT - q0 - (round(t0 / T) + 1) * turns)
-                return np.concatenate([ez, N0p @ (vT - v0 - N0t @ ez)])
+                j = round(t0 / T) + 1
+                q_ref, v_ref = orbit.map_state(q0, v0, j)
+                Sj = S ** j
+                ez = N0p @ (Sj * (qT - q_ref))
+                return np.concatenate([ez, N0p @ (Sj * vT - v0 - N0t @ ez)])
 
             growth = measure_growth(pm, np.zeros(2 * r), prediction.right[:, 0], norm,
                                     periods=config.growth_periods, period=T, step=config.step,
