@@ -401,6 +401,8 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
+    from scipy.optimize import linear_sum_assignment
+
     if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
         av, bv = a.values.tolist(), b.values.tolist()
         if all(abs(x - bv[i]) <= min(abs(x - y) for y in bv) for i, x in enumerate(av)) \
@@ -410,17 +412,20 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
         near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
         if np.array_equal(near, np.arange(n)) and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
             return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
-    from scipy.optimize import linear_sum_assignment
-
     la, lb = a.log_moduli, b.log_moduli
     finite = np.concatenate([la[np.isfinite(la)], lb[np.isfinite(lb)]])
     low = (float(finite.min()) if finite.size else 0.0) - 50.0
     la, lb = np.where(np.isfinite(la), la, low), np.where(np.isfinite(lb), lb, low)
     dphase = np.angle(a.values[:, None] * np.conj(b.values[None, :]))
     cost = np.hypot(la[:, None] - lb[None, :], np.where(np.isfinite(dphase), dphase, math.pi))
-    if np.all(np.diag(cost) <= cost.min(axis=1) + 1e-15) and np.all(np.diag(cost) <= cost.min(axis=0) + 1e-15):
-        return b  # sort order already pairs every multiplier with its nearest
-    _, cols = linear_sum_assignment(cost)
+    cols = cost.argmin(axis=1)
+    if np.array_equal(np.sort(cols), np.arange(n)):
+        # every multiplier's nearest counterpart is a different one: that pairing is an optimal
+        # assignment (each term of the sum at its row minimum), no Hungarian step needed
+        if np.array_equal(cols, np.arange(n)):
+            return b
+    else:
+        _, cols = linear_sum_assignment(cost)
     return _Spectrum(b.values[cols], b.log_moduli[cols])
 
 
@@ -585,7 +590,7 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     r1 = Ns[-2] / Ns[-3]
     q_obs = _observed_order(Ns[-3:], d1, d2, p)
     informative = (d2 > ORDER_NOISE * noise) & (d1 > ORDER_NOISE * noise)
-    q = np.where(informative, np.clip(q_obs, MIN_ORDER, p), float(p))
+    q = np.where(informative, np.minimum(np.maximum(q_obs, MIN_ORDER), p), float(p))
     # well below the scheme's order there is no error expansion to extrapolate (a jump of P inside a
     # step: the error depends on where the jump falls in the grid, not smoothly on N): first order,
     # the order of a step across a jump, or the observed one if lower
@@ -692,7 +697,7 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     previous = _match(spec, levels[-2].spectrum) if previous is None else previous
     moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
-    np.fill_diagonal(near, False)
+    near.flat[::n + 1] = False  # the diagonal
     if not near.any():
         return bounds, (), False
     E, eta, floor = _matrix_estimate(levels, p)
@@ -1239,13 +1244,9 @@ def _magnus_solves_small(
     h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
     label = "/".join(str(N) for N in Ns)
     with np.errstate(over="ignore", invalid="ignore"):
-        Om = magnus_exponents_soa(scheme, Pg, h)
+        Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
-            if scheme.order == 4:
-                mean = 0.5 * (Pg[0] + Pg[1])
-            else:
-                mean = (5.0 * Pg[0] + 8.0 * Pg[1] + 5.0 * Pg[2]) / 18.0
-            column = np.abs(Om - h * mean).sum(axis=0).max(axis=0)  # per sub-interval
+            column = np.abs(C).sum(axis=0).max(axis=0)  # per sub-interval
             if optional_first and len(Ns) > 1 and not float(column[:Ns[0]].max()) <= COMMUTATOR_LIMIT:
                 # the coarsest level does not resolve P: drop it (the caller refines further)
                 keep = slice(Ns[0], Ntot)
@@ -1259,22 +1260,16 @@ def _magnus_solves_small(
                     f"with {label} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
                 )
         E = expm_soa(Om)
-        if len(Ns) == 2 and Ns[1] == 2 * Ns[0]:
-            # the pilot pair: one level of the fine product brings it to N factors, then both
-            # products reduce together (half the batched products)
-            N = Ns[0]
-            fine = E[:, :, N:]
-            both = np.stack([E[:, :, :N], mm_soa(fine[:, :, 1::2], fine[:, :, 0::2])], axis=3)
-            products = ordered_product_soa(both.reshape(n, n, 2 * N), blocks=2)
-        else:
-            products = None
+        products = _level_products(E, Ns)
+        diag = np.arange(n)
+        traces = np.add.reduceat(Om[diag, diag].sum(axis=0), np.cumsum([0] + list(Ns[:-1])))
         out = []
         start = 0
         for i, N in enumerate(Ns):
             block = slice(start, start + N)
             start += N
             # a non-finite factor makes the product non-finite
-            Phi = products[:, :, i] if products is not None else ordered_product_soa(E[:, :, block])
+            Phi = products[i]
             if not np.isfinite(Phi).all():
                 raise _Unresolved(
                     f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
@@ -1282,10 +1277,41 @@ def _magnus_solves_small(
                     f"{float(np.abs(Om[:, :, block]).sum(axis=0).max()):.3g})",
                     genuine_overflow=True,
                 )
-            log_det = float(np.trace(np.sum(Om[:, :, block], axis=2)))
             factors = np.ascontiguousarray(E[:, :, block].transpose(2, 0, 1)) if keep_factors else None
-            out.append(_Solve(N, Phi, _spectrum(Phi), log_det, factors))
+            out.append(_Solve(N, Phi, _spectrum(Phi), float(traces[i]), factors))
     return out
+
+
+def _level_products(E: np.ndarray, Ns: Sequence[int]) -> list[np.ndarray]:
+    """``E_N ... E_1`` of each consecutive block of ``Ns`` factors of the stack ``E`` ``(n, n, sum Ns)``.
+
+    When the counts double from level to level (``Ns[i] = 2^i Ns[0]``, the refinement ladder), the
+    finest block is reduced by one pairwise level, reduced together with the next one, and so on,
+    until all have ``Ns[0]`` factors; then they reduce together (``log2 Ns[0]`` batched products
+    for all the levels instead of one sequence each).  The same products in the same order as
+    :func:`~stability.magnus.ordered_product_soa` on each block.
+    """
+    n = E.shape[0]
+    bounds = np.cumsum([0] + list(Ns))
+    blocks = [E[:, :, bounds[i]:bounds[i + 1]] for i in range(len(Ns))]
+    N0 = Ns[0]
+    ladder = len(Ns) > 1 and all(N == N0 * 2**i for i, N in enumerate(Ns))
+    if not ladder:
+        return [ordered_product_soa(b) for b in blocks]
+    # from the finest down: carry = the blocks already reduced to the current count, interleaved
+    carry = blocks[-1]
+    width = 1  # how many sequences are interleaved in carry
+    for i in range(len(Ns) - 2, -1, -1):
+        k = carry.shape[2] // width
+        shaped = carry.reshape(n, n, k, width)
+        half = mm_soa(shaped[:, :, 1::2].reshape(n, n, -1), shaped[:, :, 0::2].reshape(n, n, -1))
+        half = half.reshape(n, n, k // 2, width)
+        # prepend level i (same count now) as the first interleaved sequence
+        carry = np.concatenate([blocks[i].reshape(n, n, k // 2, 1), half], axis=3)
+        width += 1
+        carry = carry.reshape(n, n, -1)
+    products = ordered_product_soa(carry, blocks=width)  # (n, n, width): level order
+    return [products[:, :, i] for i in range(width)]
 
 
 def _matrix_change(fine: np.ndarray, coarse: np.ndarray) -> float:
@@ -1488,8 +1514,8 @@ def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: 
 def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     """``max_k ||Omega_k - h Pbar_k||_1`` over the sub-intervals of ``Pg`` (shape ``(m, q, n, n)``)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        return float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
-                                   axis=1)))
+        _, C = magnus_exponents(scheme, Pg, h, split=True)
+        return float(np.max(np.sum(np.abs(C), axis=1)))
 
 
 def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
@@ -2111,9 +2137,9 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     n = spec.values.size
     noise = float(n * np.finfo(float).eps * np.linalg.svd(prop.monodromy, compute_uv=False)[0])  # ||Phi||_2
     moduli = np.exp(spec.log_moduli)
-    noise_digits = np.clip(np.log10(moduli / noise), 0.0, 16.0)
+    noise_digits = np.minimum(np.maximum(np.log10(moduli / noise), 0.0), 16.0)  # np.clip, cheaper
     if prop.changes is not None:
-        refine_digits = np.clip(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0, 16.0)
+        refine_digits = np.minimum(np.maximum(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0), 16.0)
     else:
         refine_digits = np.full(n, 16.0)
     digits = np.minimum(noise_digits, refine_digits)

@@ -23,14 +23,21 @@ REPR_ITEMS = 4
 REPR_TEXT = 60
 
 
+@functools.lru_cache(maxsize=None)
+def _field_names(klass: type) -> tuple:
+    """The dataclass field names of ``klass`` (cached: a class's fields do not change)."""
+    return tuple(f.name for f in dataclasses.fields(klass))
+
+
 def freeze_arrays(obj: Any) -> None:
     """Replace every writable numpy array field of the dataclass ``obj`` by a read-only view."""
-    for f in dataclasses.fields(obj):
-        v = getattr(obj, f.name, None)
-        if isinstance(v, np.ndarray) and v.flags.writeable:
+    ndarray, setattr_ = np.ndarray, object.__setattr__
+    for name in _field_names(type(obj)):
+        v = getattr(obj, name, None)
+        if isinstance(v, ndarray) and v.flags.writeable:
             view = v.view()
             view.flags.writeable = False
-            object.__setattr__(obj, f.name, view)
+            setattr_(obj, name, view)
 
 
 def _number(x: Any) -> str:
