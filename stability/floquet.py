@@ -388,6 +388,19 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
 MATCH_MAX_N = 1500
 
 
+def _sort_order_pairs(av: list, bv: list, la: list, lb: list) -> bool:
+    """Whether ``bv[i]`` is the nearest of ``bv`` to ``av[i]`` for every ``i`` and the log moduli agree
+    to 0.5 (plain Python: a handful of numbers)."""
+    for x, y, lx, ly in zip(av, bv, la, lb):
+        if not abs(lx - ly) < 0.5:
+            return False
+        d = abs(x - y)
+        for z in bv:
+            if abs(x - z) < d:
+                return False
+    return True
+
+
 def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     """``b`` reordered so that ``b[i]`` is the counterpart of ``a[i]`` (two refinements of one spectrum).
 
@@ -404,9 +417,7 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     from scipy.optimize import linear_sum_assignment
 
     if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
-        av, bv = a.values.tolist(), b.values.tolist()
-        if all(abs(x - bv[i]) <= min(abs(x - y) for y in bv) for i, x in enumerate(av)) \
-                and all(abs(x - y) < 0.5 for x, y in zip(a.log_moduli.tolist(), b.log_moduli.tolist())):
+        if _sort_order_pairs(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist()):
             return b
     else:
         near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
@@ -603,24 +614,34 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     return est, np.where(informative, q_obs, math.nan)
 
 
+def _matrix_changes(levels: Sequence["_Solve"]) -> tuple[np.ndarray, float, Optional[float], float]:
+    """``(change, d2, d1, floor)``: the finest change of the (balanced) monodromy matrix, its Frobenius
+    norm and the one before (None with two levels), and the rounding level ``floor`` of the product."""
+    Phi, mid = levels[-1].monodromy, levels[-2].monodromy
+    norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
+    # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
+    # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
+    floor = 2.0 * math.sqrt(levels[-1].n_steps) * np.finfo(float).eps * norm
+    change = Phi - mid
+    d1 = float(np.linalg.norm(mid - levels[-3].monodromy)) if len(levels) >= 3 else None
+    return change, float(np.linalg.norm(change)), d1, floor
+
+
+def _matrix_error(change: np.ndarray, d2: float, est: float, floor: float) -> tuple[np.ndarray, float, float]:
+    """``(E, eta, floor)`` of :func:`_matrix_estimate` from the normwise estimate ``est``."""
+    eta = float(est) if math.isfinite(est) else math.inf
+    E = change * (eta / d2) if d2 > 0 and math.isfinite(eta) else np.zeros_like(change)
+    return E, max(eta, floor), floor
+
+
 def _matrix_estimate(levels: Sequence["_Solve"], p: float) -> tuple[np.ndarray, float, float]:
     """``(E, eta, floor)``: the estimated error matrix ``Phi_true - Phi_finest`` (balanced
     coordinates: the finest change scaled by :func:`_extrapolated_estimate`'s factor on the normwise
     changes), its 2-norm ``eta`` (at least ``floor``) and the rounding level ``floor`` of the product."""
-    Ns = [lv.n_steps for lv in levels]
-    Phi = levels[-1].monodromy
-    norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
-    # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
-    # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
-    floor = 2.0 * math.sqrt(Ns[-1]) * np.finfo(float).eps * norm
-    change = Phi - levels[-2].monodromy
-    d2 = np.array([float(np.linalg.norm(change))])
-    d1 = np.array([float(np.linalg.norm(levels[-2].monodromy - levels[-3].monodromy))]) \
-        if len(levels) >= 3 else None
-    est, _ = _extrapolated_estimate(Ns, d1, d2, p, np.array([floor / ORDER_NOISE]))
-    eta = float(est[0]) if np.isfinite(est[0]) else math.inf
-    E = change * (eta / d2[0]) if d2[0] > 0 and math.isfinite(eta) else np.zeros_like(change)
-    return E, max(eta, floor), floor
+    change, d2, d1, floor = _matrix_changes(levels)
+    est, _ = _extrapolated_estimate([lv.n_steps for lv in levels], None if d1 is None else np.array([d1]),
+                                    np.array([d2]), p, np.array([floor / ORDER_NOISE]))
+    return _matrix_error(change, d2, float(est[0]), floor)
 
 
 #: Two multipliers closer than this many times the sum of their changes over the last refinement
@@ -664,7 +685,8 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
 
 
 def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
-                    previous: Optional[_Spectrum] = None) -> tuple[np.ndarray, tuple, bool]:
+                    previous: Optional[_Spectrum] = None,
+                    matrix: Optional[tuple] = None) -> tuple[np.ndarray, tuple, bool]:
     """Absolute error bounds of multipliers in defective or clustered groups (NaN elsewhere).
 
     Which multipliers form a group: the estimated error matrix ``E`` (:func:`_matrix_estimate`)
@@ -686,6 +708,7 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     acts on the group, the coupling to the other eigenvalues through ``T12`` (``gap`` = their
     distance from the group) and the rounding level.  For a semisimple double multiplier
     ``nu ~ 0`` and the bound is first order; for a Jordan block it is the square root.
+    ``matrix``: :func:`_matrix_estimate`'s ``(E, eta, floor)`` when the caller has it already.
     Returns ``(bounds, groups, rounding_limited)``.
     """
     n = spec.values.size
@@ -700,7 +723,7 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     near.flat[::n + 1] = False  # the diagonal
     if not near.any():
         return bounds, (), False
-    E, eta, floor = _matrix_estimate(levels, p)
+    E, eta, floor = _matrix_estimate(levels, p) if matrix is None else matrix
     Phi = levels[-1].monodromy
     # only multipliers the estimate covers: modulus >= ESTIMATE_FLOOR of the largest, above rounding
     covered = (spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)) & (np.abs(lam) > 100.0 * floor)
@@ -789,19 +812,33 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     norm = float(np.linalg.norm(fine.monodromy))  # Frobenius: >= ||Phi||_2
     noise = _rounding_levels(spec, norm, fine.n_steps)
 
-    def changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
-        """Rows: what ``accuracy`` measures, the phase (``b`` already paired with ``a``)."""
-        dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
-        dph = np.abs(np.angle(a.values * np.conj(b.values)))
-        d = np.stack([dmod if accuracy in ("moduli", "dominant") else np.maximum(dmod, dph), dph])
-        return np.where(np.isfinite(d), d, np.inf)
-
     mid = _match(spec, levels[-2].spectrum)
-    d2 = changes(spec, mid)
-    d1 = changes(mid, _match(mid, levels[-3].spectrum)) if len(levels) >= 3 else None
-    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noise[None, :])
+    three = len(levels) >= 3
+    # the changes of both pairs of levels at once: rows (fine, mid) - (mid, coarse)
+    if three:
+        coarse = _match(mid, levels[-3].spectrum)
+        va, vb = np.stack([spec.values, mid.values]), np.stack([mid.values, coarse.values])
+        la, lb = np.stack([spec.log_moduli, mid.log_moduli]), np.stack([mid.log_moduli, coarse.log_moduli])
+    else:
+        va, vb, la, lb = spec.values[None], mid.values[None], spec.log_moduli[None], mid.log_moduli[None]
+    dmod = np.abs(np.expm1(la - lb))
+    dph = np.abs(np.angle(va * np.conj(vb)))
+    if accuracy not in ("moduli", "dominant"):
+        dmod = np.maximum(dmod, dph)
+    # rows: what ``accuracy`` measures, the phase, the normwise change of the matrix (for the
+    # cluster bounds' error matrix, :func:`_matrix_estimate`), each (pairs, n)
+    change, m2, m1, floor = _matrix_changes(levels)
+    width = spec.values.size
+    d = np.stack([dmod, dph, np.broadcast_to(np.array([m2, m1 if three else m2])[:dmod.shape[0], None],
+                                             dmod.shape)], axis=1)
+    d = np.where(np.isfinite(d), d, np.inf)
+    d2 = d[0]
+    d1 = d[1] if three else None
+    noises = np.stack([noise, noise, np.full(width, floor / ORDER_NOISE)])
+    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noises)
     est, phase, q_obs = both[0], both[1], q_both[0]
-    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid)
+    matrix = _matrix_error(change, m2, float(both[2][0]), floor)
+    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
     rel = bounds * np.exp(-spec.log_moduli)
     has = np.isfinite(bounds)
     est = np.where(has, np.maximum(est, rel), est)
@@ -1972,6 +2009,11 @@ def _piecewise_trace(wrapped: Any, pieces: Sequence[tuple[float, float]]) -> flo
     return total
 
 
+#: The reasons of :func:`_certify` and :func:`recertify` that do not depend on the multiplier.
+_BELOW_FLOOR = "below the rounding floor of the formed product: phase (sign) unknown"
+_OUTSIDE = f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)"
+
+
 def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, phase_known: np.ndarray,
              adaptive: bool, method: str) -> tuple[np.ndarray, tuple]:
     """Which multipliers meet the accuracy contract, and why each other one does not.
@@ -2012,11 +2054,9 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
         mask &= dominant_mask(spec.log_moduli, changes)
     for i in range(n):
         if not phase_known[i]:
-            reasons[i] = "below the rounding floor of the formed product: phase (sign) unknown" + (
-                "" if covered[i] else f"; modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy "
-                                      f"contract)")
+            reasons[i] = _BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE)
         elif not covered[i]:
-            reasons[i] = f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)"
+            reasons[i] = _OUTSIDE
         elif changes is None:
             reasons[i] = "no error estimate (fixed n_steps with error_estimate=False)"
         elif not mask[i]:
@@ -2085,11 +2125,9 @@ def recertify(result: FloquetResult, rtol: Optional[float] = None) -> FloquetRes
         if certified[i]:
             reasons.append("")
         elif not known[i]:
-            reasons.append("below the rounding floor of the formed product: phase (sign) unknown" + (
-                "" if covered[i] else f"; modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy "
-                                      f"contract)"))
+            reasons.append(_BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE))
         elif not covered[i]:
-            reasons.append(f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)")
+            reasons.append(_OUTSIDE)
         elif not has_estimate:
             reasons.append("no error estimate")
         else:
