@@ -720,7 +720,8 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     previous = _match(spec, levels[-2].spectrum) if previous is None else previous
     moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
-    near.flat[::n + 1] = False  # the diagonal
+    diag = np.arange(n)
+    near[diag, diag] = False
     if not near.any():
         return bounds, (), False
     E, eta, floor = _matrix_estimate(levels, p) if matrix is None else matrix
