@@ -63,7 +63,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -224,7 +224,8 @@ def _transport(C_all: np.ndarray, times: np.ndarray, period: float) -> np.ndarra
 
 def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "np.ndarray | None" = None,
                      drives: "np.ndarray | None" = None,
-                     stiffness: "np.ndarray | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     stiffness: "np.ndarray | None" = None,
+                     grid: "Any | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smooth periodic basis ``N`` of ``null C_q`` and its derivatives at the samples.
 
     Parameters
@@ -299,7 +300,7 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
         N = np.concatenate([ND, W], axis=2)
     if frame is not None:
         N = F @ N
-    D1, D2 = differentiation_matrices(period, Kn)
+    D1, D2 = differentiation_matrices(period, Kn) if grid is None else (grid.D1, grid.D2)
     flat = N.reshape(Kn, -1)
     N_t = (D1 @ flat).reshape(N.shape)
     N_tt = (D2 @ flat).reshape(N.shape)
@@ -345,8 +346,9 @@ def linearize_orbit(
     d = orbit.drive_vectors.shape[1]
     kpv = _gains(kp, d, "kp") if d else np.zeros(0)
     kdv = _gains(kd, d, "kd") if d else np.zeros(0)
+    grid = getattr(orbit, "grid", None)
     N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period, frame=corotating_frame(orbit),
-                                    drives=orbit.drive_vectors, stiffness=tb.K)
+                                    drives=orbit.drive_vectors, stiffness=tb.K, grid=grid)
     B = orbit.drive_vectors
     Kf = tb.K if reaction_stiffness else tb.K_force
     Kf = Kf + (B * kpv) @ B.T
@@ -377,6 +379,7 @@ def linearize_orbit(
         drive_names=orbit.drive_names,
         basis=N,
         basis_t=N_t,
+        breakpoints=tuple(getattr(orbit, "breakpoints", ()) or ()),
     )
     from dataclasses import replace
 

@@ -56,6 +56,7 @@ from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
+from linearize.piecewise import PiecewiseGrid
 from mbs_models.model_file import BuiltModel, ModelDefinition, ModelFileError, build_model, resolve_model
 
 __all__ = [
@@ -284,10 +285,23 @@ class PeriodicOrbit:
     timings: dict = field(default_factory=dict, repr=False)
     cpu_timings: dict = field(default_factory=dict, repr=False)
     shift: Optional[np.ndarray] = field(default=None, repr=False)
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         if self.shift is None:
             object.__setattr__(self, "shift", np.zeros(self.q.shape[1]))
+
+    @property
+    def grid(self) -> Optional[PiecewiseGrid]:
+        """The piecewise sampling (:class:`~linearize.piecewise.PiecewiseGrid`) when the drives declare
+        breakpoints; ``None`` for the equispaced trigonometric one."""
+        if not self.breakpoints:
+            return None
+        grid = self.__dict__.get("_grid")
+        if grid is None:
+            grid = PiecewiseGrid(self.period, self.breakpoints, self.samples)
+            object.__setattr__(self, "_grid", grid)  # a cache, not a field
+        return grid
 
     @property
     def samples(self) -> int:
@@ -302,8 +316,8 @@ class PeriodicOrbit:
         """``q0(t)`` at a whole number of periods ``t = j T`` (``q[0] + j shift``); other times
         by :meth:`state`."""
         j = round(float(t) / self.period)
-        if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)):
-            return self.state(float(t))[0]
+        if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)) or self.breakpoints:
+            return self.state(float(t))[0]  # (piecewise sampling has no node at t = 0)
         return self.q[0] + j * self.shift
 
     @property
@@ -312,13 +326,21 @@ class PeriodicOrbit:
         return int(self.q.shape[1])
 
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
+        """``(q, q', q'')`` at ``t`` by trigonometric interpolation (piecewise sampling: the ``C^1``
+        piecewise polynomial the collocation solved for and its derivatives, :attr:`grid`)."""
         ramp = np.multiply.outer(np.asarray(t, dtype=float), self.shift / self.period)
+        grid = self.grid
+        if grid is not None:
+            p = self.q_periodic
+            return (grid.smooth(p, t) + ramp, grid.smooth(p, t, 1) + self.shift / self.period, grid.smooth(p, t, 2))
         return (trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
                 trig_interpolate(self.q_tt, self.period, t))
 
     def torque(self, t: float | np.ndarray) -> np.ndarray:
         """Feed-forward torques at ``t`` (shape ``(d,)`` or ``(m, d)``)."""
+        grid = self.grid
+        if grid is not None:
+            return grid.interpolate(self.torques, t)
         return trig_interpolate(self.torques, self.period, t)
 
     def summary(self) -> dict:
@@ -608,8 +630,14 @@ class _Collocation:
         self.system = ExudynSystem(built)
         self.T = built.period
         self.K = int(samples)
-        self.times = sample_times(self.T, self.K)
-        self.D1, self.D2 = differentiation_matrices(self.T, self.K)
+        breakpoints = sorted({float(b) for dr in built.drives for b in (getattr(dr, "breakpoints", None) or ())})
+        #: piecewise sampling when a drive declares breakpoints (:mod:`linearize.piecewise`), else None
+        self.grid: Optional[PiecewiseGrid] = PiecewiseGrid(self.T, breakpoints, self.K) if breakpoints else None
+        if self.grid is not None:
+            self.times, self.D1, self.D2 = self.grid.times, self.grid.D1, self.grid.D2
+        else:
+            self.times = sample_times(self.T, self.K)
+            self.D1, self.D2 = differentiation_matrices(self.T, self.K)
         self.B = built.drive_vectors()
         self.n, self.m, self.d = self.system.n, self.system.m, len(built.drives)
         self.s = self.n + self.m + self.d
@@ -1150,17 +1178,22 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
 
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
-                     shift: Optional[np.ndarray] = None) -> float:
+                     shift: Optional[np.ndarray] = None, grid: Optional[PiecewiseGrid] = None) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
     s = np.zeros(Q.shape[1]) if shift is None else np.asarray(shift, dtype=float)
+    if grid is None:
+        P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
+        q0, v0 = Q[0], V[0]
+    else:  # piecewise sampling: no node at t = 0, the state there from the collocation polynomial
+        P = Q - grid.times[:, None] * (s[None, :] / T)
+        q0, v0 = grid.smooth(P, 0.0), grid.smooth(P, 0.0, 1) + s / T
     try:
-        qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
+        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples)
     except ExudynRunError:
         return math.inf
-    x0 = np.concatenate([Q[0] + s, V[0]])
+    x0 = np.concatenate([q0 + s, v0])
     xT = np.concatenate([qT, vT])
-    P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
     # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
     # part, e.g. a rotor spinning steadily, has no variation to compare with)
     floor = SHOOTING_FLOOR * max(1.0, float(np.max(np.abs(Q))), float(np.max(np.abs(V))))
@@ -1314,7 +1347,7 @@ def find_orbit(
     lap("tangent")
     shooting = math.nan
     if verify:
-        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift)
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.grid)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1331,6 +1364,7 @@ def find_orbit(
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
         timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(),
+        breakpoints=() if col.grid is None else col.grid.boundaries,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
