@@ -621,12 +621,12 @@ def _sampling_order(lin: LinearizedPeriodicSystem) -> tuple[float, float, str]:
     ``e`` is the largest error, relative to the matrix's largest entry, of the trigonometric interpolant
     of every other sample at the samples in between (the interpolant of half the samples: the samples
     are nested, so no new evaluation); ``e0`` the same for every fourth sample; ``q = log2(e0 / e)``.
-    ``(inf, 0, "")`` when no matrix is informative or there are too few samples (fewer than 8, or not a
+    ``(inf, 0, "")`` when no matrix is informative or there are too few samples (fewer than 16, or not a
     multiple of 4)."""
     from linearize.fourier import trig_interpolate
 
     N, T = lin.samples, lin.period
-    if N < 8 or N % 4:
+    if N < 16 or N % 4:
         return math.inf, 0.0, ""
     worst = (math.inf, 0.0, "")
     for name, S in (("M", lin.M), ("C", lin.C), ("K", lin.K)):
