@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
-from scipy.linalg.lapack import dgebal, dgeev
+from scipy.linalg.lapack import dgebal, dgeev, dgesdd
 
 from stability.expm import expm_near_block_diagonal, expm_soa, expm_stack, mm_soa
 from stability.magnus import (
@@ -373,6 +373,16 @@ def _eigvals(Phi: np.ndarray) -> np.ndarray:
         if info == 0:
             return wr + 1j * wi
     return np.linalg.eigvals(Phi).astype(complex)
+
+
+def _norm2(Phi: np.ndarray) -> float:
+    """``||Phi||_2``, the largest singular value (LAPACK ``dgesdd`` directly for a real matrix: twice as fast
+    as ``np.linalg.svd`` on a 4x4; the same routine)."""
+    if Phi.dtype == np.float64 and Phi.ndim == 2 and np.isfinite(Phi).all():
+        _, sv, _, info = dgesdd(Phi, compute_uv=0)
+        if info == 0:
+            return float(sv[0])
+    return float(np.linalg.svd(Phi, compute_uv=False)[0])
 
 
 def _spectrum(Phi: np.ndarray) -> _Spectrum:
@@ -1277,8 +1287,12 @@ def _magnus_solves_small(
     hs = [period / N for N in Ns]
     times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
-    P = wrapped.evaluate(times)
-    Pg = np.ascontiguousarray(P.reshape(Ntot, q, n, n).transpose(1, 2, 3, 0))  # (q, n, n, Ntot)
+    Pg = np.empty((q, n, n, Ntot))  # matrix-major (q, n, n, Ntot)
+    if isinstance(wrapped, _Balanced):  # the balancing in the same pass as the transposition
+        np.multiply(wrapped.wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0),
+                    wrapped.ratio[None, :, :, None], out=Pg)
+    else:
+        Pg[...] = wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0)
     h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
     label = "/".join(str(N) for N in Ns)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -1702,10 +1716,10 @@ class _Balanced:
         self.wrapped = wrapped
         self.period = wrapped.period
         self.n = wrapped.n
-        self._ratio = scale[None, :] / scale[:, None]
+        self.ratio = scale[None, :] / scale[:, None]  # powers of two: the scaling is exact
 
     def evaluate(self, times: np.ndarray) -> np.ndarray:
-        return self.wrapped.evaluate(times) * self._ratio
+        return self.wrapped.evaluate(times) * self.ratio
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([t]))[0]
@@ -2174,7 +2188,7 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     else:
         trace = _trace_integral(P, wrapped, T)
     n = spec.values.size
-    noise = float(n * np.finfo(float).eps * np.linalg.svd(prop.monodromy, compute_uv=False)[0])  # ||Phi||_2
+    noise = float(n * np.finfo(float).eps * _norm2(prop.monodromy))
     moduli = np.exp(spec.log_moduli)
     noise_digits = np.minimum(np.maximum(np.log10(moduli / noise), 0.0), 16.0)  # np.clip, cheaper
     if prop.changes is not None:
