@@ -1258,7 +1258,7 @@ def find_orbit(
         structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
         unknowns.  Both solve the same equations to the same tolerance.
     guess : PeriodicOrbit, optional
-        Start Newton from this orbit's samples (same model and ``samples``, usually a
+        Start Newton from this orbit's samples (same model, ``samples`` and sample phases ``t / T``, usually a
         nearby omega: continuation along an omega sweep) instead of one simulated
         period; if Newton fails from it, the usual guess and continuation follow.
     **options
@@ -1289,7 +1289,8 @@ def find_orbit(
     history: list = []
     ok = False
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
-            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
+            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d and \
+            np.allclose(guess.times / guess.period, col.times / col.T, rtol=0.0, atol=1e-12):
         col.set_shift(guess.shift)
         X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
