@@ -129,6 +129,8 @@ TRACE_MIN_POINTS = 64
 #: points, so the change from ``K`` to ``2 K`` bounds the error of the ``K`` sum;
 #: 1e-13 is above the rounding of a 512-term sum (~ 9 eps).
 TRACE_RTOL = 1e-13
+#: Unit roundoff times 2 (``np.finfo(float).eps``), as a plain float.
+_EPS = float(np.finfo(float).eps)
 
 
 @frozen_result
@@ -546,7 +548,7 @@ def _rounding_levels(spec: _Spectrum, norm: float, steps: int) -> np.ndarray:
     """Relative rounding level of each multiplier of a product of ``steps`` factors:
     ``10 sqrt(steps) eps ||Phi|| / |rho_i|`` (random accumulation of one rounding per factor,
     relative to the multiplier; the absolute floor of a small multiplier is set by ``||Phi||``)."""
-    level = 10.0 * math.sqrt(max(steps, 1)) * np.finfo(float).eps * norm * np.exp(-spec.log_moduli)
+    level = 10.0 * math.sqrt(max(steps, 1)) * _EPS * norm * np.exp(-spec.log_moduli)
     return np.where(np.isfinite(level), level, np.inf)
 
 
@@ -610,7 +612,8 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
         return ESTIMATE_SAFETY * d2 / (r2**p - 1.0), np.full(d2.shape, math.nan)
     r1 = Ns[-2] / Ns[-3]
     q_obs = _observed_order(Ns[-3:], d1, d2, p)
-    informative = (d2 > ORDER_NOISE * noise) & (d1 > ORDER_NOISE * noise)
+    level = ORDER_NOISE * noise
+    informative = (d2 > level) & (d1 > level)
     q = np.where(informative, np.minimum(np.maximum(q_obs, MIN_ORDER), p), float(p))
     # well below the scheme's order there is no error expansion to extrapolate (a jump of P inside a
     # step: the error depends on where the jump falls in the grid, not smoothly on N): first order,
@@ -620,8 +623,9 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     # an observed order above p + 4 is no leading term of the (even) error expansion: the last two
     # levels agree by accident (the error changes sign between them), so the previous change decides
     accidental = informative & (q_obs > p + ACCIDENTAL_ORDER_EXCESS)
-    est = ESTIMATE_SAFETY * np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
-    return est, np.where(informative, q_obs, math.nan)
+    if accidental.any():
+        last = np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
+    return ESTIMATE_SAFETY * last, np.where(informative, q_obs, math.nan)
 
 
 def _matrix_changes(levels: Sequence["_Solve"]) -> tuple[np.ndarray, float, Optional[float], float]:
@@ -631,7 +635,7 @@ def _matrix_changes(levels: Sequence["_Solve"]) -> tuple[np.ndarray, float, Opti
     norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
     # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
     # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
-    floor = 2.0 * math.sqrt(levels[-1].n_steps) * np.finfo(float).eps * norm
+    floor = 2.0 * math.sqrt(levels[-1].n_steps) * _EPS * norm
     change = Phi - mid
     d1 = float(np.linalg.norm(mid - levels[-3].monodromy)) if len(levels) >= 3 else None
     return change, float(np.linalg.norm(change)), d1, floor
@@ -694,6 +698,17 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
     return hi
 
 
+def _any_near(lam: list, previous: list) -> bool:
+    """Whether two multipliers lie within :data:`CLUSTER_RADIUS` times the sum of their changes
+    (``lam`` and the paired ``previous`` level) of each other: the test of :func:`_cluster_bounds`."""
+    moved = [abs(a - b) for a, b in zip(lam, previous)]
+    for i in range(len(lam)):
+        for j in range(i + 1, len(lam)):
+            if abs(lam[i] - lam[j]) <= CLUSTER_RADIUS * (moved[i] + moved[j]):
+                return True
+    return False
+
+
 def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
                     previous: Optional[_Spectrum] = None,
                     matrix: Optional[tuple] = None) -> tuple[np.ndarray, tuple, bool]:
@@ -726,8 +741,10 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     if n < 2 or len(levels) < 2 or n > MATCH_MAX_N:
         return bounds, (), False
     lam = spec.values
-    dist = np.abs(lam[:, None] - lam[None, :])
     previous = _match(spec, levels[-2].spectrum) if previous is None else previous
+    if n <= SMALL_N and not _any_near(lam.tolist(), previous.values.tolist()):
+        return bounds, (), False  # the common case, decided in plain Python (a handful of numbers)
+    dist = np.abs(lam[:, None] - lam[None, :])
     moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
     diag = np.arange(n)
@@ -854,10 +871,11 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     est, phase, q_obs = both[0], both[1], q_both[0]
     matrix = _matrix_error(change, m2, float(both[2][0]), floor)
     bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
-    rel = bounds * np.exp(-spec.log_moduli)
-    has = np.isfinite(bounds)
-    est = np.where(has, np.maximum(est, rel), est)
-    phase = np.where(has, np.maximum(phase, rel), phase)
+    if groups:
+        rel = bounds * np.exp(-spec.log_moduli)
+        has = np.isfinite(bounds)
+        est = np.where(has, np.maximum(est, rel), est)
+        phase = np.where(has, np.maximum(phase, rel), phase)
     est = np.maximum(np.where(np.isfinite(est), est, np.inf), noise)
     phase = np.maximum(np.where(np.isfinite(phase), phase, np.inf), noise)
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)
@@ -2192,7 +2210,7 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     else:
         trace = _trace_integral(P, wrapped, T)
     n = spec.values.size
-    noise = float(n * np.finfo(float).eps * _norm2(prop.monodromy))
+    noise = float(n * _EPS * _norm2(prop.monodromy))
     moduli = np.exp(spec.log_moduli)
     noise_digits = np.minimum(np.maximum(np.log10(moduli / noise), 0.0), 16.0)  # np.clip, cheaper
     if prop.changes is not None:
