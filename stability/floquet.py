@@ -38,6 +38,7 @@ multiplier is above the noise floor, on the multipliers themselves.
 """
 from __future__ import annotations
 
+import cmath
 import functools
 import logging
 import math
@@ -377,6 +378,13 @@ def _eigvals(Phi: np.ndarray) -> np.ndarray:
     return np.linalg.eigvals(Phi).astype(complex)
 
 
+def _fro(X: np.ndarray) -> float:
+    """Frobenius norm of a real matrix: ``sqrt(x . x)`` of its entries, as ``np.linalg.norm`` computes
+    it, without that function's argument handling."""
+    v = X.ravel()
+    return math.sqrt(float(v @ v)) if v.dtype.kind == "f" else float(np.linalg.norm(X))
+
+
 def _norm2(Phi: np.ndarray) -> float:
     """``||Phi||_2``, the largest singular value (LAPACK ``dgesdd`` directly for a real matrix: twice as fast
     as ``np.linalg.svd`` on a 4x4; the same routine)."""
@@ -435,21 +443,43 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
         near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
         if np.array_equal(near, np.arange(n)) and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
             return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
-    la, lb = a.log_moduli, b.log_moduli
-    finite = np.concatenate([la[np.isfinite(la)], lb[np.isfinite(lb)]])
-    low = (float(finite.min()) if finite.size else 0.0) - 50.0
-    la, lb = np.where(np.isfinite(la), la, low), np.where(np.isfinite(lb), lb, low)
-    dphase = np.angle(a.values[:, None] * np.conj(b.values[None, :]))
-    cost = np.hypot(la[:, None] - lb[None, :], np.where(np.isfinite(dphase), dphase, math.pi))
-    cols = cost.argmin(axis=1)
-    if np.array_equal(np.sort(cols), np.arange(n)):
+    if n <= SMALL_N:
+        cost = _log_distances(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist())
+        cols = [row.index(min(row)) for row in cost]
+    else:
+        la, lb = a.log_moduli, b.log_moduli
+        finite = np.concatenate([la[np.isfinite(la)], lb[np.isfinite(lb)]])
+        low = (float(finite.min()) if finite.size else 0.0) - 50.0
+        la, lb = np.where(np.isfinite(la), la, low), np.where(np.isfinite(lb), lb, low)
+        dphase = np.angle(a.values[:, None] * np.conj(b.values[None, :]))
+        cost = np.hypot(la[:, None] - lb[None, :], np.where(np.isfinite(dphase), dphase, math.pi))
+        cols = cost.argmin(axis=1).tolist()
+    if sorted(cols) == list(range(n)):
         # every multiplier's nearest counterpart is a different one: that pairing is an optimal
         # assignment (each term of the sum at its row minimum), no Hungarian step needed
-        if np.array_equal(cols, np.arange(n)):
+        if cols == list(range(n)):
             return b
     else:
-        _, cols = linear_sum_assignment(cost)
+        _, cols = linear_sum_assignment(np.asarray(cost))
     return _Spectrum(b.values[cols], b.log_moduli[cols])
+
+
+def _log_distances(av: list, bv: list, la: list, lb: list) -> list:
+    """:func:`_match`'s cost matrix for a handful of multipliers, in plain Python: ``hypot`` of the
+    difference of the log moduli (an exact zero's ``-inf`` replaced by 50 below the smallest finite
+    one) and of the phase of ``a_i conj(b_j)`` (``pi`` where that is not finite), as rows."""
+    finite = [x for x in la + lb if math.isfinite(x)]
+    low = (min(finite) if finite else 0.0) - 50.0
+    la = [x if math.isfinite(x) else low for x in la]
+    lb = [x if math.isfinite(x) else low for x in lb]
+    rows = []
+    for x, lx in zip(av, la):
+        row = []
+        for y, ly in zip(bv, lb):
+            d = cmath.phase(x * y.conjugate())
+            row.append(math.hypot(lx - ly, d if math.isfinite(d) else math.pi))
+        rows.append(row)
+    return rows
 
 
 def _multiplier_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
@@ -632,13 +662,13 @@ def _matrix_changes(levels: Sequence["_Solve"]) -> tuple[np.ndarray, float, Opti
     """``(change, d2, d1, floor)``: the finest change of the (balanced) monodromy matrix, its Frobenius
     norm and the one before (None with two levels), and the rounding level ``floor`` of the product."""
     Phi, mid = levels[-1].monodromy, levels[-2].monodromy
-    norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
+    norm = _fro(Phi)  # Frobenius norms: >= the 2-norms, and cheap
     # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
     # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
     floor = 2.0 * math.sqrt(levels[-1].n_steps) * _EPS * norm
     change = Phi - mid
-    d1 = float(np.linalg.norm(mid - levels[-3].monodromy)) if len(levels) >= 3 else None
-    return change, float(np.linalg.norm(change)), d1, floor
+    d1 = _fro(mid - levels[-3].monodromy) if len(levels) >= 3 else None
+    return change, _fro(change), d1, floor
 
 
 def _matrix_error(change: np.ndarray, d2: float, est: float, floor: float) -> tuple[np.ndarray, float, float]:
@@ -837,7 +867,7 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     fine = levels[-1]
     spec = fine.spectrum
     Ns = [lv.n_steps for lv in levels[-3:]]
-    norm = float(np.linalg.norm(fine.monodromy))  # Frobenius: >= ||Phi||_2
+    norm = _fro(fine.monodromy)  # Frobenius: >= ||Phi||_2
     noise = _rounding_levels(spec, norm, fine.n_steps)
 
     mid = _match(spec, levels[-2].spectrum)
