@@ -416,7 +416,7 @@ def _sort_order_pairs(av: list, bv: list, la: list, lb: list) -> bool:
             return False
         d = abs(x - y)
         for z in bv:
-            if abs(x - z) < d:
+            if not d <= abs(x - z):  # (NaN: not paired)
                 return False
     return True
 
