@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import cmath
 import functools
+import itertools
 import logging
 import math
 import time
@@ -728,13 +729,13 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
     return hi
 
 
-def _any_near(lam: list, previous: list) -> bool:
-    """Whether two multipliers lie within :data:`CLUSTER_RADIUS` times the sum of their changes
-    (``lam`` and the paired ``previous`` level) of each other: the test of :func:`_cluster_bounds`."""
+def _any_near(lam: list, previous: list, keep: list) -> bool:
+    """Whether two of the ``keep`` multipliers lie within :data:`CLUSTER_RADIUS` times the sum of their
+    changes (``lam`` and the paired ``previous`` level) of each other: the test of :func:`_cluster_bounds`."""
     moved = [abs(a - b) for a, b in zip(lam, previous)]
     for i in range(len(lam)):
         for j in range(i + 1, len(lam)):
-            if abs(lam[i] - lam[j]) <= CLUSTER_RADIUS * (moved[i] + moved[j]):
+            if keep[i] and keep[j] and abs(lam[i] - lam[j]) <= CLUSTER_RADIUS * (moved[i] + moved[j]):
                 return True
     return False
 
@@ -772,8 +773,15 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
         return bounds, (), False
     lam = spec.values
     previous = _match(spec, levels[-2].spectrum) if previous is None else previous
-    if n <= SMALL_N and not _any_near(lam.tolist(), previous.values.tolist()):
-        return bounds, (), False  # the common case, decided in plain Python (a handful of numbers)
+    if n <= SMALL_N:  # the common case, decided in plain Python (a handful of numbers)
+        lams, logs = lam.tolist(), spec.log_moduli.tolist()
+        if matrix is not None:  # only multipliers the estimate covers can form a group (below)
+            top, low = logs[0] + math.log(ESTIMATE_FLOOR), 100.0 * matrix[2]
+            keep = [lg >= top and abs(z) > low for z, lg in zip(lams, logs)]
+        else:
+            keep = [True] * n
+        if not _any_near(lams, previous.values.tolist(), keep):
+            return bounds, (), False
     dist = np.abs(lam[:, None] - lam[None, :])
     moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
@@ -1366,7 +1374,7 @@ def _magnus_solves_small(
         E = expm_soa(Om)
         products = _level_products(E, Ns)
         diag = np.arange(n)
-        traces = np.add.reduceat(Om[diag, diag].sum(axis=0), np.cumsum([0] + list(Ns[:-1])))
+        traces = np.add.reduceat(Om[diag, diag].sum(axis=0), [0, *itertools.accumulate(Ns[:-1])])
         out = []
         start = 0
         for i, N in enumerate(Ns):
@@ -1396,7 +1404,7 @@ def _level_products(E: np.ndarray, Ns: Sequence[int]) -> list[np.ndarray]:
     :func:`~stability.magnus.ordered_product_soa` on each block.
     """
     n = E.shape[0]
-    bounds = np.cumsum([0] + list(Ns))
+    bounds = [0, *itertools.accumulate(Ns)]  # (np.cumsum of a short list costs more)
     blocks = [E[:, :, bounds[i]:bounds[i + 1]] for i in range(len(Ns))]
     N0 = Ns[0]
     ladder = len(Ns) > 1 and all(N == N0 * 2**i for i, N in enumerate(Ns))
