@@ -624,6 +624,8 @@ class _LevelEstimate:
     clusters: tuple  # ((indices...), bound, nilpotent norm) of defective / clustered groups
     rounding_limited: bool  # the cluster bounds rest on a matrix estimate at the rounding level
     noise: np.ndarray  # relative rounding level of each multiplier (:func:`_rounding_levels`)
+    error: float = math.nan  # :func:`_estimate` of ``estimates`` (what ``accuracy`` covers)
+    phase_error: float = math.nan  # :func:`_estimate` of ``phase_estimates``
 
 
 def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.ndarray, p: float,
@@ -919,7 +921,8 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)
     observed = q_obs[keep & np.isfinite(q_obs)]
     order = float(observed.min()) if observed.size else math.nan
-    return _LevelEstimate(est, phase, order, len(levels) >= 3, groups, limited, noise)
+    return _LevelEstimate(est, phase, order, len(levels) >= 3, groups, limited, noise,
+                          _estimate(est, spec, 1.0, accuracy), _estimate(phase, spec, 1.0))
 
 
 def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> float:
@@ -1552,9 +1555,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                 solve, solve_many, lambda lv: _level_estimates(lv, p, accuracy), rtol, max_steps, scheme,
                 lambda: _start_steps(scheme, wrapped, period, max_steps, probe), accuracy)
         if info is not None:
-            changes = info.estimates
-            est = _estimate(changes, fine.spectrum, 1.0, accuracy)
-            phase_est = _estimate(info.phase_estimates, fine.spectrum, 1.0)
+            changes, est, phase_est = info.estimates, info.error, info.phase_error
         else:
             changes, est, phase_est = None, (math.nan if fixed is None else fixed), math.nan
         companions = []
@@ -1686,9 +1687,9 @@ def _adaptive(solve, solve_many, estimate, rtol: float, max_steps: int, scheme: 
         fine = levels[-1]
         est = math.inf
         if info is not None:
-            est = _estimate(info.estimates, fine.spectrum, 1.0, accuracy)
+            est = info.error
             if accuracy == "multipliers":
-                est = max(est, _estimate(info.phase_estimates, fine.spectrum, 1.0))
+                est = max(est, info.phase_error)
             if info.order_checked and est <= rtol:
                 return fine, levels, info, False
             if info.order_checked and info.rounding_limited and info.clusters:
