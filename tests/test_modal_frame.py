@@ -51,7 +51,7 @@ def test_default_analyze_dominant_equals_hand_route(case):
 
     res, _, ref = case
     dom = res.dominant_multiplier
-    assert [m["mode"] for mu, m in zip(res.floquet.multipliers, res.modes) if mu == dom] == ["hub"]
+    assert [m.mode for mu, m in zip(res.floquet.multipliers, res.modes) if mu == dom] == ["hub"]
     assert res.frame == "modal"
     true = _nearest(ref.multipliers, dom)
     err = abs(dom - true) / abs(true)

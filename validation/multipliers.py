@@ -966,8 +966,6 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     0.3946463: the default 512 steps are 5.7e-5 off, more than the nonlinear measurement's
     error bar, which detected it.
     """
-    from stability import floquet
-
     mu_sorted = np.asarray(res.multipliers)
     T = float(lin.period)
 
@@ -983,14 +981,11 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             out.append(lab)
         return out
 
-    if frame == "modal":
-        from stability.modal import modal_floquet
+    from stability.engines import floquet
 
-        def propagate(steps: int) -> Any:
-            return modal_floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
-    else:
-        def propagate(steps: int) -> Any:
-            return floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    def propagate(steps: int) -> Any:  # the exponential midpoint product, in the frozen-modal frame or the model's
+        return floquet(lin, method="modal" if frame == "modal" else "magnus", order=2, n_steps=steps,
+                       error_estimate=False, accuracy="moduli").detail
     if start_steps is not None:
         n = int(start_steps)
         previous = np.asarray(propagate(n).monodromy)
@@ -1436,7 +1431,6 @@ def validate_model_multipliers(
     from linearize.analysis import analyze
     from linearize.exudyn_system import ExudynSystem
     from mbs_models.model_file import build_model, resolve_model
-    from stability import floquet
     from validation.closed_loop import exudyn_console
 
     tic = time.perf_counter()
@@ -1469,9 +1463,9 @@ def validate_model_multipliers(
                              orbit=orbit)
             name += f" with kp = {predicted_gains[0]}, kd = {predicted_gains[1]}"
         res = tested.floquet
-        prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
+        prediction = _refined_prediction(name, res, tested.linearization, [m.mode for m in tested.modes],
                                          config.compare, None,
-                                         [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
+                                         [float(m.frequency_hz or 0.0) for m in tested.modes],
                                          config.steps[-1], frame="modal", start_steps=MODAL_START_STEPS)
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
