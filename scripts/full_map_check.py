@@ -8,7 +8,8 @@ first must agree, the second must be rejected if the omitted mode is slow.  Writ
 Example (the two-link arm at its four-gain optimum, 2 elements per link)::
 
     python3 scripts/full_map_check.py --model two-link --elements 2 --kp 15,7.138671875 \\
-        --kd 8.935546875,1.4443359375 --step 1.220703125e-4 --omit "axial 9" --out results/full_map
+        --kd 8.935546875,1.4443359375 --step 1.220703125e-4 --refinements 3 --omit "axial 9" \\
+        --reuse --workers 2 --out results/full_map
 """
 from __future__ import annotations
 
