@@ -9,7 +9,7 @@ from pathlib import Path
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
            "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
            "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS",
-           "add_damping_option", "resolve_damping"]
+           "add_damping_option", "resolve_damping", "EXUDYN_ALIAS", "model_route"]
 
 _PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -71,6 +71,16 @@ def gain_list(text: str) -> tuple:
     if not parts or any(not p.strip() for p in parts):
         raise argparse.ArgumentTypeError(f"expected a number or a comma-separated list like 10,2, got {text!r}")
     return tuple(non_negative_float(p.strip()) for p in parts)
+
+
+#: ``--model exudyn`` is the paper's Exudyn ANCF link: the built-in model file ``single-link`` with the
+#: configured manipulator (default the paper's Table 1), on the generic model-file path.
+EXUDYN_ALIAS = "single-link"
+
+
+def model_route(model: str) -> str:
+    """The model a ``--model`` name is computed with: ``exudyn`` -> :data:`EXUDYN_ALIAS`, else itself."""
+    return EXUDYN_ALIAS if model == "exudyn" else model
 
 
 def is_model_file(model: str) -> bool:

@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.options import (add_damping_option, add_model_options, check_model_arg, dump_json, gain_list,
-                              gains_as_lists, non_negative_float, resolve_damping, result_output)
+                              gains_as_lists, model_route, non_negative_float, resolve_damping, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -18,7 +18,8 @@ def register(sub) -> None:
         description="Floquet multipliers and stability verdict of the linearised manipulator.",
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
-                   help="reduced (default; paper Eqs. 20-25), exudyn (hand-derived Exudyn link), a built-in "
+                   help="reduced (default; paper Eqs. 20-25), exudyn (the paper's Exudyn ANCF link: single-link with "
+                        "the configured manipulator), a built-in "
                         "model file (single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py (docs/model-files.md)")
     add_model_options(p)
     p.add_argument("--kp", type=gain_list, default=(0.0,), metavar="KP",
@@ -30,7 +31,7 @@ def register(sub) -> None:
     p.add_argument("--method", default=None,
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
-    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and the built-in model files)")
     add_damping_option(p)
     p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
                    help="added to --damping: Exudyn's bendingDamping of the ANCF elements (N m^2 s; default 0)")
@@ -59,7 +60,7 @@ def _rtol_type(text: str) -> float:
 
 def floquet_report(args: argparse.Namespace) -> dict:
     """Compute the Floquet analysis requested by ``args`` and return the JSON-ready dict."""
-    builtin = args.model in ("reduced", "exudyn")
+    builtin = args.model == "reduced"
     # the checks of the arguments alone come before any numerical import
     if builtin:
         if len(args.kp) != 1 or len(args.kd) != 1:
@@ -86,32 +87,17 @@ def floquet_report(args: argparse.Namespace) -> dict:
     args.kp, args.kd = args.kp[0], args.kd[0]
     out: dict = {"model": args.model}
     damping = resolve_damping(args, cfg)
-    if args.model == "reduced":
-        exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
-                                                ("--damping", damping.given)) if given]
-        if exudyn_only:
-            raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
-                             "(built-in or PATH.py), not to --model reduced")
-        from mbs_models.reduced import ReducedModel
+    exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
+                                            ("--damping", damping.given)) if given]
+    if exudyn_only:
+        raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
+                         "(built-in or PATH.py), not to --model reduced")
+    from mbs_models.reduced import ReducedModel
 
-        model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-        # the engine refines to min(its default, rtol); certified against rtol
-        res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
-        out["constants"] = args.constants
-    else:
-        from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
-
-        from mbs_models.damping import material_damping_values
-
-        elements = args.elements if args.elements is not None else cfg.elements
-        p = cfg.manipulator
-        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
-                                                 damping.bending, damping.axial)
-        ex = exudyn_floquet(p, omega=omega, kp=args.kp, kd=args.kd, elements=elements, method=method,
-                            bending_damping=bending, axial_damping=axial)
-        res = ex.floquet
-        out.update(ex.summary())
-        out.update({"bending_damping": bending, "axial_damping": axial, "damping": damping.to_dict()})
+    model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
+    # the engine refines to min(its default, rtol); certified against rtol
+    res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
+    out["constants"] = args.constants
     out.update(
         {
             "omega": omega,
@@ -136,7 +122,8 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str,
     from flexstab.options import resolve_model_definition
 
     damping = resolve_damping(args, cfg)
-    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
+    route = model_route(args.model)
+    model, options = resolve_model_definition(route, cfg, args.elements, **damping.build_options())
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
                   small_multipliers=args.small_multipliers, rtol=rtol, **options)
@@ -145,6 +132,15 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str,
     out["model"] = args.model
     out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
     out["damping"] = damping.to_dict()
+    if args.model == "exudyn":  # the keys of the paper's link (besides the model file's)
+        from mbs_models.damping import material_damping_values
+
+        p = cfg.manipulator
+        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
+                                                 damping.bending, damping.axial)
+        out.update({"elements": options["elements"], "reference": "periodic", "dominant_mode": res.dominant_mode,
+                    "undamped_multipliers": res.undamped_count, "bending_damping": bending,
+                    "axial_damping": axial})
     out.update(res.floquet.to_dict())
     return out
 
@@ -212,12 +208,6 @@ def _table(d: dict) -> str:
         if d.get("turns"):
             lines.append("periodic up to whole turns per period: "
                          + ", ".join(f"{k} {v:+d}" for k, v in d["turns"].items()))
-    elif d["model"] == "exudyn":
-        lines += [
-            f"dominant multiplier of the paper's modes (hub, bending 1): |rho| = {d['dominant_modulus']:.8g}"
-            f" ({d['dominant_mode']}); {d['undamped_multipliers']} practically undamped multipliers (verdict rule)",
-            f"orbit residual {d['orbit_residual']:.1e}, {d['samples']} samples, {d['elements']} elements",
-        ]
     return "\n".join(lines)
 
 
