@@ -79,7 +79,8 @@ from typing import Any, Iterator, Optional
 
 import numpy as np
 
-from mbs_models.exudyn_link import ExudynSolverError, build_link_model, fundamental_motion
+from _link_oracle.exudyn_link import ExudynSolverError, build_link_model, fundamental_motion
+from mbs_models.console import exudyn_console
 from mbs_models.parameters import ManipulatorParameters
 from stability.serialization import json_ready
 
@@ -121,25 +122,6 @@ NOISE_FLOOR = 1e-9
 AGREEMENT_TOLERANCE = 0.10
 #: Exponential-midpoint steps per period of :func:`linear_prediction`.
 DEFAULT_PREDICTION_STEPS = 256
-
-
-@contextlib.contextmanager
-def exudyn_console(quiet: bool) -> Iterator[None]:
-    """Silence Exudyn's console output (solver banners) while the block runs.
-
-    Uses ``exudyn.config.printToConsole`` and restores the caller's value.
-    """
-    if not quiet:
-        yield
-        return
-    import exudyn as exu
-
-    previous = bool(exu.config.printToConsole)
-    exu.config.printToConsole = False
-    try:
-        yield
-    finally:
-        exu.config.printToConsole = previous
 
 
 # --------------------------------------------------------------------------- results
@@ -482,7 +464,7 @@ def validate_closed_loop(
     if not isinstance(params, ManipulatorParameters):
         raise ValueError(f"params must be ManipulatorParameters, got {type(params).__name__}")
 
-    from linearize.link_floquet import exudyn_floquet
+    from _link_oracle.link_floquet import exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

@@ -57,9 +57,10 @@ from typing import Any, Optional
 import numpy as np
 import scipy.linalg
 
-from linearize import LinearizedPeriodicSystem, linearize_along_orbit
-from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-from linearize.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
+from linearize.system import LinearizedPeriodicSystem
+from _link_oracle.along_orbit import linearize_along_orbit
+from _link_oracle.exudyn_link import ExudynLinkConfig, build_link_model
+from _link_oracle.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
 from mbs_models.parameters import ManipulatorParameters
 from stability.frozen import frozen_result
 

@@ -12,10 +12,10 @@ import numpy as np
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, central_difference_jacobians
 from linearize.fourier import sample_times
 from linearize.system import LinearizedPeriodicSystem
-from mbs_models.exudyn_link import ExudynLinkModel, build_link_model
+from _link_oracle.exudyn_link import ExudynLinkModel, build_link_model
 
 if TYPE_CHECKING:  # linearize.link_orbit imports linearize helpers: avoid the cycle
-    from linearize.link_orbit import PeriodicOrbit
+    from _link_oracle.link_orbit import PeriodicOrbit
 
 __all__ = ["linearize_along_orbit", "coordinate_names"]
 

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 from mbs_models.parameters import ManipulatorParameters
-from validation.closed_loop import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
+from _link_oracle.closed_loop import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
 
 __all__ = [
     "MULTIPLIER_CASES",

@@ -41,7 +41,7 @@ import scipy.linalg
 
 from linearize.finite_difference import central_difference_jacobians
 from linearize.fourier import TrigInterpolant, differentiation_matrices, sample_times, trig_interpolate
-from mbs_models.exudyn_link import ExudynLinkConfig, ExudynLinkModel, build_link_model
+from _link_oracle.exudyn_link import ExudynLinkConfig, ExudynLinkModel, build_link_model
 from mbs_models.parameters import ManipulatorParameters
 
 __all__ = [
@@ -190,7 +190,7 @@ def _evaluation_model(params: ManipulatorParameters, config: ExudynLinkConfig) -
 
 
 def _hub_motion(config: ExudynLinkConfig, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from mbs_models.exudyn_link import fundamental_motion
+    from _link_oracle.exudyn_link import fundamental_motion
 
     return fundamental_motion(config)(times)
 
