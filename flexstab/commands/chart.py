@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
-                              gain_list, omega_type, positive_float, resolve_omega, result_output)
+                              gain_list, model_route, omega_type, positive_float, resolve_omega, result_output)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -20,7 +20,7 @@ def register(sub) -> None:
         description="Stability charts. Interrupted sweeps resume from what they wrote.",
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
-                   help="reduced (default), exudyn (dominant damped multiplier; slower: use --grid ~11), a built-in "
+                   help="reduced (default), exudyn (the paper's link: single-link, Omega pi .. 8 pi), a built-in "
                         "model file (single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py (dominant labelled multiplier; "
                         "gain chart over one drive's (kp, kd), Omega chart with the orbit continued in Omega)")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and built-in models)")
@@ -63,12 +63,9 @@ def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
 
     cfg = cfg if cfg is not None else load_config(args.config)
     model = getattr(args, "model", "reduced")
-    if model not in ("reduced", "exudyn"):
+    if model != "reduced":
         return model_charts(args, cfg, progress=progress)
-    from flexstab.charts import (
-        ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
-        plot_omega_chart,
-    )
+    from flexstab.charts import ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart
     from flexstab.executor import make_executor
     from mbs_models.reduced import ReducedModel
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -87,12 +84,11 @@ def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
     kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     if min(kp_rng) < 0 or min(kd_rng) < 0:
         raise ValueError("gain ranges must be >= 0")
-    exudyn = getattr(args, "model", "reduced") == "exudyn"
-    grid = args.grid if args.grid is not None else (11 if exudyn else 41)
-    n_omega = args.omega_points if args.omega_points is not None else (8 if exudyn else 181)
+    grid = args.grid if args.grid is not None else 41
+    n_omega = args.omega_points if args.omega_points is not None else 181
     kp = check_grid(*kp_rng, grid, "kp")
     kd = check_grid(*kd_rng, grid, "kd")
-    w_lo, w_hi = args.omega_range if args.omega_range else ((math.pi, 8 * math.pi) if exudyn else (math.pi, 10 * math.pi))
+    w_lo, w_hi = args.omega_range if args.omega_range else (math.pi, 10 * math.pi)
     omegas = check_grid(w_lo, w_hi, n_omega, "omega")
     target = args.target if args.target is not None else cfg.target
     out = ensure_out_dir(args.out)
@@ -102,22 +98,11 @@ def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
     fingerprint = hashlib.sha1(
         json.dumps([cfg.manipulator.to_dict(), args.constants], sort_keys=True).encode()
     ).hexdigest()[:8]
-    if exudyn:
-        from linearize.link_floquet import exudyn_plant
-
-        elements = getattr(args, "elements", None) or cfg.elements
-        tag = f"w{omega:.6g}_exudyn{elements}_{fingerprint}"
-        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements, prepared=True)
-        task = PlantRadius(plant, float(omega))
-        omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
-        objective = GainObjective(plant)
-        label = f"Exudyn model ({elements} elements; hub / first bending mode)"
-    else:
-        tag = f"w{omega:.6g}_{args.constants}_{fingerprint}"
-        task = ReducedRadius(cfg.manipulator, args.constants)
-        omega_task = task
-        objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=args.constants))
-        label = "linearised reduced model"
+    tag = f"w{omega:.6g}_{args.constants}_{fingerprint}"
+    task = ReducedRadius(cfg.manipulator, args.constants)
+    omega_task = task
+    objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=args.constants))
+    label = "linearised reduced model"
 
     path = None
     tuned = None
@@ -126,7 +111,7 @@ def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
                              progress=progress)
         path = [it.incumbent_gains for it in tuned.iterations]
     n_tasks = kp.size * kd.size
-    kind = "dask" if args.scheduler else ("process" if exudyn and args.workers != 1 else "auto")
+    kind = "dask" if args.scheduler else "auto"
     with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
         gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
                         progress=progress)
@@ -143,11 +128,11 @@ def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
     name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
     png1 = plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label)
     png2 = plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                            ylabel="dominant |ρ| (hub / first bending mode)" if exudyn else "max|ρ| (spectral radius)")
+                            ylabel="max|ρ| (spectral radius)")
     summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
                "inputs": {"manipulator": cfg.manipulator.to_dict(), "constants": args.constants,
-                          "model": "exudyn" if exudyn else "reduced", "omega": omega, "grid": [kp.size, kd.size],
+                          "model": "reduced", "omega": omega, "grid": [kp.size, kd.size],
                           "kp_range": list(kp_rng), "kd_range": list(kd_rng), "target": target,
                           "omega_range": [float(w_lo), float(w_hi)], "omega_points": int(omegas.size)},
                "figures": [str(png1), str(png2)], "json": str(out / f"chart_{name}.json")}
@@ -209,8 +194,10 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     grid = args.grid if args.grid is not None else 11
     kp = check_grid(*kp_rng, grid, "kp")
     kd = check_grid(*kd_rng, grid, "kd")
-    w_lo, w_hi = args.omega_range if args.omega_range else (0.5 * omega, 1.5 * omega)
-    omegas = check_grid(w_lo, w_hi, args.omega_points if args.omega_points is not None else 9, "omega")
+    exudyn = args.model == "exudyn"  # the paper's link: the paper's Omega range (pi .. 8 pi, 8 points)
+    w_lo, w_hi = args.omega_range if args.omega_range else ((math.pi, 8 * math.pi) if exudyn else (0.5 * omega, 1.5 * omega))
+    omegas = check_grid(w_lo, w_hi, args.omega_points if args.omega_points is not None else (8 if exudyn else 9),
+                        "omega")
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     if isinstance(samples, bool) or samples < 4 or samples % 2:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
@@ -218,7 +205,7 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     if steps is not None and steps < 1:
         raise ValueError(f"--steps must be >= 1, got {steps}")
     target = args.target if args.target is not None else cfg.target
-    definition, options = resolve_model_definition(args.model, cfg, args.elements)
+    definition, options = resolve_model_definition(model_route(args.model), cfg, args.elements)
     out = ensure_out_dir(args.out)
 
     plants = ModelPlants(definition, options, samples=samples)
@@ -321,6 +308,8 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
                           "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],
                           "omega_points": int(omegas.size), "samples": samples},
                "figures": figures, "json": str(out / f"chart_{name}.json")}
+    if exudyn:
+        summary["inputs"]["manipulator"] = cfg.manipulator.to_dict()
     if gc is None:
         summary["note"] = "the model has no drives: no gain chart (the Omega chart's two curves coincide)"
     from stability.serialization import json_ready
