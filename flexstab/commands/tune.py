@@ -8,8 +8,8 @@ import sys
 from typing import TYPE_CHECKING, Any, Optional
 
 from flexstab.options import (add_damping_option, add_model_options, check_model_arg, check_range_arg, dump_json,
-                              gain_pairs, gains_as_lists, positive_float, resolve_damping, resolve_omega,
-                              result_output)
+                              gain_pairs, gains_as_lists, model_route, positive_float, resolve_damping,
+                              resolve_omega, result_output)
 
 #: Names re-exported from :mod:`flexstab.plants` (the plant rule and the whole-spectrum report live
 #: there), imported on first use so that parsing the command line imports no numerical package.
@@ -42,7 +42,7 @@ def register(sub) -> None:
         description="Iterative Taguchi tuning of (kp, kd) to max|rho| = rho_d (paper Eq. 34).",
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
-                   help="reduced (default), exudyn, a built-in model file (single-link, two-link, laval-rotor, slider-crank) or a model file "
+                   help="reduced (default), exudyn (the paper's link: single-link), a built-in model file (single-link, two-link, laval-rotor, slider-crank) or a model file "
                         "PATH.py; a model with N drives tunes 2N gains (kp1, kd1, kp2, kd2, ...)")
     add_model_options(p)
     p.add_argument("--target", type=positive_float, default=None, help="rho_d (default 0.3, or from --config)")
@@ -56,7 +56,7 @@ def register(sub) -> None:
     p.add_argument("--array", default=None, help="orthogonal array, e.g. L9 (default), L16(4^5), L25")
     p.add_argument("--tolerance", type=positive_float, default=None, help="default 1e-3 * rho_d")
     p.add_argument("--max-evaluations", type=int, default=600, metavar="N")
-    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and the built-in model files)")
     add_damping_option(p)
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: auto)")
@@ -75,34 +75,21 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None, da
     :class:`~mbs_models.damping.DampingSpec`, default ``cfg.damping``)."""
     damping = damping if damping is not None else getattr(cfg, "damping", None)
     given = damping is not None and damping.given
-    if model not in ("reduced", "exudyn"):
+    if model != "reduced":
         from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
 
-        definition, options = resolve_model_definition(model, cfg, elements,
+        definition, options = resolve_model_definition(model_route(model), cfg, elements,
                                                        **(damping.build_options() if given else {}))
         plant = model_plant(definition, omega, **options)
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
         return plant
-    if model == "reduced":
-        if given:
-            raise ValueError("--damping applies to the Exudyn and model-file models, not to --model reduced")
-        from mbs_models.reduced import ReducedModel
-
-        return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
-    from linearize.link_floquet import exudyn_plant  # the Exudyn linearisation
-
-    extra = {}
     if given:
-        from mbs_models.damping import material_damping_values
+        raise ValueError("--damping applies to the Exudyn and model-file models, not to --model reduced")
+    from mbs_models.reduced import ReducedModel
 
-        p = cfg.manipulator
-        b, a = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness, damping.bending,
-                                       damping.axial)
-        extra = {"bending_damping": b, "axial_damping": a}
-    # prepared: the linearisation is interpolated, solved and balanced once, not per gain pair
-    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True, **extra)
+    return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
 
 
 def robust_report(args: argparse.Namespace) -> dict:
@@ -385,7 +372,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     kp_range = tuple(args.kp_range) if args.kp_range else cfg.kp_range
     kd_range = tuple(args.kd_range) if args.kd_range else cfg.kd_range
     specs = getattr(args, "factor_range", None)
-    model_file = args.model not in ("reduced", "exudyn")
+    model_file = args.model != "reduced"
 
     def tuning_config(n_drives: int, specs) -> TuningConfig:
         names, ranges = factor_ranges(n_drives, kp_range, kd_range, specs)
@@ -426,9 +413,8 @@ def tune_report(args: argparse.Namespace) -> dict:
         unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = DrivesObjective(plant) if model_file else GainObjective(plant)
-    # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
-    kind = "dask" if args.scheduler else ("process" if args.model == "exudyn" and args.workers != 1 else "auto")
-    if args.model not in ("reduced", "exudyn"):
+    kind = "dask" if args.scheduler else "auto"
+    if model_file:
         if args.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
@@ -523,29 +509,19 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
 
     tuned = float(out["spectral_radius"])  # TaguchiResult's spectral_radius: the tuned response
     fields: dict = {"tuned_response": tuned}
-    model_file = args.model not in ("reduced", "exudyn")
+    model_file = args.model != "reduced"
+    route = model_route(args.model)
     mesh = None
     if model_file:
         fields["tuned_response_modes"] = MODEL_RESPONSE_MODES
         verdict = out.get("verdict_detail") or {}
-        if args.model in ("single-link", "two-link"):
+        if route in ("single-link", "two-link"):
             from flexstab.options import resolve_model_definition
 
             elements = out.get("elements") or (args.elements or cfg.elements)
-            mesh = mesh_dependence(lambda e: resolve_model_definition(args.model, cfg, e, **damping.build_options()),
+            mesh = mesh_dependence(lambda e: resolve_model_definition(route, cfg, e, **damping.build_options()),
                                    out["omega"], list(kp) if isinstance(kp, list) else [kp],
                                    list(kd) if isinstance(kd, list) else [kd], int(elements))
-    elif args.model == "exudyn":
-        from linearize.link_floquet import classify_multipliers
-        from stability.modal import modal_floquet
-
-        base = getattr(plant, "plant", plant)
-        lin = base.linearization.with_gains(kp, kd)
-        res = modal_floquet(lin, method="magnus2", n_steps=512, accuracy="moduli", extrapolate=True)
-        modes = classify_multipliers(lin, res)
-        verdict = judge_floquet(res, labels=[m["mode"] for m in modes],
-                                frequencies=[m["frequency_hz"] for m in modes]).to_dict()
-        fields["tuned_response_modes"] = "hub and bending 1 (the paper's modes)"
     else:
         from stability import floquet
 
