@@ -20,7 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def main(argv=None) -> int:
-    from linearize.link_floquet import direct_monodromy, exudyn_floquet
+    from _link_oracle.link_floquet import direct_monodromy, exudyn_floquet
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, default=8)

@@ -77,7 +77,7 @@ TABLE3 = [(2, 37.1617, 29.2410), (4, 28.7617, 11.7501), (6, 22.2666, 6.7208), (8
 
 def main(argv=None) -> int:
     from linearize.analysis import analyze
-    from linearize.link_floquet import direct_monodromy, exudyn_floquet
+    from _link_oracle.link_floquet import direct_monodromy, exudyn_floquet
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, default=8)

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from linearize.link_floquet import PreparedExudynPlant, exudyn_plant
+from _link_oracle.link_floquet import PreparedExudynPlant, exudyn_plant
 from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
 CLOCK = time.process_time

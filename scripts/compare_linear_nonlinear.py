@@ -94,7 +94,7 @@ def main(argv=None) -> int:
 
     from validation.multipliers import MultiplierCheckConfig
     from validation.plots import plot_multiplier_plane
-    from validation.study import MULTIPLIER_CASES, multiplier_markdown, multiplier_study
+    from _link_oracle.decay_study import MULTIPLIER_CASES, multiplier_markdown, multiplier_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results", help="output folder (default results/)")
@@ -162,7 +162,7 @@ def main(argv=None) -> int:
 def _transients(out: Path, *, elements: int, quick: bool) -> None:
     """The time-series comparison (nonlinear hub-angle error vs the linear response)."""
     from validation.plots import plot_validation_figure
-    from validation.study import CASES, compare_linear_nonlinear, comparison_markdown
+    from _link_oracle.decay_study import CASES, compare_linear_nonlinear, comparison_markdown
 
     kwargs = dict(elements=elements, periods=5, omegas=(2, 4, 6, 8))
     if quick:

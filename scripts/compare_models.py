@@ -20,7 +20,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 def main(argv=None) -> int:
     from tqdm import tqdm
 
-    from validation.model_comparison import comparison_markdown, compare_models
+    from _link_oracle.model_comparison import comparison_markdown, compare_models
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results", help="output folder (default results/)")

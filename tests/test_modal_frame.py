@@ -21,10 +21,10 @@ ELEMENTS, SAMPLES = 2, 16
 
 @pytest.fixture(scope="module")
 def case():
-    from linearize import linearize_along_orbit
+    from _link_oracle.along_orbit import linearize_along_orbit
     from linearize.analysis import analyze
-    from linearize.link_orbit import find_periodic_orbit
-    from mbs_models.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_orbit import find_periodic_orbit
+    from _link_oracle.exudyn_link import ExudynLinkConfig
     from stability import floquet
 
     with warnings.catch_warnings():

@@ -12,10 +12,10 @@ import pickle
 
 import pytest
 
-from linearize import linearize_along_orbit
-from linearize.link_floquet import ExudynPlant, PreparedExudynPlant
-from mbs_models.exudyn_link import ExudynLinkConfig
-from linearize.link_orbit import find_periodic_orbit
+from _link_oracle.along_orbit import linearize_along_orbit
+from _link_oracle.link_floquet import ExudynPlant, PreparedExudynPlant
+from _link_oracle.exudyn_link import ExudynLinkConfig
+from _link_oracle.link_orbit import find_periodic_orbit
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,7 @@ def test_tuning_on_the_prepared_plant_equals_the_plant(plant2):
 
 def test_cli_builds_prepared_exudyn_plants(monkeypatch):
     """``tune --model exudyn`` and ``chart --model exudyn`` get a prepared plant from ``exudyn_plant``."""
-    import linearize.link_floquet as ef
+    import _link_oracle.link_floquet as ef
     from flexstab.commands import tune
 
     seen = {}

@@ -22,9 +22,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from mbs_models import exudyn_link
-from linearize.link_floquet import exudyn_floquet
-from validation.closed_loop import (
+from _link_oracle import exudyn_link
+from _link_oracle.link_floquet import exudyn_floquet
+from _link_oracle.closed_loop import (
     AGREEMENT_TOLERANCE,
     PAPER_PERTURBATION,
     linear_prediction,

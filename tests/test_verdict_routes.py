@@ -18,7 +18,7 @@ import math
 import pytest
 
 from linearize.analysis import analyze
-from linearize.link_floquet import exudyn_floquet
+from _link_oracle.link_floquet import exudyn_floquet
 from mbs_models.paper_data import TABLE3_GAINS
 from mbs_models.parameters import ManipulatorParameters
 from stability.verdict import VERDICT_CRITICAL, VERDICT_STABLE
