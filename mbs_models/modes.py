@@ -9,9 +9,9 @@ Two boundary conditions at the hub, gravity off, link straight:
     hub): one rigid-body mode at 0 Hz, then the flexible modes.
 
 :func:`exudyn_frequencies` projects Exudyn's mass matrix and its own
-stiffness Jacobian ``K = -df/dq`` (at the undeformed, unloaded reference)
-onto the independent coordinates of :class:`~mbs_models.exudyn_link.ExudynLinkModel`
-and solves the symmetric generalised eigenproblem.  :func:`analytic_frequencies`
+stiffness Jacobian ``K = -df/dq`` (at the undeformed, unloaded reference) of the
+built-in model file ``single-link`` onto the null space of its constraints and
+solves the generalised eigenproblem.  :func:`analytic_frequencies`
 solves the Euler-Bernoulli frequency equation with tip mass (and hub
 inertia) by bracketing and Brent's method.
 

@@ -161,7 +161,7 @@ def main(argv=None) -> int:
 
 def _transients(out: Path, *, elements: int, quick: bool) -> None:
     """The time-series comparison (nonlinear hub-angle error vs the linear response)."""
-    from validation.plots import plot_validation_figure
+    from _link_oracle.decay_plots import plot_validation_figure
     from _link_oracle.decay_study import CASES, compare_linear_nonlinear, comparison_markdown
 
     kwargs = dict(elements=elements, periods=5, omegas=(2, 4, 6, 8))

@@ -19,7 +19,7 @@ cases each:
 The periodic orbit is computed once per Omega and shared (it does not depend
 on the gains).  :func:`comparison_markdown` renders the table of
 ``results/linear_vs_nonlinear.md``; the figures come from
-:func:`validation.plots.plot_validation_figure`.
+:func:`_link_oracle.decay_plots.plot_validation_figure`.
 """
 from __future__ import annotations
 
