@@ -53,7 +53,7 @@ def plot_validation_figure(
     titles : sequence of str, optional
         Column titles (default: the gains).
     predictions : sequence of LinearPrediction or None, optional
-        Default: :func:`~validation.closed_loop.linear_prediction` of each result.
+        Default: :func:`~_link_oracle.closed_loop.linear_prediction` of each result.
     suptitle : str, optional
 
     Returns

@@ -1,11 +1,11 @@
 """Floquet analysis of the Exudyn link: linearisation route and direct Exudyn monodromy.
 
-Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+Hand-derived route (hub-frame coordinates of :mod:`_link_oracle.exudyn_link`): kept as the
 independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
 ``tests/test_model_file.py``), which is the package's route for any model.
 
 Pipeline (:func:`exudyn_floquet`): periodic orbit
-(:func:`~linearize.link_orbit.find_periodic_orbit`) -> finite-difference
+(:func:`~_link_oracle.link_orbit.find_periodic_orbit`) -> finite-difference
 linearisation in independent coordinates
 (:func:`~linearize.linearize_along_orbit`) -> monodromy of
 ``x' = P(t) x`` -> multipliers, each classified by the structural mode its
@@ -340,7 +340,7 @@ def exudyn_floquet(
     ------
     ValueError
         On invalid arguments.
-    linearize.link_orbit.OrbitConvergenceError
+    _link_oracle.link_orbit.OrbitConvergenceError
         If the periodic orbit is not found.
     """
     if reference not in ("periodic", "rigid"):

@@ -25,7 +25,7 @@ __all__ = ["LINK_COMPARED_MODES", "LINK_STEP", "validate_link_multipliers"]
 logger = logging.getLogger(__name__)
 
 #: Modes of the built-in link that are compared: those the paper's reduced model has (hub angle,
-#: first bending mode), as ``linearize.link_floquet.PAPER_MODES``.
+#: first bending mode), as ``_link_oracle.link_floquet.PAPER_MODES``.
 LINK_COMPARED_MODES = ("hub", "bending 1")
 
 #: Largest coarsest step of the built-in link when ``config.step`` is None (then
@@ -36,7 +36,7 @@ LINK_COMPARED_MODES = ("hub", "bending 1")
 LINK_STEP = 1e-3
 
 def _link_prediction(ex: Any, name: str, k: int, allowed: Optional[Sequence[str]], h_min: float = 0.0) -> Prediction:
-    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`).
+    """Prediction of an :class:`~_link_oracle.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`).
 
     In the frozen-modal frame: measured at 6 pi (Table 3 gains, 4 elements) the hub-frame
     product stopped at 2048 steps with 0.29688166 +- 1.7e-7 (GCI), the modal one at 1024 steps
