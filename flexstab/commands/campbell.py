@@ -47,7 +47,8 @@ def register(sub) -> None:
                     "Omega, modes tracked by MAC and an optimal assignment; PNG, JSON and CSV in --out.",
     )
     p.add_argument("--model", required=True, metavar="MODEL",
-                   help="a built-in model file (laval-rotor, slider-crank, single-link, two-link) or a model file PATH.py")
+                   help="a built-in model file (laval-rotor, slider-crank, single-link, two-link; exudyn is "
+                        "single-link) or a model file PATH.py")
     p.add_argument("--omega-range", required=True, type=parse_omega_range, metavar="A,B",
                    help="speeds from A to B (rad/s or like 2pi), A < B")
     p.add_argument("--points", type=int, default=DEFAULT_POINTS, help=f"number of speeds (default {DEFAULT_POINTS})")
@@ -81,9 +82,9 @@ def _check(args: argparse.Namespace) -> None:
         raise ValueError(f"--min-mac must lie in [0, 1], got {args.min_mac}")
     if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
-    if args.model in ("reduced", "exudyn"):
-        raise ValueError(f"--model {args.model}: the Campbell diagram needs a model file or a built-in model file "
-                         f"(e.g. single-link instead of exudyn)")
+    if args.model == "reduced":
+        raise ValueError("--model reduced: the Campbell diagram needs a model file or a built-in model file "
+                         "(e.g. single-link or exudyn)")
 
 
 def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
@@ -96,13 +97,13 @@ def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
                                    modes_from_points, plot_campbell)
     from flexstab.executor import SerialExecutor, make_executor
     from flexstab.progress import make_bar, progress_bars
-    from flexstab.options import resolve_model_definition
+    from flexstab.options import model_route, resolve_model_definition
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from stability.campbell import MIN_MAC, campbell
 
     _check(args)
     cfg = load_config(args.config)
-    definition, options = resolve_model_definition(args.model, cfg, args.elements)
+    definition, options = resolve_model_definition(model_route(args.model), cfg, args.elements)
     lo, hi = args.omega_range
     omegas = np.linspace(lo, hi, int(args.points))
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES

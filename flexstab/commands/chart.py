@@ -195,7 +195,8 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     kp = check_grid(*kp_rng, grid, "kp")
     kd = check_grid(*kd_rng, grid, "kd")
     exudyn = args.model == "exudyn"  # the paper's link: the paper's Omega range (pi .. 8 pi, 8 points)
-    w_lo, w_hi = args.omega_range if args.omega_range else ((math.pi, 8 * math.pi) if exudyn else (0.5 * omega, 1.5 * omega))
+    default_range = (math.pi, 8 * math.pi) if exudyn else (0.5 * omega, 1.5 * omega)
+    w_lo, w_hi = args.omega_range if args.omega_range else default_range
     omegas = check_grid(w_lo, w_hi, args.omega_points if args.omega_points is not None else (8 if exudyn else 9),
                         "omega")
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES

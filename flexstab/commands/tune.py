@@ -42,8 +42,8 @@ def register(sub) -> None:
         description="Iterative Taguchi tuning of (kp, kd) to max|rho| = rho_d (paper Eq. 34).",
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
-                   help="reduced (default), exudyn (the paper's link: single-link), a built-in model file (single-link, two-link, laval-rotor, slider-crank) or a model file "
-                        "PATH.py; a model with N drives tunes 2N gains (kp1, kd1, kp2, kd2, ...)")
+                   help="reduced (default), exudyn (the paper's link: single-link), a built-in model file "
+                        "(single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py; a model with N drives tunes 2N gains (kp1, kd1, kp2, kd2, ...)")
     add_model_options(p)
     p.add_argument("--target", type=positive_float, default=None, help="rho_d (default 0.3, or from --config)")
     p.add_argument("--kp-range", type=float, nargs=2, metavar=("LO", "HI"), default=None,
