@@ -7,8 +7,8 @@ report can be traced to a file:
 2. ``table3``  -- Taguchi tuning of the reduced model to rho_d (paper Table 3);
 3. ``charts``  -- max|rho| over the gain plane (with the Taguchi path) and against Omega;
 4. ``transients`` -- linear transient responses (paper Figs. 2-9);
-5. ``exudyn``  -- the Exudyn ANCF model: periodic orbit, linearisation, Floquet
-   at the reference gains, Taguchi tuning on the Exudyn linearisation (``quick``:
+5. ``exudyn``  -- the Exudyn ANCF model (the built-in model file ``single-link``): periodic
+   orbit, linearisation, Floquet at the reference gains, Taguchi tuning on it (``quick``:
    at most 4 elements, 16 collocation samples, the tuning loop at half the
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
