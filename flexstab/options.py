@@ -122,6 +122,7 @@ def check_range_arg(rng, flag: str) -> None:
 def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
     """The one ``--model`` rule of every command for model files: ``(definition, build options)``.
 
+    * ``exudyn``: :data:`EXUDYN_ALIAS` (``single-link``, below);
     * a model file ``PATH.py``: its own defaults; ``--elements`` and the ``builtin_options``
       that are set (non-zero damping, ...) are rejected, they apply to built-in models only;
     * ``single-link``: the configured link (``cfg.manipulator``) with ``--elements`` or the
@@ -138,6 +139,7 @@ def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
     """
     from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
 
+    model = model_route(model)
     given = {k: v for k, v in builtin_options.items() if v}
     if is_model_file(model):
         material = given.pop("material_damping", None)

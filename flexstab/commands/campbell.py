@@ -97,13 +97,13 @@ def campbell_report(args: argparse.Namespace, progress: bool = True) -> dict:
                                    modes_from_points, plot_campbell)
     from flexstab.executor import SerialExecutor, make_executor
     from flexstab.progress import make_bar, progress_bars
-    from flexstab.options import model_route, resolve_model_definition
+    from flexstab.options import resolve_model_definition
     from linearize.periodic_orbit import DEFAULT_SAMPLES
     from stability.campbell import MIN_MAC, campbell
 
     _check(args)
     cfg = load_config(args.config)
-    definition, options = resolve_model_definition(model_route(args.model), cfg, args.elements)
+    definition, options = resolve_model_definition(args.model, cfg, args.elements)
     lo, hi = args.omega_range
     omegas = np.linspace(lo, hi, int(args.points))
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
-                              gain_list, model_route, omega_type, positive_float, resolve_omega, result_output)
+                              gain_list, omega_type, positive_float, resolve_omega, result_output)
 
 __all__ = ["register", "run", "make_charts"]
 
@@ -206,7 +206,7 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
     if steps is not None and steps < 1:
         raise ValueError(f"--steps must be >= 1, got {steps}")
     target = args.target if args.target is not None else cfg.target
-    definition, options = resolve_model_definition(model_route(args.model), cfg, args.elements)
+    definition, options = resolve_model_definition(args.model, cfg, args.elements)
     out = ensure_out_dir(args.out)
 
     plants = ModelPlants(definition, options, samples=samples)

@@ -6,7 +6,7 @@ import math
 import sys
 
 from flexstab.options import (add_damping_option, add_model_options, check_model_arg, dump_json, gain_list,
-                              gains_as_lists, model_route, non_negative_float, resolve_damping, result_output)
+                              gains_as_lists, non_negative_float, resolve_damping, result_output)
 
 __all__ = ["register", "run", "floquet_report"]
 
@@ -122,8 +122,7 @@ def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str,
     from flexstab.options import resolve_model_definition
 
     damping = resolve_damping(args, cfg)
-    route = model_route(args.model)
-    model, options = resolve_model_definition(route, cfg, args.elements, **damping.build_options())
+    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
                   small_multipliers=args.small_multipliers, rtol=rtol, **options)

@@ -79,7 +79,7 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None, da
         from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
 
-        definition, options = resolve_model_definition(model_route(model), cfg, elements,
+        definition, options = resolve_model_definition(model, cfg, elements,
                                                        **(damping.build_options() if given else {}))
         plant = model_plant(definition, omega, **options)
         if not plant.drives:

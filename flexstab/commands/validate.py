@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 from typing import Optional
 
-from flexstab.options import dump_json, ensure_out_dir, gains_as_lists, model_route, parse_omega, result_output
+from flexstab.options import dump_json, ensure_out_dir, gains_as_lists, parse_omega, result_output
 
 __all__ = ["register", "run", "validation_report", "resolve_gains"]
 
@@ -194,7 +194,7 @@ def validation_report(args: argparse.Namespace):
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
                                    growth_periods=growth, spectral_radius=spectral_radius)
     # the paper's link is the built-in model file single-link with the configured manipulator
-    definition, options = resolve_model_definition(model_route(args.model), cfg, elements)
+    definition, options = resolve_model_definition(args.model, cfg, elements)
     reduced = floquet(ReducedModel(omega=omega, kp=kp, kd=kd, params=cfg.manipulator))
     res = validate_model_multipliers(definition, omega, kp=kp, kd=kd,
                                      samples=MODEL_SAMPLES if samples is None else samples, config=config,
