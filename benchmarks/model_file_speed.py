@@ -117,7 +117,7 @@ def main(argv=None) -> int:
         row = {
             "omega_over_pi": k, "kp": kp, "kd": kd,
             "generic_dominant": [res.dominant_multiplier.real, res.dominant_multiplier.imag],
-            "generic_mode": next((m["mode"] for mu, m in zip(res.floquet.multipliers, res.modes)
+            "generic_mode": next((m.mode for mu, m in zip(res.floquet.multipliers, res.modes)
                                   if mu == res.dominant_multiplier), None),
             "hand_dominant": [ref.dominant_multiplier.real, ref.dominant_multiplier.imag],
             "difference": abs(res.dominant_multiplier - ref.dominant_multiplier),

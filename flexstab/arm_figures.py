@@ -248,7 +248,7 @@ def plot_floquet_mode(result: Any, path: "str | Path", *, index: Optional[int] =
     layout = arm_layout(_built(orbit).mbs)
     reach = max(float(np.max(np.abs(np.concatenate(beam_centerlines(layout, orbit.q[0]))))), 1e-3)
     scale = amplitude * reach
-    label = result.modes[index]["mode"] if index < len(result.modes) else ""
+    label = result.modes[index].mode if index < len(result.modes) else ""
     cols = min(snapshots, 4)
     rows = int(math.ceil(snapshots / cols))
     fig, axes = plt.subplots(rows, cols, figsize=(3.1 * cols, 2.6 * rows + 0.9), squeeze=False,

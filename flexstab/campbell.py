@@ -166,8 +166,8 @@ def point_modes(res: Any) -> list:
     labels, centres = [], []
     for m in mu_eig:  # label and frozen-mode frequency of the analysed multiplier nearest each eigenvalue
         j = int(np.argmin(np.abs(mults - m)))
-        labels.append(res.modes[j]["mode"] if j < len(res.modes) else "")
-        centres.append(2 * math.pi * res.modes[j]["frequency_hz"] if j < len(res.modes) else 0.0)
+        labels.append(res.modes[j].mode if j < len(res.modes) else "")
+        centres.append(2 * math.pi * res.modes[j].frequency_hz if j < len(res.modes) else 0.0)
     z_rows = np.eye(2 * r)[:r]
     fm = floquet_modes(propagate, Phi, period=T, shape_map=displacements(np.zeros(1))[0], labels=labels,
                        centres=centres, basis=basis,

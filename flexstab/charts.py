@@ -44,11 +44,11 @@ class ReducedRadius:
 
     def __call__(self, point: dict) -> float:
         from mbs_models.reduced import ReducedModel
-        from stability import floquet
+        from stability.engines import floquet
 
         model = ReducedModel(point["omega"], point["kp"], point["kd"], self.params, self.constants)
         opts: dict[str, Any] = {"n_steps": self.n_steps, "error_estimate": False} if self.n_steps else {}
-        return float(floquet(model, **opts).spectral_radius)
+        return float(floquet(model, method="magnus", **opts).spectral_radius)
 
 
 @dataclass(frozen=True)

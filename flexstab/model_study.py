@@ -125,7 +125,7 @@ def _multiplier_blocks(res, what: str, tail: str = "") -> list:
     """A paragraph (``what``, the step count, estimate, spectral radius, dominant |rho|) and the
     table of the 12 largest labelled multipliers of ``res`` (a ModelFloquetResult)."""
     f = res.floquet
-    rows = [[i + 1, _c(mu), f"{abs(mu):.6f}", m["mode"], m.get("group", ""), "yes" if m["undamped"] else "no"]
+    rows = [[i + 1, _c(mu), f"{abs(mu):.6f}", m.mode, m.group, "yes" if m.undamped else "no"]
             for i, (mu, m) in enumerate(zip(f.multipliers, res.modes))]
     return [text(f"{what} ({f.n_steps} `{f.method}` steps, step-doubling estimate {f.error_estimate:.1e}): dominant "
                  f"labelled multiplier |ρ| = {abs(res.dominant_multiplier):.6f}{tail}; spectral radius "
@@ -141,7 +141,7 @@ def _write_csv(path: Path, results: dict) -> None:
         for case, res in results.items():
             for i, (mu, m) in enumerate(zip(res.floquet.multipliers, res.modes)):
                 w.writerow([case, i + 1, repr(float(mu.real)), repr(float(mu.imag)), repr(float(abs(mu))),
-                            m["mode"], m.get("group", ""), bool(m["undamped"])])
+                            m.mode, m.group, bool(m.undamped)])
 
 
 def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResult:
@@ -296,7 +296,7 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
                "propagator_choice": sel.steps.to_dict() if sel.steps is not None else None,
                "check": {"dominant_modulus": abs(check.dominant_multiplier), "n_steps": check.floquet.n_steps,
                          "error_estimate": check.floquet.error_estimate, "floquet": check.floquet.to_dict(),
-                         "modes": check.modes}}
+                         "modes": [m.to_dict() for m in check.modes]}}
         checks.extend(tuning_check_failures(res.status, res.message, abs(check.dominant_multiplier),
                                             _absolute_estimate(check), opts.target, tcfg.effective_tolerance))
         doc["check"]["failures"] = list(checks)

@@ -283,6 +283,11 @@ def ensure_out_dir(path) -> Path:
 
 
 def gain_pairs(gains, n_drives: int):
-    """``(kp, kd)`` of interleaved gains ``(kp1, kd1, kp2, kd2, ...)``: scalars for one drive, lists otherwise."""
-    g = [float(v) for v in gains]
-    return (g[0], g[1]) if n_drives == 1 else (g[0::2], g[1::2])
+    """``(kp, kd)`` of interleaved gains ``(kp1, kd1, kp2, kd2, ...)`` of ``n_drives`` drives: scalars for one
+    drive, lists otherwise (:class:`stability.gains.Gains`)."""
+    from stability.gains import Gains
+
+    g = Gains.from_interleaved(gains)
+    if g.drives != n_drives:
+        raise ValueError(f"gains: {n_drives} (kp, kd) pairs expected, got {g.drives}")
+    return (g.kp[0], g.kd[0]) if n_drives == 1 else (list(g.kp), list(g.kd))

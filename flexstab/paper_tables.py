@@ -25,7 +25,7 @@ from mbs_models.paper_data import TABLE3_PRINTED as _TABLE3_PRINTED
 from flexstab.report import percent, relative, table, text, to_markdown
 from mbs_models.parameters import ManipulatorParameters
 from mbs_models.reduced import ReducedModel
-from stability import floquet
+from stability.engines import floquet
 from stability.reference import ReferenceOptions
 from taguchi.direct import direct_tune
 from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
@@ -114,7 +114,7 @@ def table2_rows(constants: str = "auto", params=None, omegas=None) -> list[dict]
     omegas = [k * math.pi for k in TABLE2_PRINTED] if omegas is None else [float(w) for w in omegas]
     rows = []
     for omega in omegas:
-        res = floquet(_model(omega, constants, params))
+        res = floquet(_model(omega, constants, params), method="magnus").detail
         ours = sorted(res.moduli.tolist(), reverse=True)
         row = {
             "omega": omega,
@@ -217,7 +217,7 @@ def table3_rows(cases=TABLE3_PRINTED, constants: str = "auto", array: Optional[s
             method="paper",
             error_estimate=False,
             reference=ReferenceOptions(rtol=1e-9, atol=1e-11),
-        )
+        ).detail
         nm = direct_tune(objective, cfg, "nelder-mead")
         row = {
             "omega": k * math.pi,
@@ -238,7 +238,7 @@ def table3_rows(cases=TABLE3_PRINTED, constants: str = "auto", array: Optional[s
             "nelder_mead": nm.to_dict(),
         }
         if paper and kp_p is not None:
-            printed = floquet(model.with_gains(kp_p, kd_p))
+            printed = floquet(model.with_gains(kp_p, kd_p), method="magnus")
             row.update({
                 "printed_kp": kp_p,
                 "printed_kd": kd_p,

@@ -26,13 +26,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import warnings
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Optional, Sequence
 
 from linearize.analysis import ModelPlant
 from linearize.hill_plant import HarmonicsChoice, HillModelPlant, select_harmonics
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 from stability.engines.rule import choose_method, system_properties
+from stability.gains import Gains, MeasuredPlant
 from stability.refine import double_until
 from taguchi.tuning import TuningConfig
 
@@ -55,9 +56,6 @@ MODEL_RESPONSE = "dominant multiplier of the drive modes and bending 1 (the tune
 #: The modes :data:`MODEL_RESPONSE` covers, in a sentence ("the ... decay at 0.30 per period").
 MODEL_RESPONSE_MODES = "drive modes and bending 1"
 
-Plant = Union[HillModelPlant, ModelPlant]
-
-
 def relative_tolerance(config: Optional[TuningConfig]) -> float:
     """The relative accuracy a tuning response needs: a quarter of the tuning tolerance over rho_d (the
     fraction the step and harmonic choices meet), ``2.5e-4`` for the default configuration."""
@@ -79,8 +77,8 @@ def uses_hill(lin: LinearizedPeriodicSystem, config: Optional[TuningConfig]) -> 
 
 def _centre(config: TuningConfig) -> tuple[list, list]:
     """``(kp, kd)`` per drive at the centre of the initial ranges of ``config``."""
-    centre = [0.5 * (lo + hi) for lo, hi in config.factor_ranges]
-    return centre[0::2], centre[1::2]
+    centre = Gains.from_interleaved([0.5 * (lo + hi) for lo, hi in config.factor_ranges])
+    return list(centre.kp), list(centre.kd)
 
 
 def hill_choice(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, config: TuningConfig) -> HarmonicsChoice:
@@ -196,7 +194,7 @@ def plant_choice_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPerio
 
 
 def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSystem, config: Optional[TuningConfig],
-              *, steps: Optional[int] = None) -> Plant:
+              *, steps: Optional[int] = None) -> MeasuredPlant:
     """The tuning plant of a model at one Omega: the one rule of ``tune``, ``study`` and ``chart --model``.
 
     Parameters
@@ -215,6 +213,7 @@ def plant_for(definition: Any, orbit: PeriodicOrbit, lin: LinearizedPeriodicSyst
     Returns
     -------
     HillModelPlant or ModelPlant
+        Both :class:`stability.gains.Plant` and :class:`stability.gains.MeasuredPlant`.
 
     Raises
     ------
@@ -247,13 +246,13 @@ def whole_spectrum(orbit: PeriodicOrbit, omega: float, kp: Sequence[float], kd: 
     from linearize.analysis import analyze
 
     r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
-    top = r.modes[0] if r.modes else {}
+    top = r.modes[0] if r.modes else None
     v = r.verdict
     rho = float(r.floquet.spectral_radius)
     return {"response": MODEL_RESPONSE,
             "spectral_radius_all": rho,
-            "spectral_radius_all_mode": top.get("mode"),
-            "spectral_radius_all_frequency_hz": top.get("frequency_hz"),
+            "spectral_radius_all_mode": top.mode if top is not None else None,
+            "spectral_radius_all_frequency_hz": top.frequency_hz if top is not None else None,
             "spectral_radius_all_error_estimate": float(v.spectral_radius_error / rho) if rho > 0 else None,
             "verdict_detail": v.to_dict()}
 

@@ -358,6 +358,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     from linearize.analysis import ModelPlant, analyze
     from mbs_models.reduced import ReducedModel
     from stability import floquet
+    from stability.refine import pair_estimate
     from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
 
     elements = min(cfg.elements, 4) if opts.quick else cfg.elements
@@ -385,7 +386,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
     step_check = None
     if loop is not plant:
         tuned_dominant = plant.spectral_measure(tuned.kp, tuned.kd)
-        step_check = 4.0 / 3.0 * abs(tuned.spectral_radius - tuned_dominant)
+        step_check = pair_estimate(tuned.spectral_radius, tuned_dominant)
         if step_check > 0.25 * tcfg.effective_tolerance:
             logger.info("quick tuning: step-doubling estimate %.1e at the tuned gains; tuning again with %d steps",
                         step_check, plant.n_steps)

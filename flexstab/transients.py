@@ -49,7 +49,7 @@ import numpy as np  # noqa: E402
 
 from mbs_models.parameters import ManipulatorParameters  # noqa: E402
 from mbs_models.reduced import ReducedModel  # noqa: E402
-from stability import floquet  # noqa: E402
+from stability.engines import floquet  # noqa: E402
 from stability.response import (  # noqa: E402
     LinearResponse,
     envelope_constant,
@@ -140,7 +140,7 @@ def run_case(case: Case, settings: Settings, with_forcing: bool,
     model = ReducedModel(omega=case.omega_over_pi * math.pi, kp=case.kp, kd=case.kd,
                          params=params or ManipulatorParameters())
     T = model.period
-    fl = floquet(model)
+    fl = floquet(model, method="magnus").detail
     rho1 = complex(fl.multipliers[0])
     n_plot = settings.plot_controlled if case.controlled else settings.plot_uncontrolled
     n_meas = max(n_plot, settings.measure_controlled if case.controlled else settings.measure_uncontrolled)

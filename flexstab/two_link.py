@@ -23,8 +23,10 @@ from typing import TYPE_CHECKING, Any, Callable, Optional, Sequence
 import numpy as np
 
 from flexstab.plants import hill_plant  # the one copy of the harmonics-at-the-range-centre rule
-from linearize.hill_plant import HillGainObjective, HillModelPlant
-from taguchi.tuning import DriveGainObjective, TaguchiResult, TuningConfig, taguchi_tune
+from linearize.hill_plant import HillModelPlant
+from stability.gains import Gains
+from stability.refine import pair_estimate
+from taguchi.tuning import GainObjective, TaguchiResult, TuningConfig, taguchi_tune
 
 if TYPE_CHECKING:
     from linearize.periodic_orbit import PeriodicOrbit
@@ -49,8 +51,7 @@ __all__ = [
     "check_multiplier",
     "CHECK_STEPS",
     "main_dominant",
-    "LabelledGainObjective",
-    "gain_slices",
+    "LabelledPlant",
     "gain_slices_hill",
 ]
 
@@ -77,7 +78,7 @@ TUNED_GAINS = {
     4: (21.6015625, 7.900390625, 5.888671875, 1.8779296875),
 }
 #: Initial gain ranges (kp1, kd1, kp2, kd2) of the four-gain tuning; see the 2-D slices
-#: (``gain_slices``) in the study for why they bracket rho_d = 0.3 at both Omega.
+#: (``gain_slices_hill``) in the study for why they bracket rho_d = 0.3 at both Omega.
 TUNING_RANGES = ((0.0, 40.0), (0.0, 10.0), (0.0, 10.0), (0.0, 3.0))
 
 
@@ -102,12 +103,12 @@ def dominant_damped(multipliers: Sequence[complex], tolerance: float = UNDAMPED_
     return complex(mus[order[0]])
 
 
-def tuning_objective(lin: Any, floquet_options: Optional[dict] = None) -> DriveGainObjective:
+def tuning_objective(lin: Any, floquet_options: Optional[dict] = None) -> GainObjective:
     """``(kp1, kd1, kp2, kd2) -> |rho|`` of the dominant damped multiplier of ``lin`` with those gains."""
-    return DriveGainObjective(lin, floquet_options or TUNING_FLOQUET, unit_circle_tolerance=UNDAMPED_TOLERANCE)
+    return GainObjective(lin, floquet_options or TUNING_FLOQUET, unit_circle_tolerance=UNDAMPED_TOLERANCE)
 
 
-def main_dominant(multipliers: Sequence[complex], modes: Sequence[dict], drive_names: Sequence[str]) -> complex:
+def main_dominant(multipliers: Sequence[complex], modes: Sequence[Any], drive_names: Sequence[str]) -> complex:
     """Largest multiplier of a drive mode or of ``bending 1`` off the unit circle.
 
     The rule of ``linearize.analysis`` (the modes a rigid or one-mode model
@@ -116,13 +117,15 @@ def main_dominant(multipliers: Sequence[complex], modes: Sequence[dict], drive_n
     """
     main = set(drive_names) | {"bending 1"}
     for mu, m in zip(multipliers, modes):
-        if m["mode"] in main and not m["undamped"]:
+        if m.mode in main and not m.undamped:
             return complex(mu)
     return dominant_damped(multipliers)
 
 
-class LabelledGainObjective:
-    """``(kp1, kd1, kp2, kd2) -> |rho|`` of the dominant *labelled* multiplier (:func:`main_dominant`).
+@dataclass(frozen=True)
+class LabelledPlant:
+    """The linearisation as a :class:`stability.gains.MeasuredPlant` whose response is the dominant
+    *labelled* multiplier (:func:`main_dominant`) of ``stability.floquet`` with ``floquet_options``.
 
     The lightly damped axial modes of the two-link arm's mesh (e.g. a 22 kHz pair with |rho| = 0.557
     at 2 elements per link, 0.860 at 4: mesh modes, not mesh-converged and hardly moved by the joint
@@ -132,17 +135,19 @@ class LabelledGainObjective:
     every evaluation (the whole spectrum is reported beside it, never hidden).
     """
 
-    def __init__(self, lin: Any, orbit: Any, floquet_options: Optional[dict] = None) -> None:
-        self.lin, self.orbit = lin, orbit
-        self.floquet_options = dict(floquet_options or TUNING_FLOQUET)
+    lin: Any
+    orbit: Any
+    floquet_options: Optional[dict] = None
 
-    def __call__(self, gains: Sequence[float]) -> float:
+    def with_gains(self, kp: Any, kd: Any) -> Any:
+        return self.lin.with_gains(kp, kd)
+
+    def spectral_measure(self, kp: Any, kd: Any) -> float:
         from linearize.analysis import label_multipliers
         from stability import floquet
 
-        g = [float(v) for v in gains]
-        lg = self.lin.with_gains(g[0::2], g[1::2])
-        res = floquet(lg, **self.floquet_options)
+        lg = self.with_gains(kp, kd)
+        res = floquet(lg, **dict(self.floquet_options or TUNING_FLOQUET))
         modes = label_multipliers(lg, self.orbit, res)
         return abs(main_dominant(res.multipliers, modes, self.orbit.drive_names))
 
@@ -156,16 +161,16 @@ def tune_four_gains(lin: Any, target: float = 0.3, *, orbit: Any = None, ranges:
     ``response="hill"`` (default, needs ``orbit``): the dominant labelled multiplier
     measured by Hill's method (:class:`linearize.hill_plant.HillModelPlant`; its
     harmonic count chosen once at the centre of the ranges unless ``harmonics``
-    is given).  ``response="magnus"``: :class:`LabelledGainObjective` with
+    is given).  ``response="magnus"``: :class:`LabelledPlant` with
     ``floquet_options`` (with ``orbit``), else the largest multiplier off the unit circle.
     """
     cfg = TuningConfig(target=target, ranges=tuple(ranges), max_evaluations=max_evaluations)
     if response == "hill":
         if orbit is None:
             raise ValueError("response='hill' needs the orbit (mode labels)")
-        obj = HillGainObjective(hill_plant(lin, orbit, cfg, harmonics=harmonics))
+        obj = GainObjective(hill_plant(lin, orbit, cfg, harmonics=harmonics))
     elif response == "magnus":
-        obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
+        obj = (GainObjective(LabelledPlant(lin, orbit, floquet_options)) if orbit is not None
                else tuning_objective(lin, floquet_options))
     else:
         raise ValueError(f"response must be 'hill' or 'magnus', got {response!r}")
@@ -185,7 +190,7 @@ def compare_direct_methods(lin: Any, orbit: Any, target: float, *,
     from taguchi.direct import direct_tune
 
     cfg = TuningConfig(target=target, ranges=TUNING_RANGES, max_evaluations=max_evaluations)
-    obj = HillGainObjective(hill_plant(lin, orbit, cfg))
+    obj = GainObjective(hill_plant(lin, orbit, cfg))
     rows = []
     for m in methods:
         c0 = time.process_time()
@@ -230,21 +235,11 @@ def _slices(obj: Any, fixed: Sequence[float], ranges: Sequence, points: int, exe
                       shoulder=out[0], elbow=out[1], fixed=tuple(float(v) for v in fixed))
 
 
-def gain_slices(lin: Any, fixed: Sequence[float], *, orbit: Any = None, ranges: Sequence = TUNING_RANGES,
-                points: int = 9, executor: Any = None, floquet_options: Optional[dict] = None) -> GainSlices:
-    """``|rho|`` on a ``points x points`` grid of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1).
-
-    With ``orbit`` the response is the labelled dominant multiplier (:class:`LabelledGainObjective`).
-    """
-    obj = (LabelledGainObjective(lin, orbit, floquet_options) if orbit is not None
-           else tuning_objective(lin, floquet_options))
-    return _slices(obj, fixed, ranges, points, executor)
-
-
 def gain_slices_hill(lin: Any, orbit: Any, fixed: Sequence[float], *, ranges: Sequence = TUNING_RANGES,
                      points: int = 9, executor: Any = None, harmonics: int = 12) -> GainSlices:
-    """:func:`gain_slices` with the tuning response (Hill's method, :class:`HillModelPlant`)."""
-    obj = HillGainObjective(HillModelPlant(lin, orbit, harmonics=harmonics))
+    """``|rho|`` of the tuning response (Hill's method, :class:`HillModelPlant`) on a ``points x points`` grid
+    of (kp1, kd1) at fixed (kp2, kd2) and of (kp2, kd2) at fixed (kp1, kd1)."""
+    obj = GainObjective(HillModelPlant(lin, orbit, harmonics=harmonics))
     return _slices(obj, fixed, ranges, points, executor)
 
 
@@ -326,30 +321,29 @@ def check_multiplier(lin: Any, orbit: Any, gains: Sequence[float], *, steps: Seq
                      harmonics: int = 32, modal_steps: Optional[int] = 512) -> TunedCheck:
     """Dominant labelled multiplier at ``gains`` by Hill, by streamed magnus2 products at ``steps`` and
     (``modal_steps``) by the Richardson-extrapolated magnus2 product in frozen-modal coordinates."""
-    from stability import floquet
+    from stability.engines import floquet
 
-    g = [float(v) for v in gains]
+    gg = Gains.from_interleaved(gains)
+    g = list(gg.interleaved())
     t0 = time.perf_counter()
-    m = HillModelPlant(lin, orbit, harmonics=harmonics).measure(g[0::2], g[1::2], error_estimate=True)
+    m = HillModelPlant(lin, orbit, harmonics=harmonics).measure(gg.kp, gg.kd, error_estimate=True)
     secs = {"hill": time.perf_counter() - t0}
-    lg = lin.with_gains(g[0::2], g[1::2])
+    lg = lin.with_gains(gg.kp, gg.kd)
     streamed = {}
     for n in steps:
         t0 = time.perf_counter()
         # fixed step count: floquet() streams large products in chunks (memory O(n^2) in the steps)
-        w = np.asarray(floquet(lg, method="magnus2", n_steps=int(n), error_estimate=False).multipliers)
+        w = np.asarray(floquet(lg, method="magnus", order=2, n_steps=int(n), error_estimate=False).multipliers)
         streamed[int(n)] = complex(w[int(np.argmin(np.abs(w - m.dominant)))])
         secs[f"magnus2_{n}"] = time.perf_counter() - t0
     mods = [abs(streamed[int(n)]) for n in steps]
-    est = 4.0 / 3.0 * abs(mods[-1] - mods[-2]) if len(mods) > 1 else math.nan
+    est = pair_estimate(mods[-2], mods[-1]) if len(mods) > 1 else math.nan
     modal = None
     if modal_steps:
         # a third method: the exponential midpoint in frozen-modal coordinates (stability.modal), Richardson-
         # extrapolated from modal_steps and modal_steps / 2 (fourth order), with its own error estimate
-        from stability.modal import modal_floquet
-
         t0 = time.perf_counter()
-        r = modal_floquet(lg, method="magnus2", n_steps=int(modal_steps), extrapolate=True)
+        r = floquet(lg, method="modal", order=2, n_steps=int(modal_steps), extrapolate=True)
         w = np.asarray(r.multipliers)
         modal = {"steps": int(modal_steps), "multiplier": complex(w[int(np.argmin(np.abs(w - m.dominant)))]),
                  "error_estimate": float(r.error_estimate)}
@@ -397,13 +391,14 @@ def two_link_floquet(omega: float, elements: Optional[int] = None, gains: Sequen
     if lin is None:
         lin = linearize_orbit(orbit, 0.0, 0.0)
     cpu["linearization"] = time.process_time() - c0
-    g = [float(v) for v in gains]
+    gg = Gains.from_interleaved(gains)
+    g = list(gg.interleaved())
     plant = HillModelPlant(lin, orbit, label_steps=label_steps, harmonics=harmonics)
     c0 = time.process_time()
-    _, res, modes = plant.labelled(g[0::2], g[1::2])
+    _, res, modes = plant.labelled(gg.kp, gg.kd)
     cpu["floquet_labels"] = time.process_time() - c0
     c0 = time.process_time()
-    m = plant.measure(g[0::2], g[1::2], error_estimate=True)
+    m = plant.measure(gg.kp, gg.kd, error_estimate=True)
     cpu["hill"] = time.process_time() - c0
     n_el = elements
     if n_el is None:
@@ -442,30 +437,21 @@ class TwoLinkNoisePlant:
     ``noise`` may hold ``tip_mass`` (kg), ``omega_scale`` and ``youngs_modulus_scale``
     (missing: nominal).  Each noise value gets its own periodic orbit and
     linearisation (payload, frequency and stiffness change the orbit), cached per
-    process (:func:`_noise_plant`); the plant's ``spectral_measure(*gains)`` takes the flat
-    ``(kp1, kd1, kp2, kd2)`` of :class:`taguchi.robust.PlantNoiseObjective`.
+    process (:func:`_noise_plant`); :class:`taguchi.robust.PlantNoiseObjective` calls the plant's
+    ``spectral_measure`` with the gains of the run.
     """
 
     omega: float
     elements: Optional[int] = None
     harmonics: int = 12
 
-    def __call__(self, noise: Any) -> "_FlatGainPlant":
+    def __call__(self, noise: Any) -> HillModelPlant:
         from mbs_models.builtin.two_link import TwoLinkParameters
 
         tip = float(noise.get("tip_mass", TwoLinkParameters.tip_mass))
         w = float(noise.get("omega_scale", 1.0))
         e = float(noise.get("youngs_modulus_scale", 1.0))
-        return _FlatGainPlant(_noise_plant(float(self.omega), self.elements, int(self.harmonics), tip, w, e))
-
-
-class _FlatGainPlant:
-    def __init__(self, plant: HillModelPlant) -> None:
-        self.plant = plant
-
-    def spectral_measure(self, *gains: float) -> float:
-        g = [float(v) for v in gains]
-        return self.plant.spectral_measure(g[0::2], g[1::2])
+        return _noise_plant(float(self.omega), self.elements, int(self.harmonics), tip, w, e)
 
 
 def two_link_noise_factors(settings: Any) -> tuple:

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from flexstab.report import figure, table, text
+from stability.gains import Gains
 
 __all__ = ["stage_two_link", "CHECK_MODAL_STEPS", "CACHE_NAME", "CACHE_PARTS", "cache_keys", "fresh_parts",
            "script_hash"]
@@ -101,10 +102,10 @@ def _check_tuned(lin: Any, gains: Sequence[float], near: complex) -> dict:
     """The tuned dominant multiplier by the frozen-modal product (independent of the loop's Hill response)."""
     import numpy as np
 
-    from stability.modal import modal_floquet
+    from stability.engines import floquet
 
-    g = [float(v) for v in gains]
-    r = modal_floquet(lin.with_gains(g[0::2], g[1::2]), method="magnus2", n_steps=CHECK_MODAL_STEPS, extrapolate=True)
+    g = Gains.from_interleaved(gains)
+    r = floquet(lin.with_gains(g.kp, g.kd), method="modal", order=2, n_steps=CHECK_MODAL_STEPS, extrapolate=True)
     w = np.asarray(r.multipliers)
     z = complex(w[int(np.argmin(np.abs(w - near)))])
     return {"method": f"frozen-modal magnus2, {CHECK_MODAL_STEPS}/{CHECK_MODAL_STEPS // 2} steps extrapolated",
@@ -166,16 +167,17 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
             "dominant": [fl.measure.dominant.real, fl.measure.dominant.imag],
             "dominant_modulus": abs(fl.measure.dominant), "mode": fl.measure.mode,
             "hill_error_estimate": fl.measure.hill_error_estimate,
-            "labelled": [{"modulus": float(abs(mu)), "mode": m["mode"], "undamped": m["undamped"]}
+            "labelled": [{"modulus": float(abs(mu)), "mode": m.mode, "undamped": m.undamped}
                          for mu, m in zip(fl.floquet.multipliers, fl.modes) if abs(mu) > 1e-6][:12],
             "cpu_seconds": fl.cpu_seconds,
         }
-    whole = whole_spectrum(ctl.orbit, omega, g[0::2], g[1::2])
+    tuned_gains = Gains.from_interleaved(g)
+    whole = whole_spectrum(ctl.orbit, omega, tuned_gains.kp, tuned_gains.kd)
     row["tuned"]["whole_spectrum"] = whole
     poses = plot_poses(unc.orbit, out / f"two_link_poses_{tag}.png",
                        title=f"Two-link arm on its periodic orbit, Ω = {_pi(omega)} rad/s").name
     res = types.SimpleNamespace(floquet=ctl.floquet, modes=ctl.modes, orbit=ctl.orbit,
-                                linearization=ctl.linearization.with_gains(g[0::2], g[1::2]),
+                                linearization=ctl.linearization.with_gains(tuned_gains.kp, tuned_gains.kd),
                                 dominant_multiplier=ctl.measure.dominant)
     # the title shows the modulus the table shows (Hill's), not the labelling product's; the shape is that
     # product's eigenvector nearest Hill's multiplier

@@ -29,6 +29,7 @@ __all__ = [
     "ModelFloquetResult",
     "analyze",
     "label_multipliers",
+    "ModeLabel",
 ]
 
 logger = logging.getLogger(__name__)
@@ -69,6 +70,47 @@ UNDAMPED_TOLERANCE = 2e-3
 DRIVE_SHARE_THRESHOLD = 1e-8
 
 
+@dataclass(frozen=True)
+class ModeLabel:
+    """What one Floquet multiplier is (:func:`label_multipliers`).
+
+    Attributes
+    ----------
+    modulus : float
+        ``|rho|``.
+    mode : str
+        Label of the frozen-time mode with the largest modal energy in the Floquet vector
+        (``"bending 1"``, ``"axial 2"``, a drive's name, ...).
+    drive_shares : dict
+        Per drive: its share in that frozen mode (open loop; :data:`DRIVE_SHARE_THRESHOLD`).
+    group : str
+        The Exudyn item holding most of the Floquet vector's energy.
+    frequency_hz : float
+        Frequency of that frozen-time mode.
+    mac : float
+        Fraction of the modal energy in that mode.
+    shares : dict
+        Energy fraction per Exudyn item and per drive coordinate (``"drive NAME"``).
+    undamped : bool
+        ``| |rho| - 1 | <`` :data:`UNDAMPED_TOLERANCE`.
+    """
+
+    modulus: float
+    mode: str
+    drive_shares: dict
+    group: str
+    frequency_hz: float
+    mac: float
+    shares: dict
+    undamped: bool
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the keys above, in that order (copies of the share dicts)."""
+        return {"modulus": self.modulus, "mode": self.mode, "drive_shares": dict(self.drive_shares),
+                "group": self.group, "frequency_hz": self.frequency_hz, "mac": self.mac,
+                "shares": dict(self.shares), "undamped": self.undamped}
+
+
 @frozen_result
 @dataclass(frozen=True)
 class ModelFloquetResult:
@@ -77,11 +119,8 @@ class ModelFloquetResult:
     Attributes
     ----------
     floquet : stability.FloquetResult
-    modes : list of dict
-        Per multiplier (same order): ``modulus``, ``mode`` (label), ``group``
-        (Exudyn item holding most of the Floquet vector's energy), ``shares``
-        (energy fraction per item and per drive coordinate), ``frequency_hz``
-        (of the frozen-time mode it resembles most), ``mac``, ``undamped``.
+    modes : list of ModeLabel
+        Per multiplier (same order): what it is (:class:`ModeLabel`).
     dominant_multiplier : complex
         Largest multiplier of a drive mode or of ``bending 1`` (the modes a rigid or
         one-mode model has; for the single link the paper's hub / first bending mode)
@@ -137,14 +176,14 @@ class ModelFloquetResult:
         error estimate, the practically undamped and growing ones counted with their mode labels)."""
         from stability.verdict import judge_floquet
 
-        return judge_floquet(self.floquet, labels=[m["mode"] for m in self.modes],
-                             frequencies=[m["frequency_hz"] for m in self.modes])
+        return judge_floquet(self.floquet, labels=[m.mode for m in self.modes],
+                             frequencies=[m.frequency_hz for m in self.modes])
 
     @property
     def dominant_mode(self) -> str:
         """Mode label of :attr:`dominant_multiplier` (``"hub"``, ``"bending 1"``, ...)."""
         mu = np.asarray(self.floquet.multipliers)
-        return str(self.modes[int(np.argmin(np.abs(mu - self.dominant_multiplier)))]["mode"])
+        return str(self.modes[int(np.argmin(np.abs(mu - self.dominant_multiplier)))].mode)
 
     @property
     def undamped_count(self) -> int:
@@ -160,12 +199,14 @@ class ModelFloquetResult:
             "orbit_residual": self.orbit_residual,
             "shooting_residual": float(self.orbit.shooting_residual),
             "turns": self.orbit.summary()["turns"],
+            "sign_flips": self.orbit.summary()["sign_flips"],
+            "structural_multipliers": 1 if self.orbit.autonomous else 0,
             "samples": self.orbit.samples,
             "ode2": self.orbit.size,
             "independent_coordinates": self.linearization.size,
             "dominant_multiplier": [float(d.real), float(d.imag)],
             "dominant_modulus": float(abs(d)),
-            "modes": self.modes,
+            "modes": [m.to_dict() for m in self.modes],
             "timings": dict(self.timings),
             "propagator_steps": int(self.floquet.n_steps),
             "error_estimate": float(self.floquet.error_estimate),
@@ -297,7 +338,7 @@ def _slope_nodes(orbit: PeriodicOrbit) -> list:
 
 
 def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floquet_result: Any) -> list:
-    """Label each multiplier by where its Floquet vector lives (see :class:`ModelFloquetResult`).
+    """Label each multiplier by where its Floquet vector lives: one :class:`ModeLabel` per multiplier.
 
     The Floquet vector ``x = [z; z']`` at ``t = 0`` (eigenvector of the
     monodromy) is mapped back to Exudyn's coordinates, ``dq = N(0) z``,
@@ -344,26 +385,26 @@ def label_multipliers(lin: LinearizedPeriodicSystem, orbit: PeriodicOrbit, floqu
             shares[f"drive {name}"] = float(v)
         mod = float(abs(mu))
         mac = float(energy[k] / max(float(np.sum(energy)), 1e-300))
-        out.append({
-            "modulus": mod,
-            "mode": fm.labels[k],
+        out.append(ModeLabel(
+            modulus=mod,
+            mode=fm.labels[k],
             # the drives' shares in the frozen mode the multiplier is labelled by (open loop, no PD: the
             # closed loop's own vector hardly moves a stiffly controlled drive coordinate)
-            "drive_shares": {n: round(float(fm.drive_shares[i, k]), 6) for i, n in enumerate(orbit.drive_names)},
-            "group": group,
-            "frequency_hz": float(math.sqrt(abs(fm.eigenvalues[k])) / (2 * math.pi)),
-            "mac": mac,
-            "shares": {g: round(v, 6) for g, v in shares.items()},
-            "undamped": bool(abs(mod - 1.0) < UNDAMPED_TOLERANCE),
-        })
+            drive_shares={n: round(float(fm.drive_shares[i, k]), 6) for i, n in enumerate(orbit.drive_names)},
+            group=group,
+            frequency_hz=float(math.sqrt(abs(fm.eigenvalues[k])) / (2 * math.pi)),
+            mac=mac,
+            shares={g: round(v, 6) for g, v in shares.items()},
+            undamped=bool(abs(mod - 1.0) < UNDAMPED_TOLERANCE),
+        ))
     return out
 
 
-def drive_movable(mode: dict, drive_names: Sequence[str] = ()) -> bool:
-    """Whether some drive's share in the frozen mode of a labelled multiplier (``mode["drive_shares"]``,
+def drive_movable(mode: ModeLabel, drive_names: Sequence[str] = ()) -> bool:
+    """Whether some drive's share in the frozen mode of a labelled multiplier (:attr:`ModeLabel.drive_shares`,
     :func:`label_multipliers`) is at least :data:`DRIVE_SHARE_THRESHOLD`: a mode the PD gains on the
     drives can move."""
-    return any(float(v) >= DRIVE_SHARE_THRESHOLD for v in mode.get("drive_shares", {}).values())
+    return any(float(v) >= DRIVE_SHARE_THRESHOLD for v in mode.drive_shares.values())
 
 
 def _dominant(floquet_result: Any, modes: list, drive_names: tuple) -> complex:
@@ -373,10 +414,10 @@ def _dominant(floquet_result: Any, modes: list, drive_names: tuple) -> complex:
     largest one not on the unit circle."""
     main = set(drive_names) | {"bending 1"}
     for mu, m in zip(floquet_result.multipliers, modes):
-        if not m["undamped"] and (m["mode"] in main or (drive_names and drive_movable(m, drive_names))):
+        if not m.undamped and (m.mode in main or (drive_names and drive_movable(m, drive_names))):
             return complex(mu)
     for mu, m in zip(floquet_result.multipliers, modes):
-        if not m["undamped"]:
+        if not m.undamped:
             return complex(mu)
     return complex(floquet_result.multipliers[0])
 
@@ -474,12 +515,14 @@ def analyze(
     lap("linearization")
     sm = small_multipliers if method != "paper" else "flag"
     if frame == "modal" and method == "magnus2":
-        res = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm,
-                            check=n_steps is None, extrapolate=True)
+        res = modal_floquet(lin, method="magnus2", n_steps=n_steps, accuracy=_certified_accuracy(lin),
+                            small_multipliers=sm, check=n_steps is None, extrapolate=True)
     elif frame == "modal" and method != "paper":
         res = modal_floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     elif method == "magnus2":
-        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy="moduli", small_multipliers=sm)
+        res = floquet(lin, method="magnus2", n_steps=n_steps, accuracy=_certified_accuracy(lin), small_multipliers=sm)
+    elif method != "paper":
+        res = floquet(lin, method=method, n_steps=n_steps, accuracy=_certified_accuracy(lin), small_multipliers=sm)
     else:
         res = floquet(lin, method=method, n_steps=n_steps, small_multipliers=sm)
     res = recertify(res, rtol)
@@ -536,6 +579,20 @@ def analyze(
 REFINE_MAGNUS6_MAX_N = 16
 
 
+def _certified_accuracy(lin: Any) -> str:
+    """What the estimates of a solve in the linearisation's own coordinates certify: the multipliers
+    (moduli *and* phases) of a small system (``<= REFINE_MAGNUS6_MAX_N`` states, where the extra steps
+    cost little), the moduli of a larger one.
+
+    Why: a step-doubling estimate of the moduli alone sees nothing when the moduli do not depend on the
+    step.  Measured on the anisotropic Laval rotor at 30 rad/s: its external damping is uniform, so every
+    multiplier has the modulus ``exp(-c T / 2 m)`` that the trace fixes and every Magnus product keeps
+    exactly; adaptive Magnus-6 stopped at its 32-step pilot with a moduli estimate of 2.5e-14 while the
+    multipliers (their phases, the whirl frequencies) were 1.6e-6 off, beyond the contract's 1e-6.
+    """
+    return "multipliers" if 2 * lin.size <= REFINE_MAGNUS6_MAX_N else "moduli"
+
+
 def _refine_to_contract(lin: Any, res: Any, rtol: float, small_multipliers: str) -> Any:
     """A result that meets the accuracy contract ``rtol`` where ``res`` does not, or the better one.
 
@@ -555,7 +612,7 @@ def _refine_to_contract(lin: Any, res: Any, rtol: float, small_multipliers: str)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # the kept result's own warnings follow
             if 2 * lin.size <= REFINE_MAGNUS6_MAX_N:
-                new = floquet(lin, method="magnus6", rtol=0.1 * rtol, accuracy="moduli",
+                new = floquet(lin, method="magnus6", rtol=0.1 * rtol, accuracy=_certified_accuracy(lin),
                               small_multipliers=small_multipliers)
             else:
                 new = modal_floquet(lin, method="magnus2", n_steps=_contract_steps(res, rtol), accuracy="moduli",
@@ -672,13 +729,13 @@ class ModelPlant:
     def floquet(self, kp, kd, n_steps: Optional[int] = None):
         """Floquet multipliers at ``(kp, kd)``: exponential midpoint in the frozen-modal frame of the
         system *at these gains* (one frame, Richardson-extrapolated; see :data:`TUNING_PROPAGATOR_STEPS`)."""
-        from stability.modal import modal_floquet
+        from stability.engines import floquet
 
         lin = self.with_gains(kp, kd)
         steps = n_steps or self.n_steps
-        # without a frozen-modal basis: modal_floquet's one fallback policy (warns, adaptive engine)
-        return modal_floquet(lin, levels=1, method="magnus2", n_steps=steps, error_estimate=False,
-                             accuracy="moduli", extrapolate=True)
+        # without a frozen-modal basis: the modal engine's one fallback policy (warns, adaptive engine)
+        return floquet(lin, method="modal", levels=1, order=2, n_steps=steps, error_estimate=False,
+                       accuracy="moduli", extrapolate=True).detail
 
     def spectral_measure(self, kp, kd) -> float:
         lin = self.with_gains(kp, kd)

@@ -68,7 +68,7 @@ from typing import Sequence
 import numpy as np
 import scipy.linalg
 
-from linearize.fourier import differentiation_matrices
+from linearize.fourier import antiperiodic_differentiation_matrices, differentiation_matrices
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
 
@@ -143,13 +143,34 @@ def _polar(W: np.ndarray) -> np.ndarray:
     return u @ vt
 
 
+#: :func:`corotating_frame` co-rotates free planar points with their best-fit rotation about the origin only
+#: when its samples are resolved about as well as the points' own (spectral tail, :func:`_spectral_tail`,
+#: at most this factor above theirs).  The basis derivatives are spectral derivatives of ``F N_hat``: a
+#: frame that the samples alias makes them wrong, not merely inaccurate (measured: an unbalanced rotor
+#: whose whirl passes 5e-5 m from the origin, multipliers 0.55 off with the fit, 4e-10 without).
+FRAME_RESOLUTION = 100.0
+
+
+def _spectral_tail(z: np.ndarray) -> float:
+    """Largest, over the columns of ``z`` (``(K, p)`` samples over one period), of the share of the upper
+    half of the resolved harmonics (``K/4 <= |k| <= K/2``) in the sum of all harmonic amplitudes: ~eps for
+    a function the samples resolve, O(1) for one they alias."""
+    c = np.abs(np.fft.fft(np.asarray(z, dtype=complex), axis=0))
+    k = np.abs(np.fft.fftfreq(c.shape[0], 1.0 / c.shape[0]))
+    total = np.sum(c, axis=0)
+    share = np.sum(c[k >= c.shape[0] / 4], axis=0) / np.maximum(total, 1e-300)
+    return float(np.max(share)) if share.size else 0.0
+
+
 def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
     """Block rotations ``R(theta_i(t))`` of the planar vector coordinates, shape ``(K, n, n)``.
 
     Each planar vector (node position, ANCF slope) is rotated by the angle its
     node has turned since ``t = 0``: the slope direction of an ANCF node, the
     angle of a rigid body, else the mass-weighted best-fit (2D Kabsch)
-    rotation of all planar vectors.  Coordinates that are not planar vectors
+    rotation of all planar vectors about the origin -- when the samples resolve it
+    (:data:`FRAME_RESOLUTION`; a point whirling close round the origin turns its fit
+    through half a turn between two samples), else the identity.  Coordinates that are not planar vectors
     keep the identity.  Any T-periodic orthogonal frame gives the same
     multipliers; in this one the stiff element stiffness of a swinging beam is
     nearly constant (it turns only with the beam's curvature), which the
@@ -170,6 +191,14 @@ def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
     x = Q[:, ix] + rx
     y = Q[:, iy] + ry
     fit = np.arctan2(np.sum(w * (x[0] * y - y[0] * x), axis=1), np.sum(w * (x[0] * x + y[0] * y), axis=1))
+    if any(ang[0] == "fit" for *_, ang in pairs):
+        tail_fit, tail_points = _spectral_tail(np.exp(1j * fit)[:, None]), _spectral_tail(x + 1j * y)
+        if tail_fit > FRAME_RESOLUTION * max(tail_points, 1e-14):
+            # e.g. one point whirling on a circle that passes close to the origin: its best-fit rotation
+            # about the origin is its polar angle, which swings through ~pi within a sample or two
+            logger.info("the best-fit rotation of the planar points is not resolved by the %d samples (spectral "
+                        "tail %.1e, the points' own %.1e): no co-rotation for them", Kn, tail_fit, tail_points)
+            fit = np.zeros(Kn)
     for p_idx, (a, b, _, _, ang) in enumerate(pairs):
         if ang[0] == "slope":
             _, i_sx, i_sy, r_sx, r_sy = ang
@@ -187,13 +216,15 @@ def corotating_frame(orbit: PeriodicOrbit) -> np.ndarray:
     return F
 
 
-def _transport(C_all: np.ndarray, times: np.ndarray, period: float) -> np.ndarray:
+def _transport(C_all: np.ndarray, times: np.ndarray, period: float, signs: "np.ndarray | None" = None) -> np.ndarray:
     """Periodic, parallel-transported orthonormal bases of ``null C_all[k]`` (see the module notes).
 
     The step ``N_{k+1} = Q_{k+1} polar(Q_{k+1}^T N_k)`` is formed as the polar factor of the
     projection ``P_{k+1} N_k`` (``P = Q Q^T``, the same matrix: ``P N_k = Q_{k+1} (Q_{k+1}^T
     N_k)`` and the polar factor of ``Q A`` is ``Q polar(A)``), so only ``Q_0`` is formed, and
-    in closed form (:func:`_transport_step`).
+    in closed form (:func:`_transport_step`).  With ``signs`` (``S = diag(signs)``, the derivative of
+    the orbit map ``g``: the null space at ``T`` is ``S`` times the one at 0) the holonomy is measured
+    against ``S Q_0`` and the samples close up to ``S``: ``N(t + T) = S N(t)``.
     """
     Kn, _, n = C_all.shape
     Vs = [_row_space(C_all[k]) for k in range(Kn)]
@@ -209,12 +240,15 @@ def _transport(C_all: np.ndarray, times: np.ndarray, period: float) -> np.ndarra
     for k in range(Kn - 1):
         W[k + 1] = _transport_step(Vs[k + 1], W[k])
     if r:
-        H = _polar(Q0.T @ W[Kn - 1])  # W_K = Q_0 H and W_0 = Q_0
+        Q0T = Q0 if signs is None else signs[:, None] * Q0  # the basis one period on: S Q_0
+        H = _polar(Q0T.T @ W[Kn - 1])  # W_K = S Q_0 H and W_0 = Q_0
         if np.linalg.det(H) < 0:
             raise ConstraintBasisError("the constraint tangent space is not orientable along the orbit "
                                        "(holonomy with det -1): no periodic basis")
         G = np.real(scipy.linalg.logm(H))
         G = 0.5 * (G - G.T)
+        if not np.allclose(scipy.linalg.expm(G), H, atol=1e-10):
+            G = _rotation_log(H)  # eigenvalues -1 (a half turn, e.g. Euler parameters): not the principal log
         if not np.allclose(scipy.linalg.expm(G), H, atol=1e-10):
             raise ConstraintBasisError("no real logarithm of the holonomy of the constraint tangent space")
         for k in range(Kn):
@@ -222,9 +256,38 @@ def _transport(C_all: np.ndarray, times: np.ndarray, period: float) -> np.ndarra
     return W
 
 
+def _rotation_log(H: np.ndarray) -> np.ndarray:
+    """A real skew logarithm of a rotation ``H`` (orthogonal, ``det H = 1``) whose eigenvalues -1 (half
+    turns) the principal ``logm`` leaves complex.
+
+    Maths: the real Schur form of the normal matrix ``H`` is ``Z T Z^T`` with ``T`` block diagonal, 2 x 2
+    blocks ``[[c, s], [-s, c]] = expm(a [[0, 1], [-1, 0]])`` (``a = atan2(s, c)``) and 1 x 1 blocks
+    ``+-1``; ``det H = 1`` makes the ``-1`` blocks even in number, and each pair of them is the half turn
+    ``expm(pi [[0, 1], [-1, 0]])``.  Returns ``Z L Z^T`` (``L`` those logarithms); the caller checks it.
+    """
+    T, Z = scipy.linalg.schur(H, output="real")
+    r = H.shape[0]
+    L = np.zeros((r, r))
+    halves = []
+    i = 0
+    while i < r:
+        if i + 1 < r and abs(T[i + 1, i]) > 1e-12:
+            a = math.atan2(T[i, i + 1], T[i, i])
+            L[i, i + 1], L[i + 1, i] = a, -a
+            i += 2
+        else:
+            if T[i, i] < 0.0:
+                halves.append(i)
+            i += 1
+    for a, b in zip(halves[0::2], halves[1::2]):
+        L[a, b], L[b, a] = math.pi, -math.pi
+    return Z @ L @ Z.T
+
+
 def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "np.ndarray | None" = None,
                      drives: "np.ndarray | None" = None,
-                     stiffness: "np.ndarray | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     stiffness: "np.ndarray | None" = None,
+                     signs: "np.ndarray | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smooth periodic basis ``N`` of ``null C_q`` and its derivatives at the samples.
 
     Parameters
@@ -255,6 +318,12 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
         shapes are kept.  A drive coordinate then couples to the others
         through inertia only, not through the stiff elastic terms (measured
         on the single link: the propagator needs ~30 times fewer steps).
+    signs : ndarray, shape (n,), optional
+        ``S = diag(signs)``, the derivative of an orbit map ``g`` with sign flips (the Euler parameters
+        of a body that turns, :attr:`linearize.periodic_orbit.PeriodicOrbit.signs`): the basis is then
+        *S-periodic*, ``N(t + T) = S N(t)`` (rows with sign -1 antiperiodic, differentiated as such), so
+        that the independent coordinates' matrices ``N^T M N``, ... are T-periodic (``M(t + T) = S M(t) S``)
+        and their monodromy is the orbit map's ``S^-1 Phi(T)``.
 
     Returns
     -------
@@ -269,12 +338,21 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
     Kn, m, n = Cq.shape
     F = frame if frame is not None else np.broadcast_to(np.eye(n), (Kn, n, n))
     Ch = Cq @ F
+    flips = signs is not None and np.any(np.asarray(signs) < 0)
+    sg = np.asarray(signs, dtype=float) if flips else None
+    if flips and frame is not None:
+        # the frame must leave the sign-flipping coordinates alone (then it commutes with S and
+        # N = F N_hat is S-periodic with N_hat); the co-rotating frame turns planar vectors only
+        a = np.asarray(sg) < 0
+        if not (np.allclose(F[:, a][:, :, a], np.eye(int(a.sum()))) and np.allclose(F[:, a][:, :, ~a], 0.0)
+                and np.allclose(F[:, ~a][:, :, a], 0.0)):
+            raise ConstraintBasisError("a frame that turns the sign-flipping coordinates has no S-periodic basis")
     if drives is None or drives.shape[1] == 0:
-        N = _transport(Ch, times, period)
+        N = _transport(Ch, times, period, sg)
     else:
         d = drives.shape[1]
         Bh = np.transpose(F, (0, 2, 1)) @ drives  # (K, n, d)
-        W = _transport(np.concatenate([Ch, np.transpose(Bh, (0, 2, 1))], axis=1), times, period)
+        W = _transport(np.concatenate([Ch, np.transpose(Bh, (0, 2, 1))], axis=1), times, period, sg)
         ND = np.empty((Kn, n, d))
         for k in range(Kn):
             PB = _project(_row_space(Ch[k]), Bh[k])
@@ -303,6 +381,12 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
     flat = N.reshape(Kn, -1)
     N_t = (D1 @ flat).reshape(N.shape)
     N_tt = (D2 @ flat).reshape(N.shape)
+    if flips:  # rows that change sign over a period are antiperiodic in t
+        A1, A2 = antiperiodic_differentiation_matrices(period, Kn)
+        a = np.flatnonzero(sg < 0)
+        rows = N[:, a, :].reshape(Kn, -1)
+        N_t[:, a, :] = (A1 @ rows).reshape(Kn, a.size, N.shape[2])
+        N_tt[:, a, :] = (A2 @ rows).reshape(Kn, a.size, N.shape[2])
     return N, N_t, N_tt
 
 
@@ -345,8 +429,10 @@ def linearize_orbit(
     d = orbit.drive_vectors.shape[1]
     kpv = _gains(kp, d, "kp") if d else np.zeros(0)
     kdv = _gains(kd, d, "kd") if d else np.zeros(0)
+    signs = getattr(orbit, "signs", None)
+    flips = signs is not None and np.any(np.asarray(signs) < 0)
     N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period, frame=corotating_frame(orbit),
-                                    drives=orbit.drive_vectors, stiffness=tb.K)
+                                    drives=orbit.drive_vectors, stiffness=tb.K, signs=signs if flips else None)
     B = orbit.drive_vectors
     Kf = tb.K if reaction_stiffness else tb.K_force
     Kf = Kf + (B * kpv) @ B.T

@@ -312,8 +312,8 @@ class ExudynSystem:
         """3D nodes whose rotation coordinates are not angles: ``(node type, ODE2 indices, reference
         values)`` of the Euler parameters of ``RigidBodyEP`` nodes and the rotation vectors of
         ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
-        sign and a rotation vector passes its singular length 2 pi: no orbit periodic up to whole turns
-        exists in these coordinates (:func:`linearize.periodic_orbit.whole_turn_shift` says so)."""
+        sign (the orbit map's sign flip, :func:`linearize.periodic_orbit.whole_turn_map`) and a rotation
+        vector reaches its singular length 2 pi (no smooth orbit continues: refused there)."""
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):

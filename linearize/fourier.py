@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sample_times", "trig_interpolate", "TrigInterpolant", "differentiation_matrices"]
+__all__ = ["sample_times", "trig_interpolate", "TrigInterpolant", "differentiation_matrices",
+           "antiperiodic_differentiation_matrices", "antiperiodic_interpolate"]
 
 
 def _check_samples(N: int) -> int:
@@ -120,3 +121,24 @@ def differentiation_matrices(period: float, N: int) -> tuple[np.ndarray, np.ndar
     k2[N // 2] = -((N // 2) * omega) ** 2
     D2 = np.real(np.fft.ifft(k2[:, None] * F, axis=0))
     return D1, D2
+
+
+def antiperiodic_differentiation_matrices(period: float, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """``D1, D2`` (N x N) for T-antiperiodic functions, ``y(t + T) = -y(t)`` (odd harmonics of
+    ``pi / T``: e.g. the Euler parameters of a body that makes one whole turn per period).
+
+    Maths: such a ``y`` is 2T-periodic; its 2N samples over ``[0, 2T)`` are ``[y; -y]``, so the
+    2T-periodic matrices ``D`` (:func:`differentiation_matrices` with ``2T, 2N``) act on the first
+    half as ``D[:N, :N] - D[:N, N:]`` (exact for the odd harmonics ``1, 3, ..., N - 1`` of ``pi/T``;
+    the 2T Nyquist harmonic ``N`` is even, absent from an antiperiodic function).
+    """
+    N = _check_samples(N)
+    D1, D2 = differentiation_matrices(2.0 * period, 2 * N)
+    return D1[:N, :N] - D1[:N, N:], D2[:N, :N] - D2[:N, N:]
+
+
+def antiperiodic_interpolate(samples: np.ndarray, period: float, times: np.ndarray | float) -> np.ndarray:
+    """The interpolant of T-antiperiodic samples (``y(t + T) = -y(t)``) at ``times``
+    (:func:`trig_interpolate` of ``[y; -y]`` over ``2T``)."""
+    y = np.asarray(samples, dtype=float)
+    return trig_interpolate(np.concatenate([y, -y], axis=0), 2.0 * period, times)

@@ -41,7 +41,7 @@ import math
 import uuid
 import warnings
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Optional, Sequence, Union
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 
@@ -49,6 +49,7 @@ from linearize.analysis import UNDAMPED_TOLERANCE, label_multipliers
 from linearize.fourier import trig_interpolate
 from linearize.periodic_orbit import PeriodicOrbit
 from linearize.system import LinearizedPeriodicSystem
+from stability.gains import GainArgument
 from stability.hill import TAIL_LIMIT, HillError, pair_error_estimate
 
 if TYPE_CHECKING:
@@ -68,13 +69,9 @@ __all__ = [
     "MAX_FALLBACK_STEPS",
     "select_harmonics",
     "HarmonicsChoice",
-    "HillGainObjective",
 ]
 
 logger = logging.getLogger(__name__)
-
-#: Gains of the drives: one value for every drive, or one per drive.
-Gains = Union[float, Sequence[float]]
 
 #: magnus2 sub-intervals of the labelling pass (estimates and mode labels only).
 LABEL_STEPS = 512
@@ -326,8 +323,12 @@ class HillModelPlant:
     def n_steps(self) -> int:  # the tune command reports it
         return self.label_steps
 
-    def with_gains(self, kp: Gains, kd: Gains) -> LinearizedPeriodicSystem:
+    def with_gains(self, kp: GainArgument, kd: GainArgument) -> LinearizedPeriodicSystem:
         return self.linearization.with_gains(kp, kd)
+
+    def _per_drive(self, values: GainArgument, name: str) -> list:
+        """One float per drive (a float: the same for every drive; checked by the linearisation)."""
+        return [float(v) for v in self.linearization.gains(values, name)]
 
     def budget(self, rho: float) -> float:
         """Absolute error allowed in one run's response ``|rho|``: ``RUN_BUDGET`` times the tolerance, at least
@@ -338,7 +339,7 @@ class HillModelPlant:
     def _workspace(self, steps: int) -> Any:
         return _labelling_workspace(self._key, int(steps))
 
-    def labelled(self, kp: Gains, kd: Gains,
+    def labelled(self, kp: GainArgument, kd: GainArgument,
                  steps: Optional[int] = None) -> tuple[LinearizedPeriodicSystem, Any, list]:
         """``(lin, floquet_result, modes)`` of the labelling pass."""
         lin = self.with_gains(kp, kd)
@@ -359,7 +360,7 @@ class HillModelPlant:
         energy = np.abs(eta_t) ** 2 + np.abs(fm.eigenvalues) * np.abs(eta) ** 2
         return fm.labels[int(np.argmax(energy))]
 
-    def measure(self, kp: Gains, kd: Gains, *, error_estimate: bool = False, guard: bool = True) -> HillMeasure:
+    def measure(self, kp: GainArgument, kd: GainArgument, *, error_estimate: bool = False, guard: bool = True) -> HillMeasure:
         """Dominant drive-mode / ``bending 1`` multiplier, measured and labelled by Hill.
 
         Candidates: every magnus2 multiplier labelled as a main mode, and every other
@@ -387,15 +388,17 @@ class HillModelPlant:
         :func:`select_harmonics`, which judges a count by its own stricter rule): no harmonic escalation, a
         truncated response is replaced by a one-pass frozen-modal value.
         """
-        from stability.hill import RESIDUAL_LIMIT, HillError, hill_multipliers
+        from stability.engines import floquet
+        from stability.hill import RESIDUAL_LIMIT
 
+        kp, kd = self._per_drive(kp, "kp"), self._per_drive(kd, "kd")
         steps = self.label_steps
         main = set(self.orbit.drive_names) | {"bending 1"}
         for _ in range(3):
             lin, res, modes = self.labelled(kp, kd, steps)
             floor = max(NOISE_FACTOR * float(res.noise_floor), 1e-300)
-            upper = [(m["mode"], complex(mu)) for mu, m in zip(res.multipliers, modes)
-                     if not m["undamped"] and np.imag(mu) >= 0 and abs(mu) > floor]
+            upper = [(m.mode, complex(mu)) for mu, m in zip(res.multipliers, modes)
+                     if not m.undamped and np.imag(mu) >= 0 and abs(mu) > floor]
             mains = sorted((p for p in upper if p[0] in main), key=lambda p: -abs(p[1]))
             top = abs(mains[0][1]) if mains else 0.0
             picks = [p for p in mains if abs(p[1]) >= RELATIVE_CUTOFF * top][:MAX_REFINED]
@@ -404,12 +407,12 @@ class HillModelPlant:
                 mu = complex(res.multipliers[0])
                 warnings.warn(f"Hill plant: no multiplier to refine at kp={list(kp)} kd={list(kd)} (all undamped or "
                               f"below the rounding floor): the unrefined magnus2 multiplier |rho| = {abs(mu):.6g} "
-                              f"({modes[0]['mode']}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
-                return HillMeasure(dominant=mu, mode=modes[0]["mode"], estimate=mu, label_steps=steps,
+                              f"({modes[0].mode}, {steps} steps) is returned", RuntimeWarning, stacklevel=2)
+                return HillMeasure(dominant=mu, mode=modes[0].mode, estimate=mu, label_steps=steps,
                                    confirmed=False, method="magnus2-unrefined")
             try:
-                h = hill_multipliers(lin.M, lin.C, lin.K, lin.period, [p[1] for p in picks],
-                                     harmonics=self.harmonics, error_estimate=error_estimate)
+                h = floquet(lin, method="hill", targets=[p[1] for p in picks], harmonics=self.harmonics,
+                            error_estimate=error_estimate).detail
             except HillError as exc:  # no eigenvalue near a candidate / singular shift: the tuning run goes on
                 logger.warning("Hill's method failed at gains kp=%s kd=%s (%s); using the frozen-modal magnus2 "
                                "product", kp, kd, exc)
@@ -489,6 +492,7 @@ class HillModelPlant:
         """
         from linearize.analysis import TUNING_PROPAGATOR_STEPS, ModelPlant, _dominant, _multiplier_estimate
 
+        kp, kd = self._per_drive(kp, "kp"), self._per_drive(kd, "kd")
         plant = ModelPlant(self.linearization, self.orbit)
         steps = TUNING_PROPAGATOR_STEPS
         while True:
@@ -504,18 +508,17 @@ class HillModelPlant:
                                 f"estimate {est:.1e} > budget {self.budget(abs(mu)):.1e} at {steps} steps")
             steps *= 2
         i = int(np.argmin(np.abs(np.asarray(res.multipliers) - mu)))
-        return HillMeasure(dominant=mu, mode=modes[i]["mode"], estimate=mu, label_steps=label_steps,
+        return HillMeasure(dominant=mu, mode=modes[i].mode, estimate=mu, label_steps=label_steps,
                            confirmed=False, method="modal-magnus2", tail=tail, residual=residual,
                            modal_error_estimate=rel, harmonics=self.harmonics, run_error_estimate=est,
                            modal_steps=steps)
 
-    def spectral_measure(self, kp: Gains, kd: Gains) -> float:
+    def spectral_measure(self, kp: GainArgument, kd: GainArgument) -> float:
         """``|rho|`` of the dominant labelled multiplier (Hill); a response from another method is recorded in
         :attr:`fallback_runs`."""
         m = self.measure(kp, kd)
         if m.method != "hill":
-            g = [float(v) for pair in zip(np.broadcast_to(kp, len(self.drives)), np.broadcast_to(kd, len(self.drives)))
-                 for v in pair]
+            g = [v for pair in zip(self._per_drive(kp, "kp"), self._per_drive(kd, "kd")) for v in pair]
             self.fallback_runs.append({"gains": g, "method": m.method, "error_estimate": m.run_error_estimate,
                                        "modal_steps": m.modal_steps, "spectral_radius": float(abs(m.dominant))})
         return float(abs(m.dominant))
@@ -569,16 +572,3 @@ def select_harmonics(plant: HillModelPlant, kp: Sequence[float], kd: Sequence[fl
                   f"(tolerance / 20) at kp={list(kp)} kd={list(kd)}; using {H} (estimate {est:.2e}, method "
                   f"{m.method}{', truncated' if m.truncated else ''})", RuntimeWarning, stacklevel=2)
     return HarmonicsChoice(plant=p, harmonics=H, converged=False, error_estimate=est, tolerance=tolerance)
-
-
-class HillGainObjective:
-    """``(kp1, kd1, kp2, kd2, ...) -> |rho|`` of :meth:`HillModelPlant.spectral_measure` (picklable)."""
-
-    def __init__(self, plant: HillModelPlant) -> None:
-        self.plant = plant
-
-    def __call__(self, gains: Sequence[float]) -> float:
-        g = [float(v) for v in gains]
-        if len(g) % 2:
-            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
-        return self.plant.spectral_measure(g[0::2], g[1::2])

@@ -55,7 +55,8 @@ import scipy.linalg
 from linearize import collocation_solver as structured
 from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
-from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
+from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
+                               sample_times, trig_interpolate)
 from mbs_models.model_file import BuiltModel, ModelDefinition, ModelFileError, build_model, resolve_model
 
 __all__ = [
@@ -69,6 +70,8 @@ __all__ = [
     "TangentBlocks",
     "find_orbit",
     "tangent_blocks",
+    "apply_map",
+    "whole_turn_map",
     "whole_turn_shift",
 ]
 
@@ -253,6 +256,15 @@ class PeriodicOrbit:
         Whole turns per period: ``q(t + T) = q(t) + shift`` (zero for a T-periodic orbit;
         :func:`whole_turn_shift`).  ``q`` holds the coordinates themselves (with the turns);
         ``q_t``, ``q_tt``, the multipliers and torques are T-periodic.
+    signs, references : ndarray, shape (n,)
+        The rest of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): ``signs`` is -1 on the
+        Euler parameters of a body that turns an odd number of times per period (their absolute values
+        ``q + references`` change sign), +1 elsewhere.  The rates map by ``S = diag(signs)``.
+    autonomous : bool
+        The model has no drives and does not depend on time: the orbit is one of a family of time
+        shifts (e.g. a free spin turned about its axis), its phase was fixed by a phase condition, and
+        one multiplier 1 is structural (the family's direction), not a property of the motion's
+        stability.
     wall_time : float
     timings, cpu_timings : dict
         Wall-clock and CPU seconds per stage: ``build`` (model and collocation set-up),
@@ -284,10 +296,27 @@ class PeriodicOrbit:
     timings: dict = field(default_factory=dict, repr=False)
     cpu_timings: dict = field(default_factory=dict, repr=False)
     shift: Optional[np.ndarray] = field(default=None, repr=False)
+    signs: Optional[np.ndarray] = field(default=None, repr=False)
+    references: Optional[np.ndarray] = field(default=None, repr=False)
+    autonomous: bool = False
 
     def __post_init__(self) -> None:
-        if self.shift is None:
-            object.__setattr__(self, "shift", np.zeros(self.q.shape[1]))
+        n = self.q.shape[1]
+        for name, default in (("shift", 0.0), ("signs", 1.0), ("references", 0.0)):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full(n, default))
+
+    @property
+    def antiperiodic(self) -> np.ndarray:
+        """Indices of the coordinates whose absolute value changes sign over a period (the Euler
+        parameters of a body that turns): ``q(t + T) + ref = -(q(t) + ref)``."""
+        return np.flatnonzero(self.signs < 0)
+
+    def map_state(self, q: np.ndarray, v: np.ndarray, periods: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """The orbit map applied ``periods`` times to a state: ``(g^j(q), S^j v)``
+        (:func:`apply_map`; ``S = diag(signs)``)."""
+        j = int(periods)
+        return apply_map(q, self.shift, self.signs, self.references, j), self.signs ** j * np.asarray(v, dtype=float)
 
     @property
     def samples(self) -> int:
@@ -304,7 +333,7 @@ class PeriodicOrbit:
         j = round(float(t) / self.period)
         if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)):
             return self.state(float(t))[0]
-        return self.q[0] + j * self.shift
+        return self.map_state(self.q[0], self.q_t[0], j)[0]
 
     @property
     def size(self) -> int:
@@ -314,8 +343,14 @@ class PeriodicOrbit:
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
         ramp = np.multiply.outer(np.asarray(t, dtype=float), self.shift / self.period)
-        return (trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
-                trig_interpolate(self.q_tt, self.period, t))
+        out = [trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
+               trig_interpolate(self.q_tt, self.period, t)]
+        a = self.antiperiodic
+        if a.size:  # Euler parameters of a turning body: antiperiodic (absolute values)
+            for k, (samples, offset) in enumerate(((self.q[:, a], self.references[a]), (self.q_t[:, a], 0.0),
+                                                   (self.q_tt[:, a], 0.0))):
+                out[k][..., a] = antiperiodic_interpolate(samples + offset, self.period, t) - offset
+        return tuple(out)
 
     def torque(self, t: float | np.ndarray) -> np.ndarray:
         """Feed-forward torques at ``t`` (shape ``(d,)`` or ``(m, d)``)."""
@@ -334,6 +369,9 @@ class PeriodicOrbit:
             "iterations": self.iterations,
             "turns": {f"{self.coordinate_labels[i] if self.coordinate_labels else 'q'}[{int(i)}]":
                       int(round(float(self.shift[i]) / (2 * math.pi))) for i in np.flatnonzero(self.shift)},
+            "sign_flips": [f"{self.coordinate_labels[i] if self.coordinate_labels else 'q'}[{int(i)}]"
+                           for i in self.antiperiodic],
+            "autonomous": bool(self.autonomous),
             "torque_max": [float(v) for v in np.max(np.abs(self.torques), axis=0)] if self.torques.size else [],
         }
 
@@ -615,6 +653,13 @@ class _Collocation:
         self.s = self.n + self.m + self.d
         self.exudyn_jacobian: Optional[bool] = None  # decided (checked) at the first tangent
         self.R = np.array([[dr.evaluate(t)[0] for dr in built.drives] for t in self.times]).reshape(self.K, self.d)
+        #: ODE2 indices of Euler parameters / rotation vectors: their inertia terms cancel structurally on a
+        #: steady spin (``G p = 0`` for Euler parameters: ``M p'' = 0`` when ``p'' || p``), so the force scale
+        #: of the residual takes their terms' sizes ``|M| |q''|`` (else a force-free spinning orbit's relative
+        #: residual is 0 / 0)
+        self.parameter_rows = np.array(sorted(int(i) for _, idx, _ in self.system.rotation_parameters()
+                                              for i in idx), dtype=int)
+        self.autonomous = False  # set_autonomous
         self.set_shift(np.zeros(self.n))
         #: drift ``q(T) - q(0) - shift`` of the simulated guess period and its samples' periodic
         #: part (None before the guess)
@@ -628,17 +673,34 @@ class _Collocation:
         self.pattern = self.system.coupling_pattern() if solver == "structured" else None
         self._exudyn_jacobians: Optional[bool] = None
         self._assembly: Optional[structured.NewtonAssembly] = None
+        if _is_autonomous(self.system, built):
+            self.set_autonomous()
 
-    def set_shift(self, shift: np.ndarray) -> None:
-        """Whole-turn shift ``s`` (``q(t + T) = q(t) + s``): the unknowns are the periodic part
-        ``p = q - s t / T`` (see :func:`find_orbit`)."""
+    def set_shift(self, shift: np.ndarray, signs: Optional[np.ndarray] = None,
+                  references: Optional[np.ndarray] = None) -> None:
+        """The map ``g`` of the orbit, ``q(t + T) = g(q(t))``: a whole-turn shift ``s`` of angles and, for
+        coordinates with ``signs = -1`` (the Euler parameters of a body that turns), a sign flip of the
+        absolute value ``q + references``.  The unknowns are the periodic part ``p = q - s t / T``, and for
+        sign-flipping rows ``q`` itself, differentiated as a T-antiperiodic function (see :func:`find_orbit`)."""
         self.shift = np.asarray(shift, dtype=float).copy()
         self.ramp = self.times[:, None] * (self.shift[None, :] / self.T)
+        self.signs = np.ones(self.n) if signs is None else np.asarray(signs, dtype=float).copy()
+        self.references = np.zeros(self.n) if references is None else np.asarray(references, dtype=float).copy()
+        self.anti = np.flatnonzero(self.signs < 0)
+        if self.anti.size:
+            self.D1a, self.D2a = antiperiodic_differentiation_matrices(self.T, self.K)
+            self.solver, self.pattern = "dense", None  # per-coordinate derivative matrices: dense Newton
 
     def coords(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(q, q', q'')`` at the samples from the unknowns ``X`` (periodic part plus the ramp)."""
+        """``(q, q', q'')`` at the samples from the unknowns ``X`` (periodic part plus the ramp; the
+        sign-flipping rows antiperiodic in their absolute value)."""
         P = X[:, :self.n]
-        return P + self.ramp, self.D1 @ P + self.shift / self.T, self.D2 @ P
+        Q, V, A = P + self.ramp, self.D1 @ P + self.shift / self.T, self.D2 @ P
+        if self.anti.size:
+            Pa = P[:, self.anti] + self.references[self.anti]
+            V[:, self.anti] = self.D1a @ Pa
+            A[:, self.anti] = self.D2a @ Pa
+        return Q, V, A
 
     def tangent(self, X: np.ndarray) -> TangentBlocks:
         """Per-sample blocks at ``X`` (:func:`tangent_blocks`).  Structured: where
@@ -665,6 +727,12 @@ class _Collocation:
         """``(solve, tangent)``: the factorised Newton matrix at ``X`` and its blocks."""
         if self.pattern is None:
             J, tb = self.jacobian(X)
+            if self.autonomous:
+                w = self.phase_direction(X)
+                qscale = max(1.0, float(np.max(np.abs(X[:, :self.n]))))
+                if float(np.max(np.abs(w[:self.K * self.s].reshape(self.K, self.s)[:, :self.n]))) > \
+                        PHASE_MOTION * qscale / self.T:  # an equilibrium has no phase to fix
+                    return _solve_with_phase(J, w), tb
             return _solve(J), tb
         tb = self.tangent(X)
         if self._assembly is None:
@@ -672,6 +740,20 @@ class _Collocation:
                                                        stiffness_pattern=self.pattern.force | self.pattern.reaction)
         J = self._assembly(tb.M, tb.K, tb.C, tb.Cq)  # sparse_newton_matrix, structure kept between calls
         return structured.sparse_solver(J), tb
+
+    def set_autonomous(self) -> None:
+        """Fix the phase of an orbit of an autonomous model (:func:`_is_autonomous`): the orbit is one of a
+        family (any time shift of it is another, e.g. a free spin turned about its axis), the collocation
+        Newton matrix is singular along the family, and each Newton step is made orthogonal to it (AUTO's
+        phase condition in its incremental form, :func:`_solve_with_phase`).  With the dense Newton matrix
+        (the structured one is left without it); an equilibrium (no motion) has no phase to fix."""
+        self.autonomous = True
+
+    def phase_direction(self, X: np.ndarray) -> np.ndarray:
+        """``d X(t + delta) / d delta`` at ``delta = 0`` (the tangent of the family of time-shifted orbits)
+        in the unknowns: the coordinates' rates, and ``D1`` of the multipliers and torques."""
+        _, V, _ = self.coords(X)
+        return np.hstack([V, self.D1 @ X[:, self.n:]]).reshape(-1)
 
     def split(self, X: np.ndarray):
         n, m = self.n, self.m
@@ -686,7 +768,11 @@ class _Collocation:
         for k in range(self.K):
             t = float(self.times[k])
             f = sys_.rhs(Q[k], V[k], t)
-            Ma = sys_.mass(Q[k], t) @ A[k]
+            Mk = sys_.mass(Q[k], t)
+            Ma = Mk @ A[k]
+            if self.parameter_rows.size:  # see _Collocation.parameter_rows
+                r_ = self.parameter_rows
+                fscale = max(fscale, float(np.max(np.abs(Mk[:, r_]) @ np.abs(A[k, r_]))))
             r = Ma - f - self.B @ U[k]
             if self.m:
                 r += sys_.constraint_jacobian(Q[k], t).T @ L[k]
@@ -712,6 +798,10 @@ class _Collocation:
         # row block k, column block j: D1_kj C_k + D2_kj M_k (+ K_k on the diagonal)
         J[:, :n, :, :n] = self.D1[:, None, :, None] * tb.C[:, :, None, :]
         J[:, :n, :, :n] += self.D2[:, None, :, None] * tb.M[:, :, None, :]
+        if self.anti.size:  # columns of sign-flipping coordinates: the antiperiodic derivatives
+            a = self.anti
+            J[:, :n, :, a] = (self.D1a[:, None, :, None] * tb.C[:, :, None, a]
+                              + self.D2a[:, None, :, None] * tb.M[:, :, None, a])
         k = np.arange(Kn)
         J[k, :n, k, :n] += tb.K
         if m:
@@ -741,6 +831,59 @@ def _solve(J: np.ndarray):
             "the collocation Newton matrix is singular: redundant constraints, or a drive on a coordinate "
             "the model's constraints already fix", [])
     return lambda r: scipy.linalg.lu_solve(lu, r, check_finite=False) / scale
+
+
+#: An autonomous orbit whose coordinates' rates stay below this times (coordinate scale / T) is an
+#: equilibrium: no family of time shifts, no phase condition.
+PHASE_MOTION = 1e-9
+
+
+def _solve_with_phase(J: np.ndarray, w: np.ndarray):
+    """Newton steps ``dX`` of a singular collocation matrix ``J`` whose null space is the family
+    direction ``w`` (an autonomous model): ``[J; w^T] dX = [-r; 0]`` in least squares (column-scaled as
+    :func:`_solve`).  The stacked matrix has full column rank when ``null J = span(w)``, also when the
+    multiplier 1 of the family is defective (a conserved quantity: then ``w`` lies in the range of ``J``
+    and the bordered square system would be singular); at an orbit of the family the system is
+    consistent, so the steps converge as Newton's do."""
+    scale = np.maximum(np.max(J, axis=0), -np.min(J, axis=0))
+    if not np.all(np.isfinite(scale)):
+        raise OrbitConvergenceError("the collocation Newton matrix contains NaN or inf (the model's forces "
+                                    "are not finite along the guess)", [])
+    scale[scale == 0] = 1.0
+    row = w / scale
+    big = float(np.max(np.abs(row)))
+    A = np.vstack([J / scale, (row / big)[None, :] if big > 0 else row[None, :]])
+    Qf, Rf = np.linalg.qr(A)
+    diag = np.abs(np.diagonal(Rf))
+    if not np.all(diag > 1e-14 * max(float(np.max(diag)), 1e-300)):
+        raise OrbitConvergenceError(
+            "the collocation Newton matrix is singular beyond the phase of the orbit: redundant constraints, "
+            "or a family of orbits with more than one parameter", [])
+
+    def solve(r: np.ndarray) -> np.ndarray:
+        b = np.concatenate([r, [0.0]])
+        return scipy.linalg.solve_triangular(Rf, Qf.T @ b, check_finite=False) / scale
+
+    return solve
+
+
+def _is_autonomous(system: ExudynSystem, built: BuiltModel) -> bool:
+    """True when the model has no drives and its forces and constraints do not depend on time (compared
+    at a generic state at two times): its periodic orbits then come in families of time shifts."""
+    if built.drives:
+        return False
+    T = built.period
+    rng = np.random.default_rng(5)
+    q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+    f0, f1 = system.rhs(q, v, 0.21 * T), system.rhs(q, v, 0.64 * T)
+    if np.any(np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))):
+        return False
+    if system.m:
+        c0, c1 = system.constraints(q, 0.21 * T), system.constraints(q, 0.64 * T)
+        if np.any(np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))):
+            return False
+    return True
 
 
 def _weights(col: _Collocation, X: np.ndarray, qscale: float) -> np.ndarray:
@@ -951,10 +1094,10 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     except ExudynRunError as exc:
         logger.info("orbit guess: %s; starting from the initial state at every sample", exc)
         qT, Qs = None, np.broadcast_to(q0, (col.K, col.n))
-    if not np.any(col.shift):
-        col.set_shift(whole_turn_shift(col.system, col.built, None if qT is None else qT - q0))
+    if not np.any(col.shift) and not col.anti.size:
+        col.set_shift(*whole_turn_map(col.system, col.built, None if qT is None else qT - q0))
     if qT is not None:
-        col.guess_drift = qT - q0 - col.shift
+        col.guess_drift = qT - apply_map(q0, col.shift, col.signs, col.references)
     X[:, :col.n] = Qs - col.ramp
     col._guess_samples = X[:, :col.n].copy()
     return X
@@ -966,7 +1109,35 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
 WHOLE_TURN_WINDOW = 0.5 * math.pi
 
 
-def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[np.ndarray]) -> np.ndarray:
+def apply_map(q: np.ndarray, shift: np.ndarray, signs: np.ndarray, references: np.ndarray, times: int = 1) -> np.ndarray:
+    """``g^times(q)`` for the orbit map ``g(q) = signs (q + references) - references + shift`` (ODE2
+    coordinates; ``signs`` is -1 on the Euler parameters of a turning body, +1 elsewhere; the rates map
+    as ``v -> signs v``)."""
+    q = np.asarray(q, dtype=float)
+    for _ in range(int(times)):
+        q = signs * (q + references) - references + shift
+    return q
+
+
+def whole_turn_map(system: ExudynSystem, built: BuiltModel,
+                   advance: Optional[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(shift, signs, references)`` of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): the
+    whole turns of angles (:func:`whole_turn_shift`) and the sign flips of the Euler parameters of
+    bodies that turn (``NodeRigidBodyEP``: after a whole turn the parameters come back as ``-p``).
+
+    Raises
+    ------
+    mbs_models.model_file.ModelFileError
+        A rotation-vector node turns (no smooth orbit in its coordinates), or as :func:`whole_turn_shift`.
+    """
+    signs, refs = np.ones(system.n), np.zeros(system.n)
+    if advance is not None:
+        signs, refs = _rotation_parameter_flips(system, built, np.asarray(advance, dtype=float))
+    return whole_turn_shift(system, built, advance, signs, refs), signs, refs
+
+
+def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[np.ndarray],
+                     signs: Optional[np.ndarray] = None, references: Optional[np.ndarray] = None) -> np.ndarray:
     """The shift ``s`` of an orbit periodic up to whole turns, ``q(t + T) = q(t) + s``.
 
     Rule (the model-file contract): ``s_i = 2 pi k_i``, ``k_i = round(advance_i / 2 pi)`` when
@@ -984,8 +1155,8 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
     """
     n = system.n
     s = np.zeros(n)
-    if advance is not None:
-        _check_rotation_parameters(system, built, np.asarray(advance, dtype=float))
+    signs = np.ones(n) if signs is None else np.asarray(signs, dtype=float)
+    references = np.zeros(n) if references is None else np.asarray(references, dtype=float)
     rot = system.rotation_coordinates()
     if advance is not None and rot.size:
         a = np.asarray(advance, dtype=float)[rot]
@@ -1007,33 +1178,35 @@ def whole_turn_shift(system: ExudynSystem, built: BuiltModel, advance: Optional[
             raise ModelFileError(f"model {built.definition.name}: the drives' whole turns per period "
                                  f"({', '.join(str(int(round(k / (2 * math.pi)))) for k in turns)}) cannot be "
                                  f"placed on their coordinates")
-    if np.any(s):
-        _check_invariance(system, built, s)
+    if np.any(s) or np.any(signs < 0):
+        _check_invariance(system, built, s, signs, references)
         logger.info("orbit periodic up to whole turns: %s", {system.coordinate_labels()[i] + f"[{i}]":
                                                               int(round(s[i] / (2 * math.pi))) for i in np.flatnonzero(s)})
     return s
 
 
-def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> None:
-    """Raise :class:`ModelFileError` when a node with Euler parameters or a rotation vector makes a whole
-    turn in the simulated period (``advance = q(T) - q(0)``): its parameters come back with the opposite
-    sign (Euler parameters) or pass the singular length 2 pi (rotation vector), so no smooth orbit periodic
-    up to whole turns exists in its coordinates -- Newton would otherwise settle on another orbit (e.g.
-    the body at rest)."""
+def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: np.ndarray) -> tuple:
+    """``(signs, references)``: -1 and the reference values on the Euler parameters of every
+    ``NodeRigidBodyEP`` node whose parameters come back with the opposite sign over the simulated period
+    (``advance = q(T) - q(0)``; a body making an odd number of whole turns), +1 and 0 elsewhere.
+
+    Raises :class:`ModelFileError` when a rotation-vector node turns: its vector passes the singular
+    length 2 pi, so no smooth orbit periodic up to whole turns exists in its coordinates (Newton would
+    otherwise settle on another orbit, e.g. the body at rest)."""
     q0 = np.asarray(system.q_initial, dtype=float)
+    signs, refs = np.ones(system.n), np.zeros(system.n)
     for kind, idx, ref in system.rotation_parameters():
         p0, pT = q0[idx] + ref, q0[idx] + advance[idx] + ref
         if kind == "RigidBodyEP":
-            turned = float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0))
-            what = "its Euler parameters come back with the opposite sign"
-        else:
-            turned = float(np.linalg.norm(pT - p0)) >= math.pi
-            what = "its rotation vector passes the singular length 2 pi"
-        if turned:
+            if float(np.linalg.norm(pT + p0)) <= 0.5 * float(np.linalg.norm(p0)):
+                signs[idx], refs[idx] = -1.0, ref
+        elif float(np.linalg.norm(pT - p0)) >= math.pi:
             raise ModelFileError(
-                f"model {built.definition.name}: a {kind} node turns by a whole turn per period ({what}); an "
-                f"orbit periodic up to whole turns needs the turning angle as a coordinate: use "
-                f"NodeRigidBodyRxyz (its angles advance by 2 pi k) or NodeRigidBody2D for the turning body")
+                f"model {built.definition.name}: a Node{kind} turns by a whole turn per period (its rotation "
+                f"vector reaches the singular length 2 pi, where no smooth orbit continues): give the turning body "
+                f"a NodeRigidBodyEP (its Euler parameters change sign, handled) or a NodeRigidBodyRxyz (its angles "
+                f"advance by 2 pi k)")
+    return signs, refs
 
 
 #: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
@@ -1042,17 +1215,21 @@ def _check_rotation_parameters(system: ExudynSystem, built: BuiltModel, advance:
 INVARIANCE_TOLERANCE = 1e-8
 
 
-def _check_invariance(system: ExudynSystem, built: BuiltModel, s: np.ndarray) -> None:
+def _check_invariance(system: ExudynSystem, built: BuiltModel, s: np.ndarray, signs: np.ndarray,
+                      references: np.ndarray) -> None:
+    """The model must be the same after the map: ``f(g(q), S v, t + T) = S f(q, v, t)`` and
+    ``C(g(q), t + T) = C(q, t)`` (``S = diag(signs)``) at a generic state."""
     T = built.period
     rng = np.random.default_rng(3)
     q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
     v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
     t = 0.37 * T
-    f0, f1 = system.rhs(q, v, t), system.rhs(q + s, v, t + T)
+    gq = apply_map(q, s, signs, references)
+    f0, f1 = signs * system.rhs(q, v, t), system.rhs(gq, signs * v, t + T)
     bad = np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))
     what = "forces"
     if not np.any(bad) and system.m:
-        c0, c1 = system.constraints(q, t), system.constraints(q + s, t + T)
+        c0, c1 = system.constraints(q, t), system.constraints(gq, t + T)
         bad = np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))
         what = "constraints"
     if np.any(bad):
@@ -1150,15 +1327,19 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
 
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
-                     shift: Optional[np.ndarray] = None) -> float:
+                     shift: Optional[np.ndarray] = None, signs: Optional[np.ndarray] = None,
+                     references: Optional[np.ndarray] = None) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
-    s = np.zeros(Q.shape[1]) if shift is None else np.asarray(shift, dtype=float)
+    n = Q.shape[1]
+    s = np.zeros(n) if shift is None else np.asarray(shift, dtype=float)
+    sg = np.ones(n) if signs is None else np.asarray(signs, dtype=float)
+    refs = np.zeros(n) if references is None else np.asarray(references, dtype=float)
     try:
         qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
     except ExudynRunError:
         return math.inf
-    x0 = np.concatenate([Q[0] + s, V[0]])
+    x0 = np.concatenate([apply_map(Q[0], s, sg, refs), sg * V[0]])
     xT = np.concatenate([qT, vT])
     P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
     # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
@@ -1201,6 +1382,14 @@ def find_orbit(
     **options: Any,
 ) -> PeriodicOrbit:
     """The T-periodic orbit of ``model`` with its drives prescribed.
+
+    Periodic up to the orbit map ``q(t + T) = g(q(t))`` read off one simulated period
+    (:func:`whole_turn_map`): whole turns of angles (the unknowns are the periodic part
+    ``q - s t / T``) and the sign flip of the Euler parameters of a body that turns an odd number of times
+    (those rows are T-antiperiodic, differentiated by the antiperiodic spectral matrices).  An autonomous
+    model (no drives, nothing depends on time: a free spin) has a family of time-shifted orbits; its phase
+    is fixed by a phase condition (:meth:`_Collocation.set_autonomous`) and
+    :attr:`PeriodicOrbit.autonomous` says that one multiplier 1 is structural.
 
     Parameters
     ----------
@@ -1257,7 +1446,7 @@ def find_orbit(
     ok = False
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
             guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
-        col.set_shift(guess.shift)
+        col.set_shift(guess.shift, guess.signs, guess.references)
         X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
         if not ok:
@@ -1283,7 +1472,7 @@ def find_orbit(
     reached = None
     if not ok and continuation:
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
-        shift = col.shift
+        shift = (col.shift, col.signs, col.references)
         X, h2, ok, col, tb, reached, h_target = _continuation(definition, float(omega), samples, tol,
                                                               max_iterations, X, solver, shift)
         history += h2
@@ -1314,7 +1503,7 @@ def find_orbit(
     lap("tangent")
     shooting = math.nan
     if verify:
-        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift)
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.signs, col.references)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1330,7 +1519,9 @@ def find_orbit(
         tolerance=float(tol), shooting_residual=shooting, iterations=len(history), tangent=tb,
         coordinate_labels=tuple(col.system.coordinate_labels()),
         slope_nodes=tuple(col.system.slope_nodes()), planar_pairs=tuple(col.system.planar_pairs()), wall_time=time.perf_counter() - tic,
-        timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(),
+        timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
+        references=col.references.copy(), autonomous=bool(col.autonomous) and float(np.max(np.abs(V))) >
+        PHASE_MOTION * max(1.0, float(np.max(np.abs(Q)))) / col.T,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
@@ -1338,7 +1529,7 @@ def find_orbit(
 
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
-                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[np.ndarray] = None):
+                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None):
     """Natural continuation in omega from :data:`CONTINUATION_START` omega.  Returns ``(X, history, ok,
     col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
     converged (``None``: none), ``at_target`` the residuals of the solves at omega itself (an
@@ -1349,7 +1540,7 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
         if shift is not None:
-            col.set_shift(shift)  # whole turns per period do not depend on omega
+            col.set_shift(*shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
         Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
         history += hist

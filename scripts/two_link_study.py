@@ -218,6 +218,7 @@ def main(argv=None) -> int:
 
     if "direct" in stages:
         from mbs_models.builtin.two_link import build
+        from stability.gains import Gains
         from validation.direct_monodromy import direct_monodromy
 
         doc = {"direct": {}, "keys": keys["direct"]}
@@ -226,8 +227,9 @@ def main(argv=None) -> int:
             rows = []
             for label, g in (("uncontrolled", [0.0, 0.0, 0.0, 0.0]), ("tuned", tuned_gains(k))):
                 fl = two_link_floquet(k * math.pi, None, g, orbit=o, lin=lin)
-                dm = direct_monodromy(build, k * math.pi, o.q[0], o.q_t[0], o.torque, kp=g[0::2], kd=g[1::2],
-                                      elements=2)
+                pd = Gains.from_interleaved(g)
+                dm = direct_monodromy(build, k * math.pi, o.q[0], o.q_t[0], o.torque, kp=list(pd.kp),
+                                      kd=list(pd.kd), elements=2)
                 dd = dm.nearest(fl.measure.dominant)
                 rows.append({"case": label, "gains": list(g), "hill": _c(fl.measure.dominant), "direct": _c(dd),
                              "difference": float(abs(fl.measure.dominant - dd)), "direct_defect": dm.defect,

@@ -6,6 +6,7 @@ The engines the package uses: :func:`floquet` (Magnus methods and the paper's pr
 dominant multipliers of large systems matrix-free.
 """
 from stability.floquet import DEFAULT_METHOD, METHODS, FloquetError, FloquetResult, floquet
+from stability.gains import Gains, MeasuredPlant, Plant
 from stability.hill import HillError, HillResult, hill_multipliers
 from stability.modal import ModalBasisError, ModalFloquetResult, modal_floquet
 from stability.periodic import SecondOrderPeriodicSystem, first_order_matrix
@@ -27,4 +28,7 @@ __all__ = [
     "first_order_matrix",
     "linear_response",
     "LinearResponse",
+    "Gains",
+    "Plant",
+    "MeasuredPlant",
 ]

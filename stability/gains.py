@@ -17,13 +17,18 @@ no validation or balancing repeated per gain pair.
 The workspace evaluates exactly what ``stability.floquet(family.with_gains(g),
 method=..., n_steps=...)`` evaluates (same scheme, same nodes, same balancing
 up to the diagonal scaling, which leaves the multipliers unchanged).
+
+The tuning seams live here too, on the ground floor every stage may import: :class:`Gains` (one
+``(kp, kd)`` pair per drive, and the interleaved vector ``(kp1, kd1, kp2, kd2, ...)`` a Taguchi
+experiment varies) and the protocols :class:`Plant` / :class:`MeasuredPlant` a tuning loop,
+a chart or a validation calls on a model.
 """
 from __future__ import annotations
 
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Protocol, Sequence, Union, runtime_checkable
 
 import numpy as np
 
@@ -38,7 +43,99 @@ from stability.floquet import (
 from stability.magnus import MAGNUS2, MAGNUS4, MAGNUS6, magnus_exponents, ordered_product
 from stability.periodic import PeriodicMatrixFunction, check_period
 
-__all__ = ["GainParametrisedSystem", "FloquetWorkspace", "pd_gain_family"]
+__all__ = ["Gains", "Plant", "MeasuredPlant", "GainParametrisedSystem", "FloquetWorkspace", "pd_gain_family"]
+
+#: What a plant's ``with_gains``/``spectral_measure`` take for ``kp`` (and ``kd``): a float for a
+#: one-drive plant, one value per drive otherwise (:meth:`Gains.arguments`).
+GainArgument = Union[float, Sequence[float]]
+
+
+@runtime_checkable
+class Plant(Protocol):
+    """A model that accepts PD gains: what tuning, charts and validation call on it.
+
+    ``with_gains(kp, kd)`` returns the periodic system at those gains, a system
+    :func:`stability.floquet` (or the front door :func:`stability.engines.floquet`) accepts;
+    ``kp``/``kd`` as :meth:`Gains.arguments` gives them (a float per gain for one drive, one
+    value per drive otherwise).  Implemented by :class:`mbs_models.reduced.ReducedModel`,
+    :class:`linearize.system.LinearizedPeriodicSystem` and the tuning plants of
+    :mod:`linearize.analysis` and :mod:`linearize.hill_plant`.  (:class:`GainParametrisedSystem` is
+    not one: its ``with_gains`` takes the gain vector of Eq. (1) whole.)
+    """
+
+    def with_gains(self, kp: GainArgument, kd: GainArgument) -> Any:
+        ...
+
+
+@runtime_checkable
+class MeasuredPlant(Protocol):
+    """A plant that defines its own tuning response ``spectral_measure(kp, kd) -> |rho|``.
+
+    E.g. the dominant *labelled* multiplier of a model file's linearisation
+    (:class:`linearize.analysis.ModelPlant`, :class:`linearize.hill_plant.HillModelPlant`): the
+    undamped structural modes of a finite-element mesh keep ``|rho| = 1`` whatever the gains, so
+    the spectral radius of :meth:`Plant.with_gains` is not the tuned quantity.  A tuning objective
+    (:class:`taguchi.tuning.GainObjective`) uses this response when the plant has it, else the
+    spectral radius of ``with_gains``.
+    """
+
+    def spectral_measure(self, kp: GainArgument, kd: GainArgument) -> float:
+        ...
+
+
+@dataclass(frozen=True)
+class Gains:
+    """PD gains: one ``(kp, kd)`` pair per drive.
+
+    A Taguchi experiment varies the *interleaved* vector ``(kp1, kd1, kp2, kd2, ...)``
+    (:meth:`from_interleaved`, :meth:`interleaved`); a plant takes ``kp`` and ``kd`` apart
+    (:meth:`arguments`).
+
+    Attributes
+    ----------
+    kp, kd : tuple of float
+        One value per drive (the same number of each, at least one).
+    """
+
+    kp: tuple
+    kd: tuple
+
+    def __post_init__(self) -> None:
+        kp, kd = (tuple(float(v) for v in np.atleast_1d(np.asarray(x, dtype=float)).ravel())
+                  for x in (self.kp, self.kd))
+        if not kp or len(kp) != len(kd):
+            raise ValueError(f"gains: one (kp, kd) pair per drive, got {len(kp)} kp and {len(kd)} kd values")
+        object.__setattr__(self, "kp", kp)
+        object.__setattr__(self, "kd", kd)
+
+    @classmethod
+    def from_interleaved(cls, values: Sequence[float]) -> "Gains":
+        """From ``(kp1, kd1, kp2, kd2, ...)``; ``ValueError`` for an odd or zero count."""
+        g = [float(v) for v in np.asarray(values, dtype=float).ravel()]
+        if not g or len(g) % 2:
+            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
+        return cls(tuple(g[0::2]), tuple(g[1::2]))
+
+    @classmethod
+    def from_arrays(cls, kp: GainArgument, kd: GainArgument) -> "Gains":
+        """From one ``kp`` and one ``kd`` per drive (a float: one drive)."""
+        return cls(kp, kd)
+
+    @property
+    def drives(self) -> int:
+        """Number of drives."""
+        return len(self.kp)
+
+    def interleaved(self) -> tuple:
+        """``(kp1, kd1, kp2, kd2, ...)``."""
+        return tuple(v for pair in zip(self.kp, self.kd) for v in pair)
+
+    def arguments(self) -> tuple:
+        """``(kp, kd)`` as a plant's ``with_gains`` / ``spectral_measure`` take them: floats for one drive
+        (what a one-drive plant such as the reduced model accepts), tuples of one value per drive otherwise."""
+        if self.drives == 1:
+            return self.kp[0], self.kd[0]
+        return self.kp, self.kd
 
 _SCHEMES = {"magnus2": MAGNUS2, "magnus4": MAGNUS4, "magnus6": MAGNUS6}
 

@@ -15,7 +15,17 @@ import math
 from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["Refinement", "double_until"]
+__all__ = ["Refinement", "double_until", "pair_estimate", "PAIR_FACTOR"]
+
+#: ``c`` of the estimate ``c |r_n - r_2n|``: ``2^p / (2^p - 1)`` at ``p = 2``, which bounds the error of
+#: ``r_n`` for every observed order ``p >= 2`` (the factor falls with ``p``; see the module notes).
+PAIR_FACTOR = 4.0 / 3.0
+
+
+def pair_estimate(r_n: float, r_2n: float, factor: float = PAIR_FACTOR) -> float:
+    """The step-doubling error estimate ``factor |r_n - r_2n|`` of ``r_n`` (one pair; :func:`double_until`
+    repeats it until it meets a tolerance)."""
+    return float(factor * abs(r_n - r_2n))
 
 
 @dataclass(frozen=True)
@@ -46,7 +56,7 @@ class Refinement:
 
 
 def double_until(value_at: Callable[[int], float], n0: int, n_max: int, tolerance: float, *,
-                 factor: float = 4.0 / 3.0) -> Refinement:
+                 factor: float = PAIR_FACTOR) -> Refinement:
     """Evaluate ``value_at(n)`` at ``n0, 2 n0, 4 n0, ...`` (at most ``n_max``) until
     ``factor |r_n - r_2n| <= tolerance``; see :class:`Refinement` for what is returned (``n0`` itself,
     not converged, when ``2 n0 > n_max``)."""
@@ -59,7 +69,7 @@ def double_until(value_at: Callable[[int], float], n0: int, n_max: int, toleranc
     while 2 * n <= n_max:
         r2 = value_at(2 * n)
         evaluations += 1
-        estimate = factor * abs(r - r2)
+        estimate = pair_estimate(r, r2, factor)
         if estimate <= tolerance:
             return Refinement(n=n, value=r, estimate=float(estimate), converged=True, evaluations=evaluations)
         n, r = 2 * n, r2

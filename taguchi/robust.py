@@ -62,7 +62,8 @@ import numpy as np
 from taguchi.analysis import TaguchiAnalysis, analyze
 from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_ratio
-from taguchi.tuning import STATUS_FAILED, TuningConfig, _Guarded, recentre
+from stability.gains import Gains
+from taguchi.tuning import LOOP_FLOQUET_OPTIONS, STATUS_FAILED, TuningConfig, _Guarded, plant_response, recentre
 
 __all__ = [
     "NoiseFactor",
@@ -526,22 +527,16 @@ class PlantNoiseObjective:
     Parameters
     ----------
     factory : callable
-        ``noise -> plant`` with ``plant.with_gains(*gains)`` a periodic matrix
-        for :func:`stability.floquet` (or ``plant.spectral_measure(*gains)``);
-        picklable for process executors.
+        ``noise -> plant``, a :class:`stability.gains.Plant` or
+        :class:`stability.gains.MeasuredPlant` (the response as in
+        :class:`taguchi.tuning.GainObjective`); picklable for process executors.
     floquet_options : dict, optional
         As in :class:`taguchi.tuning.GainObjective`.
     """
 
     def __init__(self, factory: Callable[[Mapping[str, float]], Any], floquet_options: Optional[dict] = None) -> None:
         self.factory = factory
-        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.floquet_options = dict(floquet_options or LOOP_FLOQUET_OPTIONS)
 
     def __call__(self, gains: Sequence[float], noise: Mapping[str, float]) -> float:
-        from stability import floquet
-
-        plant = self.factory(noise)
-        measure = getattr(plant, "spectral_measure", None)
-        if callable(measure):
-            return float(measure(*gains))
-        return floquet(plant.with_gains(*gains), **self.floquet_options).spectral_radius
+        return plant_response(self.factory(noise), Gains.from_interleaved(gains), self.floquet_options)

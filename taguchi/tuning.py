@@ -93,12 +93,14 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
 from stability.floquet import FloquetError
 from stability.frozen import frozen_result
+from stability.gains import Gains, MeasuredPlant, Plant
 from stability.hill import HillError
 from stability.modal import ModalBasisError
 from taguchi.analysis import TaguchiAnalysis, analyze, is_constant
@@ -106,8 +108,8 @@ from taguchi.arrays import OrthogonalArray, array_for, get_array, to_design
 from taguchi.sn import sn_target
 
 __all__ = [
-    "DriveGainObjective",
     "GainObjective",
+    "plant_response",
     "TaguchiIteration",
     "TaguchiResult",
     "TuningConfig",
@@ -121,6 +123,7 @@ __all__ = [
     "STATUS_UNREACHABLE",
     "STATUS_STALLED",
     "RUN_FAILURES",
+    "LOOP_FLOQUET_OPTIONS",
     "UNREACHABLE_PATIENCE",
     "UNREACHABLE_SAFETY",
     "COLLAPSED_RTOL",
@@ -145,83 +148,65 @@ COLLAPSED_RTOL = 1e-13
 #: the numerical failures the engines raise.  Not the ``ArithmeticError`` base, whose built-in
 #: ``ZeroDivisionError``/``OverflowError`` are programming errors and must propagate.
 RUN_FAILURES = (FloquetError, HillError, ModalBasisError, np.linalg.LinAlgError, FloatingPointError)
+#: :func:`stability.floquet` options of a run inside the loop (:class:`GainObjective`): a fixed number of
+#: sub-intervals without step doubling; the caller re-checks the final gains with the adaptive method.
+LOOP_FLOQUET_OPTIONS = MappingProxyType({"n_steps": 256, "error_estimate": False})
 
 
 class GainObjective:
-    """``(kp, kd) -> max_i |rho_i|`` for a plant that accepts PD gains.
+    """``(kp1, kd1, kp2, kd2, ...) -> response`` of a plant: the one adapter from a run's gains to a plant.
+
+    The run's interleaved gains become :class:`stability.gains.Gains` (one ``(kp, kd)`` pair per
+    drive; an odd count is a ``ValueError``) and reach the plant as :meth:`~stability.gains.Gains.arguments`
+    gives them (floats for one drive, one value per drive otherwise).
 
     Parameters
     ----------
-    plant : object
-        Has ``with_gains(kp, kd)`` returning a periodic matrix accepted by
-        :func:`stability.floquet` (e.g. :class:`mbs_models.reduced.ReducedModel`
-        or the Exudyn linearisation).  Must be picklable for process or Dask
-        executors.
+    plant : stability.gains.MeasuredPlant or stability.gains.Plant
+        A :class:`~stability.gains.MeasuredPlant` supplies its own response
+        ``spectral_measure(kp, kd)`` (a model file's dominant labelled multiplier).  Otherwise
+        the response is the spectral radius of ``stability.floquet(plant.with_gains(kp, kd),
+        **floquet_options)`` (e.g. :class:`mbs_models.reduced.ReducedModel` or a
+        linearisation).  Must be picklable for process or Dask executors.
     floquet_options : dict
-        Keyword arguments for :func:`stability.floquet`.  The default uses a
-        fixed number of sub-intervals without step doubling (fast inside the
-        loop); the final gains are re-checked by the caller with the default
-        adaptive method.  A plant with ``spectral_measure(kp, kd)`` supplies
-        its own response instead (the Exudyn link: the dominant multiplier of
-        its damped modes).
-    """
-
-    def __init__(self, plant: Any, floquet_options: Optional[dict] = None) -> None:
-        if not callable(getattr(plant, "with_gains", None)):
-            raise ValueError("plant must provide with_gains(kp, kd)")
-        self.plant = plant
-        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
-
-    def __call__(self, gains: Sequence[float]) -> float:
-        from stability import floquet
-
-        kp, kd = float(gains[0]), float(gains[1])
-        measure = getattr(self.plant, "spectral_measure", None)
-        if callable(measure):  # the plant defines its own response (e.g. the Exudyn link)
-            return float(measure(kp, kd))
-        return floquet(self.plant.with_gains(kp, kd), **self.floquet_options).spectral_radius
-
-
-class DriveGainObjective:
-    """``(kp1, kd1, kp2, kd2, ...) -> max|rho|`` for a plant with one gain pair per drive.
-
-    Parameters
-    ----------
-    plant : object
-        Has ``with_gains(kp, kd)`` taking one value per drive (sequences) and
-        returning a periodic matrix for :func:`stability.floquet` (e.g. a
-        model-file :class:`~linearize.system.LinearizedPeriodicSystem`).
-        Picklable for process or Dask executors.
-    floquet_options : dict
-        Keyword arguments of :func:`stability.floquet`.
+        Keyword arguments for :func:`stability.floquet` (a :class:`~stability.gains.Plant` only);
+        default :data:`LOOP_FLOQUET_OPTIONS`.
     unit_circle_tolerance : float, optional
-        If given, the response is the largest modulus among the multipliers
-        off the unit circle (``| |rho| - 1 | >= tolerance``): the undamped
-        modes of an FE model without structural damping keep ``|rho| = 1``
-        whatever the gains, and the tuning targets the damped ones (as for the
-        single link's Exudyn plant).  ``None``: the spectral radius.
+        If given (a :class:`~stability.gains.Plant` only), the response is the largest modulus
+        among the multipliers off the unit circle (``| |rho| - 1 | >= tolerance``): the
+        undamped modes of an FE model without structural damping keep ``|rho| = 1`` whatever the
+        gains, and the tuning targets the damped ones.  ``None``: the spectral radius.
     """
 
     def __init__(self, plant: Any, floquet_options: Optional[dict] = None,
                  unit_circle_tolerance: Optional[float] = None) -> None:
-        if not callable(getattr(plant, "with_gains", None)):
-            raise ValueError("plant must provide with_gains(kp, kd)")
+        if not isinstance(plant, (MeasuredPlant, Plant)):
+            raise ValueError("plant must provide with_gains(kp, kd) or spectral_measure(kp, kd)")
         self.plant = plant
-        self.floquet_options = dict(floquet_options or {"n_steps": 256, "error_estimate": False})
+        self.floquet_options = dict(floquet_options or LOOP_FLOQUET_OPTIONS)
         self.unit_circle_tolerance = unit_circle_tolerance
 
     def __call__(self, gains: Sequence[float]) -> float:
-        from stability import floquet
+        return plant_response(self.plant, Gains.from_interleaved(gains), self.floquet_options,
+                              self.unit_circle_tolerance)
 
-        g = [float(v) for v in gains]
-        if len(g) % 2:
-            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
-        res = floquet(self.plant.with_gains(g[0::2], g[1::2]), **self.floquet_options)
-        if self.unit_circle_tolerance is None:
-            return float(res.spectral_radius)
-        moduli = np.abs(np.asarray(res.multipliers))
-        off = moduli[np.abs(moduli - 1.0) >= self.unit_circle_tolerance]
-        return float(np.max(off)) if off.size else float(np.max(moduli))
+
+def plant_response(plant: Any, gains: Gains, floquet_options: Optional[dict] = None,
+                   unit_circle_tolerance: Optional[float] = None) -> float:
+    """The response of ``plant`` at ``gains`` (the rule of :class:`GainObjective`): its own
+    ``spectral_measure`` for a :class:`~stability.gains.MeasuredPlant`, else the (off-unit-circle)
+    spectral radius of :func:`stability.floquet` on ``plant.with_gains``."""
+    from stability import floquet
+
+    kp, kd = gains.arguments()
+    if isinstance(plant, MeasuredPlant):
+        return float(plant.spectral_measure(kp, kd))
+    res = floquet(plant.with_gains(kp, kd), **dict(floquet_options or LOOP_FLOQUET_OPTIONS))
+    if unit_circle_tolerance is None:
+        return float(res.spectral_radius)
+    moduli = np.abs(np.asarray(res.multipliers))
+    off = moduli[np.abs(moduli - 1.0) >= unit_circle_tolerance]
+    return float(np.max(off)) if off.size else float(np.max(moduli))
 
 
 def check_gain_range(value: Any, name: str) -> tuple[float, float]:

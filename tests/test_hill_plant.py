@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from linearize.constrained import linearize_orbit
-from linearize.hill_plant import HillGainObjective, HillModelPlant, drive_gain_family
+from linearize.hill_plant import HillModelPlant, drive_gain_family
 from linearize.periodic_orbit import find_orbit
 from mbs_models.model_file import builtin_model
 from stability import floquet
+from taguchi.tuning import GainObjective
 
 GAINS = (15.0, 9.0, 7.0, 1.5)
 
@@ -69,7 +70,7 @@ def test_objective_pickles_and_checks_input(arm):
     import pickle
 
     orbit, lin = arm
-    obj = HillGainObjective(HillModelPlant(lin, orbit, harmonics=12))
+    obj = GainObjective(HillModelPlant(lin, orbit, harmonics=12))
     clone = pickle.loads(pickle.dumps(obj))
     assert clone(GAINS) == pytest.approx(obj(GAINS), rel=1e-12)
     with pytest.raises(ValueError, match="pairs"):

@@ -1,7 +1,7 @@
 """The frozen-modal Floquet frame (stability/modal.py) on the generic path, against the hand route.
 
 Oracle: the hand-derived hub-frame linearisation of the same single link
-(``linearize.link_orbit`` + ``linearize_along_orbit``, independent of the generic
+(``_link_oracle.link_orbit`` + ``linearize_along_orbit``, independent of the generic
 orbit, basis and of ``stability.modal``), propagated in its own coordinates by
 the plain exponential midpoint with 8192 steps (changes by 6e-10 relative from
 8192 to 16384 steps at 2 elements, 4 pi: converged far below the 1e-6 asked).
@@ -51,7 +51,7 @@ def test_default_analyze_dominant_equals_hand_route(case):
 
     res, _, ref = case
     dom = res.dominant_multiplier
-    assert [m["mode"] for mu, m in zip(res.floquet.multipliers, res.modes) if mu == dom] == ["hub"]
+    assert [m.mode for mu, m in zip(res.floquet.multipliers, res.modes) if mu == dom] == ["hub"]
     assert res.frame == "modal"
     true = _nearest(ref.multipliers, dom)
     err = abs(dom - true) / abs(true)

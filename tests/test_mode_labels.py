@@ -62,8 +62,8 @@ def test_the_lateral_dominant_multiplier_is_not_named_after_the_axial_drive(chai
     lateral = _lateral_multipliers(OMEGA)
     top = chain.modes[0]
     assert abs(abs(chain.floquet.multipliers[0]) - np.max(np.abs(lateral))) <= 1e-8
-    assert top["mode"] != "drive1"
-    assert top["drive_shares"]["drive1"] <= 1e-8 and top["shares"]["drive drive1"] <= 1e-8
+    assert top.mode != "drive1"
+    assert top.drive_shares["drive1"] <= 1e-8 and top.shares["drive drive1"] <= 1e-8
     assert not drive_movable(top)
     # the check can fail: the lateral chain with the periodic stiffness on another spring has another |rho|
     assert abs(abs(chain.floquet.multipliers[0]) - np.max(np.abs(_lateral_multipliers(OMEGA, 1)))) > 1e-4
@@ -72,14 +72,14 @@ def test_the_lateral_dominant_multiplier_is_not_named_after_the_axial_drive(chai
 def test_the_drive_name_goes_to_a_mode_the_drive_moves(chain):
     """Every multiplier named after the drive belongs to a frozen mode whose drive share reaches the
     threshold, and one such mode exists (the axial motion the drive moves)."""
-    named = [m for m in chain.modes if m["mode"] == "drive1"]
+    named = [m for m in chain.modes if m.mode == "drive1"]
     assert named
-    assert all(m["drive_shares"]["drive1"] >= DRIVE_SHARE_THRESHOLD for m in named)
+    assert all(m.drive_shares["drive1"] >= DRIVE_SHARE_THRESHOLD for m in named)
     # every lateral multiplier (the hand chain's six) is unnamed by the drive
     lateral = _lateral_multipliers(OMEGA)
     for mu, m in zip(chain.floquet.multipliers, chain.modes):
         if np.min(np.abs(lateral - mu)) <= 1e-7:
-            assert m["mode"] != "drive1" and not drive_movable(m)
+            assert m.mode != "drive1" and not drive_movable(m)
 
 
 def test_the_dominant_multiplier_is_one_the_drive_moves(chain):
@@ -91,7 +91,7 @@ def test_the_dominant_multiplier_is_one_the_drive_moves(chain):
     j = int(np.argmin(np.abs(np.asarray(chain.floquet.multipliers) - dom)))
     assert drive_movable(chain.modes[j])
     bigger = [m for mu, m in zip(chain.floquet.multipliers, chain.modes) if abs(mu) > abs(dom) + 1e-12]
-    assert bigger and not any(drive_movable(m) and not m["undamped"] for m in bigger)
+    assert bigger and not any(drive_movable(m) and not m.undamped for m in bigger)
 
 
 def test_tune_names_the_unreachable_mode_before_any_array(monkeypatch):

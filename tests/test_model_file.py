@@ -121,7 +121,7 @@ def test_drive_dataclass_and_callable_api():
                   method="magnus6", n_steps=None)
     # a bar hanging in the horizontal position held by a PD joint: one mode, labelled by its drive
     assert res.drives == ("joint",) and res.linearization.size == 1
-    assert res.modes[0]["mode"] == "joint"
+    assert res.modes[0].mode == "joint"
 
 
 def test_builtin_registry():
@@ -251,7 +251,7 @@ def test_single_link_multipliers_equal_hand_derived_route():
     hand_orbit, _ = _hand_route(omega, 2, 16)
     ref = floquet(linearize_along_orbit(hand_orbit, hub="free", kp=kp, kd=kd), method="magnus2", n_steps=4096,
                   accuracy="moduli")
-    hub = [mu for mu, m in zip(res.floquet.multipliers, res.modes) if m["mode"] == "hub"]
+    hub = [mu for mu, m in zip(res.floquet.multipliers, res.modes) if m.mode == "hub"]
     assert hub and abs(res.dominant_multiplier - hub[0]) == 0
     nearest = ref.multipliers[np.argmin(np.abs(ref.multipliers - res.dominant_multiplier))]
     assert abs(res.dominant_multiplier - nearest) < 1e-6
@@ -270,7 +270,7 @@ def test_readme_model_file_example_runs(tmp_path):
 
     res = analyze(str(model), 2 * math.pi, kp=2.0, kd=0.1, samples=16)
     assert res.drives == ("shoulder",) and res.orbit.shooting_residual < 1e-2
-    assert res.modes[0]["mode"] == "shoulder"
+    assert res.modes[0].mode == "shoulder"
     api = blocks[1].replace('"pendulum_arm.py"', repr(str(model))).replace("samples", "samples")
     exec(api.replace("kp=2.0, kd=0.1)", "kp=2.0, kd=0.1, samples=16)"), {})
     r = _cli("floquet", "--model", str(model), "--omega", "2pi", "--kp", "2", "--kd", "0.1", "--samples", "16",

@@ -422,7 +422,7 @@ def test_model_file_single_link_measured_equals_predicted(link_file_8pi):
     # null-space basis, drives released with feed-forward + PD inside Exudyn).  Oracles: the
     # generic linearisation's own Floquet multipliers (exponential midpoint, no time simulation)
     # and, independently of the generic path, the hand-derived hub-frame linearisation of the
-    # same link (linearize.link_floquet, 4096 steps: 2 elements, 8 pi -> 0.3946463, converged to
+    # same link (_link_oracle.link_floquet, 4096 steps: 2 elements, 8 pi -> 0.3946463, converged to
     # 5e-7 by step doubling, see validation.multipliers._refined_prediction)
     from _link_oracle.link_floquet import exudyn_floquet
 

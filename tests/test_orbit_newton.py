@@ -2,7 +2,7 @@
 
 Oracles: the orbit's own checked residual (never loosened), the one-period
 shooting check in Exudyn's integrator (independent of the collocation) and the
-hand-derived hub-frame route (``linearize.link_orbit``, independent code and
+hand-derived hub-frame route (``_link_oracle.link_orbit``, independent code and
 coordinates).  Each strategy is also shown to matter: with it switched off the
 same call ends in :class:`OrbitConvergenceError`, so the tests reject the old
 behaviour (damped Newton alone from the simulated period, which needed a long

@@ -151,18 +151,18 @@ class _Oscillators:
 
 
 def test_drive_gain_objective_pairs_and_unit_circle():
-    from taguchi.tuning import DriveGainObjective
+    from taguchi.tuning import GainObjective
 
     gains = (3.0, 0.4, 1.0, 0.1)  # (kp1, kd1, kp2, kd2)
     plant = _Oscillators()
     exact = _Oscillators((3.0, 1.0), (0.4, 0.1)).exact()
     # magnus6 on constant coefficients is exact up to the matrix exponential: round-off only
     opts = {"n_steps": 64, "error_estimate": False}
-    assert DriveGainObjective(plant, opts)(gains) == pytest.approx(1.0, abs=1e-9)  # the undamped oscillator
+    assert GainObjective(plant, opts)(gains) == pytest.approx(1.0, abs=1e-9)  # the undamped oscillator
     damped = np.max(exact[np.abs(exact - 1.0) > 1e-3])
-    assert DriveGainObjective(plant, opts, unit_circle_tolerance=2e-3)(gains) == pytest.approx(damped, rel=1e-9)
+    assert GainObjective(plant, opts, unit_circle_tolerance=2e-3)(gains) == pytest.approx(damped, rel=1e-9)
     # the pairs are (kp, kd) per drive: swapping the drives' roles changes the answer
     swapped = np.max(np.abs(np.exp(np.linalg.eigvals(np.array([[0, 1], [-(1 + 0.4), -3.0]])) * 2 * math.pi)))
     assert abs(swapped - damped) > 1e-3
     with pytest.raises(ValueError, match="pairs"):
-        DriveGainObjective(plant, opts)((1.0, 2.0, 3.0))
+        GainObjective(plant, opts)((1.0, 2.0, 3.0))

@@ -64,9 +64,9 @@ class _Falling:
     def __init__(self) -> None:
         self.fallback_runs: list = []
 
-    def spectral_measure(self, kp, kd) -> float:
-        self.fallback_runs.append({"gains": [kp[0], kd[0]], "method": "modal-magnus2"})
-        return kp[0] + kd[0]
+    def spectral_measure(self, kp, kd) -> float:  # one drive: floats (stability.gains.Gains.arguments)
+        self.fallback_runs.append({"gains": [kp, kd], "method": "modal-magnus2"})
+        return kp + kd
 
 
 @pytest.mark.parametrize("pool", [False, True])
@@ -76,14 +76,15 @@ def test_fallback_records_come_back_from_workers(pool):
     import concurrent.futures as cf
     import multiprocessing
 
-    from flexstab.commands.tune import DrivesObjective, _FallbackRecorder
+    from flexstab.commands.tune import _FallbackRecorder
+    from taguchi.tuning import GainObjective
 
     plant = _Falling()
     inner = (cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) if pool
              else cf.ThreadPoolExecutor(1))
     with inner:
         ex = _FallbackRecorder(inner, plant)
-        ys = list(ex.map(DrivesObjective(plant), [(1.0, 2.0), (3.0, 4.0)]))
+        ys = list(ex.map(GainObjective(plant), [(1.0, 2.0), (3.0, 4.0)]))
     assert ys == [3.0, 7.0]
     assert [r["gains"] for r in ex.records] == [[1.0, 2.0], [3.0, 4.0]] and plant.fallback_runs == []
 

@@ -16,11 +16,10 @@ import math
 import numpy as np
 import pytest
 
-from flexstab.commands.tune import DrivesObjective
 from flexstab.options import dump_json
 from stability.floquet import FloquetError
 from stability.hill import HillError
-from taguchi.tuning import STATUS_FAILED, TuningConfig, taguchi_tune
+from taguchi.tuning import STATUS_FAILED, GainObjective, TuningConfig, taguchi_tune
 
 RHO_D = 0.3
 RANGES = ((0.0, 40.0), (0.0, 10.0), (0.0, 10.0), (0.0, 3.0))  # flexstab.two_link.TUNING_RANGES
@@ -66,9 +65,9 @@ def test_one_failing_run_is_recorded_and_the_tuning_goes_on(executor):
     cfg = TuningConfig(target=RHO_D, ranges=RANGES, max_evaluations=400)
     if executor:
         with cf.ThreadPoolExecutor(2) as ex:
-            res = taguchi_tune(DrivesObjective(FailingPlant()), cfg, executor=ex)
+            res = taguchi_tune(GainObjective(FailingPlant()), cfg, executor=ex)
     else:
-        res = taguchi_tune(DrivesObjective(FailingPlant()), cfg)
+        res = taguchi_tune(GainObjective(FailingPlant()), cfg)
     assert res.converged, res.message
     assert _within(res.gains, cfg.effective_tolerance)
     # the failure is reported, not hidden: which run, where, why
@@ -117,7 +116,7 @@ def test_tune_text_output_lists_the_failed_run(monkeypatch, capsys):
 
     import flexstab.commands.tune as tune_cmd
 
-    res = taguchi_tune(DrivesObjective(FailingPlant()), TuningConfig(target=RHO_D, ranges=RANGES,
+    res = taguchi_tune(GainObjective(FailingPlant()), TuningConfig(target=RHO_D, ranges=RANGES,
                                                                      max_evaluations=400))
     d = res.to_dict()
     d.update(omega=2 * math.pi, period=1.0, verified_spectral_radius=res.spectral_radius, verified_method="test")

@@ -78,11 +78,12 @@ def orbit_2pi():
 
 @pytest.mark.parametrize("gains", [(0.0, 0.0, 0.0, 0.0), GAINS_2PI])
 def test_drive_mode_multiplier_against_rigid_two_link(orbit_2pi, gains):
-    from flexstab.two_link import LabelledGainObjective
+    from flexstab.two_link import LabelledPlant
+    from taguchi.tuning import GainObjective
 
     o, lin = orbit_2pi
     assert o.residual <= o.tolerance
-    flexible = LabelledGainObjective(lin, o, {"method": "magnus2", "n_steps": 1024, "error_estimate": False})(gains)
+    flexible = GainObjective(LabelledPlant(lin, o, {"method": "magnus2", "n_steps": 1024, "error_estimate": False}))(gains)
     rigid = abs(rigid_multipliers(2 * math.pi, gains)[0])
     assert abs(flexible - rigid) <= ELASTIC_TOLERANCE * rigid, (flexible, rigid)
     # rejects a wrong model: the rigid arm without gravity is far outside the bound
@@ -99,11 +100,12 @@ def test_noise_plant_of_the_robust_design_against_rigid_two_link(noise):
     Omega (elastic tolerance as above; E enters only through the elastic correction).  Rejects the
     nominal payload/Omega: outside the bound."""
     from flexstab.two_link import TwoLinkNoisePlant
+    from stability.gains import Gains
 
     omega = 2 * math.pi
     plant = TwoLinkNoisePlant(omega, elements=1)(noise)
     g = GAINS_2PI
-    flexible = plant.spectral_measure(*g)
+    flexible = plant.spectral_measure(*Gains.from_interleaved(g).arguments())
     w = omega * noise["omega_scale"]
     rigid = abs(rigid_multipliers(w, g, tip_mass=noise["tip_mass"])[0])
     assert abs(flexible - rigid) <= ELASTIC_TOLERANCE * rigid, (flexible, rigid)

@@ -4,10 +4,12 @@ from __future__ import annotations
 import pytest
 
 from flexstab.two_link import dominant_damped, main_dominant
+from linearize.analysis import ModeLabel
 
 
 def _m(mode, undamped=False):
-    return {"mode": mode, "undamped": undamped}
+    return ModeLabel(modulus=0.5, mode=mode, drive_shares={}, group="", frequency_hz=1.0, mac=1.0, shares={},
+                     undamped=undamped)
 
 
 def test_main_dominant_prefers_drive_and_first_bending_modes():

@@ -1,4 +1,4 @@
-"""Nonlinear closed-loop time series: validation.closed_loop.
+"""Nonlinear closed-loop time series: _link_oracle.closed_loop (the oracle's decay fit).
 
 The CLI ``flexstab validate`` and the study script measure multipliers
 (tests/test_multipliers.py); this module keeps the transient tool.

@@ -769,12 +769,8 @@ def predicted_spectrum(analysis: Any) -> tuple[np.ndarray, list, np.ndarray]:
     absolute error estimate (``|mu| 10^-reliable_digits``; 0 where the result has none)."""
     res = analysis.floquet
     mu = np.asarray(res.multipliers, dtype=complex)
-    labels = [m["mode"] for m in analysis.modes]
-    digits = getattr(res, "reliable_digits", None)
-    if digits is None:
-        err = np.zeros(mu.size)
-    else:
-        err = np.abs(mu) * 10.0 ** -np.asarray(digits, dtype=float)
+    labels = [m.mode for m in analysis.modes]
+    err = np.abs(mu) * 10.0 ** -np.asarray(res.reliable_digits, dtype=float)
     return mu, labels, np.nan_to_num(err, nan=0.0)
 
 

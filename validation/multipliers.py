@@ -967,8 +967,6 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
     0.3946463: the default 512 steps are 5.7e-5 off, more than the nonlinear measurement's
     error bar, which detected it.
     """
-    from stability import floquet
-
     mu_sorted = np.asarray(res.multipliers)
     T = float(lin.period)
 
@@ -984,14 +982,11 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
             out.append(lab)
         return out
 
-    if frame == "modal":
-        from stability.modal import modal_floquet
+    from stability.engines import floquet
 
-        def propagate(steps: int) -> Any:
-            return modal_floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
-    else:
-        def propagate(steps: int) -> Any:
-            return floquet(lin, method="magnus2", n_steps=steps, error_estimate=False, accuracy="moduli")
+    def propagate(steps: int) -> Any:  # the exponential midpoint product, in the frozen-modal frame or the model's
+        return floquet(lin, method="modal" if frame == "modal" else "magnus", order=2, n_steps=steps,
+                       error_estimate=False, accuracy="moduli").detail
     if start_steps is not None:
         n = int(start_steps)
         previous = np.asarray(propagate(n).monodromy)
@@ -1266,7 +1261,6 @@ def validate_model_multipliers(
     from linearize.analysis import analyze
     from linearize.exudyn_system import ExudynSystem
     from mbs_models.model_file import build_model, resolve_model
-    from stability import floquet
     from mbs_models.console import exudyn_console
 
     tic = time.perf_counter()
@@ -1299,15 +1293,18 @@ def validate_model_multipliers(
                              orbit=orbit)
             name += f" with kp = {predicted_gains[0]}, kd = {predicted_gains[1]}"
         res = tested.floquet
-        prediction = _refined_prediction(name, res, tested.linearization, [m["mode"] for m in tested.modes],
+        prediction = _refined_prediction(name, res, tested.linearization, [m.mode for m in tested.modes],
                                          config.compare, None,
-                                         [float(m.get("frequency_hz") or 0.0) for m in tested.modes],
+                                         [float(m.frequency_hz or 0.0) for m in tested.modes],
                                          config.steps[-1], frame="modal", start_steps=MODAL_START_STEPS)
         r = lin.size
         N0, N0t = lin.basis[0], lin.basis_t[0]
         N0p = np.linalg.pinv(N0)
         q0, v0 = orbit.q[0].copy(), orbit.q_t[0].copy()
-        turns = np.asarray(orbit.shift, dtype=float)  # q0(t + T) = q0(t) + turns (whole turns of angles)
+        # the orbit map q0(t + T) = g(q0(t)): whole turns of angles, sign flips S of the Euler parameters of a
+        # turning body (the basis is S-periodic, N(T) = S N(0)); S = S^-1
+        S = np.asarray(orbit.signs, dtype=float)
+        qT0, _ = orbit.map_state(q0, v0)
         norm = energy_norm(lin.M[0], lin.K[0])
         if d:
             # the hub-mass scale of the amplitude: the first driven coordinate's mass
@@ -1320,8 +1317,9 @@ def validate_model_multipliers(
 
         def start(x: np.ndarray, t0: float = 0.0) -> None:
             dz, dzt = x[:r], x[r:]
-            q_ref = q0 + round(t0 / T) * turns  # the orbit at t0 = j T
-            q, v = _consistent_state(constraints, q_ref + N0 @ dz, v0 + N0 @ dzt + N0t @ dz, t0, T)
+            q_ref, v_ref = orbit.map_state(q0, v0, round(t0 / T))  # the orbit at t0 = j T
+            Sj = S ** round(t0 / T)
+            q, v = _consistent_state(constraints, q_ref + Sj * (N0 @ dz), v_ref + Sj * (N0 @ dzt + N0t @ dz), t0, T)
             sd.SetODE2Coordinates(q, configuration=ini)
             sd.SetODE2Coordinates_t(v, configuration=ini)
 
@@ -1332,8 +1330,8 @@ def validate_model_multipliers(
                 raise RuntimeError("Exudyn time integration did not succeed")
             qT = np.array(sd.GetODE2Coordinates())
             vT = np.array(sd.GetODE2Coordinates_t())
-            ez = N0p @ (qT - q0 - turns)
-            ezt = N0p @ (vT - v0 - N0t @ ez)
+            ez = N0p @ (S * (qT - qT0))
+            ezt = N0p @ (S * vT - v0 - N0t @ ez)
             return np.concatenate([ez, ezt])
 
         def factory(h: float):
@@ -1367,8 +1365,11 @@ def validate_model_multipliers(
                     raise RuntimeError("Exudyn time integration did not succeed")
                 qT = np.array(sd.GetODE2Coordinates())
                 vT = np.array(sd.GetODE2Coordinates_t())
-                ez = N0p @ (qT - q0 - (round(t0 / T) + 1) * turns)
-                return np.concatenate([ez, N0p @ (vT - v0 - N0t @ ez)])
+                j = round(t0 / T) + 1
+                q_ref, v_ref = orbit.map_state(q0, v0, j)
+                Sj = S ** j
+                ez = N0p @ (Sj * (qT - q_ref))
+                return np.concatenate([ez, N0p @ (Sj * vT - v0 - N0t @ ez)])
 
             growth = measure_growth(pm, np.zeros(2 * r), prediction.right[:, 0], norm,
                                     periods=config.growth_periods, period=T, step=config.step,

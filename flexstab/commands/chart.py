@@ -276,9 +276,11 @@ def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
         hill_estimate = float(m.hill_error_estimate)
         estimate = hill_estimate * abs(m.dominant)
     else:
+        from stability.refine import pair_estimate
+
         r_n = plant.spectral_measure(gkp, gkd)
         r_2n = dataclasses.replace(plant, n_steps=2 * plant.n_steps).spectral_measure(gkp, gkd)
-        estimate = 4.0 / 3.0 * abs(r_n - r_2n)
+        estimate = pair_estimate(r_n, r_2n)
     drawn = hashlib.sha1(json.dumps(
         [tag, charted, fkp, fkd, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
     ).encode()).hexdigest()[:8]

@@ -207,6 +207,11 @@ def _table(d: dict) -> str:
         if d.get("turns"):
             lines.append("periodic up to whole turns per period: "
                          + ", ".join(f"{k} {v:+d}" for k, v in d["turns"].items()))
+        if d.get("sign_flips"):
+            lines.append("Euler parameters back with the opposite sign after a period: " + ", ".join(d["sign_flips"]))
+        if d.get("structural_multipliers"):
+            lines.append("autonomous model: the orbit's phase is free (fixed by a phase condition); one multiplier 1 "
+                         "is structural, not a verdict on the motion")
     return "\n".join(lines)
 
 

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "DrivesObjective", "factor_ranges",
+__all__ = ["register", "run", "tune_report", "unreachable_mode", "robust_report", "build_plant", "factor_ranges",
            "propagator_steps", "MAX_TUNING_STEPS", "HILL_HARMONICS", "tune_model_plant", "check_failure",
            "whole_spectrum", "MODEL_RESPONSE"]
 
@@ -164,26 +164,6 @@ def _print_robust(d: dict) -> None:
               + ", noise " + ", ".join(f"{k} = {v:.6g}" for k, v in f["noise"].items()) + f": {f['error']}")
 
 
-class DrivesObjective:
-    """``(kp1, kd1, kp2, kd2, ...) -> response`` of a plant with one (kp, kd) pair per drive.
-
-    The response is the plant's own ``spectral_measure(kp, kd)`` (for a model
-    file: the modulus of the dominant labelled multiplier, drive modes and the
-    first bending mode), called with one gain per drive.
-    """
-
-    def __init__(self, plant) -> None:
-        if not callable(getattr(plant, "spectral_measure", None)):
-            raise ValueError("plant must provide spectral_measure(kp, kd)")
-        self.plant = plant
-
-    def __call__(self, gains) -> float:
-        g = [float(v) for v in gains]
-        if len(g) % 2:
-            raise ValueError(f"gains must be (kp, kd) pairs per drive, got {len(g)} values")
-        return float(self.plant.spectral_measure(g[0::2], g[1::2]))
-
-
 class _Recorded:
     """``fn(*args) -> (value, new fallback records of plant)`` (picklable; ``fn`` and ``plant`` travel together,
     so in a worker ``plant`` is the copy ``fn`` evaluates)."""
@@ -264,7 +244,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     A :class:`~linearize.hill_plant.HillModelPlant` has no propagator steps to refine: one pass, and
     ``passes`` is empty.  A ``plant`` with ``n_steps`` (a :class:`~linearize.analysis.ModelPlant`,
     e.g. from :func:`propagator_steps`) is tuned
-    with :class:`DrivesObjective`; at the tuned gains its response with ``2 n`` propagator steps is
+    with :class:`taguchi.tuning.GainObjective`; at the tuned gains its response with ``2 n`` propagator steps is
     compared (error estimate ``4/3 |r_n - r_2n|``: the Richardson-extrapolated 4th-order value has
     ``~ 16/15 |r_n - r_2n|``, and 4/3 bounds the error for any order >= 2, see :func:`propagator_steps`); above a quarter of
     the tolerance the tuning runs again from the initial ranges with ``2 n`` steps (the evaluation
@@ -278,19 +258,20 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
     """
     import dataclasses
 
-    from taguchi.tuning import recentre, taguchi_tune
+    from stability.refine import pair_estimate
+    from taguchi.tuning import GainObjective, recentre, taguchi_tune
 
     MAX_TUNING_STEPS = sys.modules[__name__].MAX_TUNING_STEPS  # the re-export (patchable in tests)
 
     from linearize.hill_plant import HillModelPlant
 
     if isinstance(plant, HillModelPlant):  # no propagator steps to refine: one pass
-        return taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress), plant, []
+        return taguchi_tune(GainObjective(plant), tcfg, executor=executor, progress=progress), plant, []
     n_drives = len(plant.drives)
     passes: list = []
     full_cfg = tcfg
     while True:
-        res = taguchi_tune(DrivesObjective(plant), tcfg, executor=executor, progress=progress)
+        res = taguchi_tune(GainObjective(plant), tcfg, executor=executor, progress=progress)
         kp, kd = gain_pairs(res.gains, n_drives)
         finer = dataclasses.replace(plant, n_steps=2 * plant.n_steps)
         r2 = finer.spectral_measure(kp, kd)
@@ -302,7 +283,7 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
                         plant.n_steps)
             tcfg = full_cfg
             continue
-        if (not res.converged or 4.0 / 3.0 * abs(r2 - res.spectral_radius) <= 0.25 * tcfg.effective_tolerance
+        if (not res.converged or pair_estimate(res.spectral_radius, r2) <= 0.25 * tcfg.effective_tolerance
                 or finer.n_steps > MAX_TUNING_STEPS):
             return res, plant, passes
         logger.info("tuned response %.6g with %d steps, %.6g with %d: tuning again with %d steps",
@@ -335,24 +316,26 @@ def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
 
     if not isinstance(orbit, PeriodicOrbit):
         return None  # a plant without a model-file orbit (e.g. a stand-in): nothing to label
+    from stability.gains import Gains
+
     centre = [0.5 * (lo + hi) for lo, hi in tcfg.factor_ranges]
     n = len(orbit.drive_names)
-    kp, kd = centre[0::2], centre[1::2]
-    r = analyze(None, omega, kp=kp, kd=kd, orbit=orbit)
+    mid = Gains.from_interleaved(centre)
+    r = analyze(None, omega, kp=list(mid.kp), kd=list(mid.kd), orbit=orbit)
     top = r.modes[0] if r.modes else None
     if top is None or drive_movable(top, orbit.drive_names):
         return None
     j = int(np.argmin(np.abs(np.asarray(r.floquet.multipliers) - r.dominant_multiplier)))
     tuned = r.modes[j]
-    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.get("drive_shares", {}).items())
+    shares = ", ".join(f"{k} {v:.2f}" for k, v in top.drive_shares.items())
     gains = ", ".join(f"{name} = {v:.4g}" for name, v in zip(tcfg.names, centre))
     msg = (f"note: at the range centre ({gains}) the closed loop's largest multiplier |rho| = "
-           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top['mode']}', a mode no drive moves "
+           f"{float(r.floquet.spectral_radius):.5g} belongs to '{top.mode}', a mode no drive moves "
            f"(drive shares {shares}): PD gains cannot bring max|rho| below it; tuning the dominant multiplier "
-           f"of the modes the drives move ('{tuned['mode']}', |rho| = {abs(r.dominant_multiplier):.5g})")
-    return {"modulus": float(r.floquet.spectral_radius), "mode": top["mode"],
-            "drive_shares": dict(top.get("drive_shares", {})), "gains": centre[: 2 * n],
-            "tuned_mode": tuned["mode"], "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
+           f"of the modes the drives move ('{tuned.mode}', |rho| = {abs(r.dominant_multiplier):.5g})")
+    return {"modulus": float(r.floquet.spectral_radius), "mode": top.mode,
+            "drive_shares": dict(top.drive_shares), "gains": centre[: 2 * n],
+            "tuned_mode": tuned.mode, "tuned_modulus": float(abs(r.dominant_multiplier)), "message": msg}
 
 
 def tune_report(args: argparse.Namespace) -> dict:
@@ -392,7 +375,8 @@ def tune_report(args: argparse.Namespace) -> dict:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
     from flexstab.executor import make_executor
     from linearize.hill_plant import HillModelPlant
-    from stability import floquet
+    from stability.engines import floquet
+    from stability.gains import MeasuredPlant
     from taguchi.direct import direct_tune
 
     harmonics_choice = steps_choice = None
@@ -412,7 +396,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     else:
         unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
-    objective = DrivesObjective(plant) if model_file else GainObjective(plant)
+    objective = GainObjective(plant)
     kind = "dask" if args.scheduler else "auto"
     if model_file:
         if args.scheduler:
@@ -427,11 +411,11 @@ def tune_report(args: argparse.Namespace) -> dict:
             if hill and ex is not None:  # collect the workers' fallback records (HillModelPlant.fallback_runs)
                 ex = _FallbackRecorder(ex, plant)
             res, plant, passes = tune_model_plant(plant, tcfg, executor=ex, progress=progress)
-            objective = DrivesObjective(plant)  # the last pass's plant (for --compare)
+            objective = GainObjective(plant)  # the last pass's plant (for --compare)
         else:
             res, passes = taguchi_tune(objective, tcfg, executor=ex, progress=progress), []
     out = {"model": args.model, "omega": omega, "period": 2 * math.pi / omega}
-    if hasattr(plant, "drives"):
+    if model_file:
         out["drives"] = list(plant.drives)
     out.update(res.to_dict())
     if model_file:
@@ -443,7 +427,7 @@ def tune_report(args: argparse.Namespace) -> dict:
     kp, kd = gain_pairs(res.gains, n_drives)
     out["kp"], out["kd"] = kp, kd
     gains_as_lists(out)  # the JSON typing rule: one value per drive, a list also for one drive
-    if model_file and getattr(plant, "orbit", None) is not None:
+    if model_file and getattr(plant, "orbit", None) is not None:  # (a stand-in plant may carry none)
         out.update(sys.modules[__name__].whole_spectrum(plant.orbit, omega, kp, kd))
     if steps_choice is not None:  # the step choice at the range centre: met tolerance / 4, or stopped at the cap
         out["propagator_choice"] = steps_choice.to_dict()
@@ -469,7 +453,7 @@ def tune_report(args: argparse.Namespace) -> dict:
         from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
 
         out["elements"] = args.elements or DEFAULT_ELEMENTS
-    elif hasattr(plant, "spectral_measure"):
+    elif isinstance(plant, MeasuredPlant):
         # Exudyn: re-check the dominant damped multiplier with twice the propagator steps, on the
         # unprepared plant (an independent path to P(t): gains written into K, C and interpolated)
         import dataclasses
@@ -486,7 +470,7 @@ def tune_report(args: argparse.Namespace) -> dict:
 
             out["elements"] = args.elements or DEFAULT_ELEMENTS
     else:
-        check = floquet(plant.with_gains(kp, kd))
+        check = floquet(plant.with_gains(kp, kd), method="magnus").detail
         out["verified_spectral_radius"] = check.spectral_radius
         out["verified_error_estimate"] = check.error_estimate
         out["verified_method"] = f"floquet, {check.method}, {check.n_steps} steps"
@@ -523,9 +507,9 @@ def whole_loop_fields(args: argparse.Namespace, cfg, out: dict, plant: Any, kp, 
                                    out["omega"], list(kp) if isinstance(kp, list) else [kp],
                                    list(kd) if isinstance(kd, list) else [kd], int(elements))
     else:
-        from stability import floquet
+        from stability.engines import floquet
 
-        verdict = judge_floquet(floquet(plant.with_gains(kp, kd))).to_dict()
+        verdict = judge_floquet(floquet(plant.with_gains(kp, kd), method="magnus").detail).to_dict()
         fields["tuned_response_modes"] = "modes of the reduced model (hub and bending 1: all it has)"
     fields.update({"spectral_radius": verdict.get("spectral_radius"),
                    "spectral_radius_mode": verdict.get("spectral_radius_mode"),

@@ -87,9 +87,9 @@ def build(mbs, omega, mass=DEFAULTS["mass"], stiffness_xi=DEFAULTS["stiffness_xi
     ground = mbs.AddObject(ObjectGround())
     # initial guess of the orbit: the static sag of the mean stiffness
     sag = -m * g * 0.5 * (1.0 / k_xi + 1.0 / k_eta)
-    # the bearing axis passes through (BEARING_X, 0), not through the origin: the linearisation co-rotates
-    # free planar points with their best-fit rotation about the origin (linearize.constrained.corotating_frame),
-    # which for a disk whirling around the origin itself would turn once per whirl and is not resolved
+    # the bearing axis passes through (BEARING_X, 0): free planar points co-rotate with their best-fit rotation
+    # about the origin (linearize.constrained.corotating_frame) where the samples resolve it, and off the
+    # origin it stays small; a bearing on the origin works too (tests/models/unbalanced_rotor.py)
     disk_node = mbs.AddNode(NodePoint2D(referenceCoordinates=[BEARING_X, 0.0], initialCoordinates=[0.0, sag],
                                         name="disk"))
     disk = mbs.AddObject(ObjectMassPoint2D(mass=m, nodeNumber=disk_node, name="disk"))

@@ -1,6 +1,6 @@
 """The Floquet front door: one call, a registry of engines, one rule that picks one.
 
-``floquet(system, period=None, *, method="auto", rtol=1e-9, **options) -> FloquetSolution``
+``floquet(system, period=None, *, method="auto", rtol=DEFAULT_RTOL, **options) -> FloquetSolution``
 in the style of ``scipy.integrate.solve_ivp``:
 
 * ``system``: a callable ``t -> P(t)`` (with ``period``), or an object carrying ``.period`` with
@@ -10,8 +10,8 @@ in the style of ``scipy.integrate.solve_ivp``:
 * ``method``: a key of :data:`ENGINES` -- ``"magnus"``, ``"modal"``, ``"hill"``, ``"implicit"``,
   ``"paper"`` -- or ``"auto"``: the rule of :mod:`stability.engines.rule` from the system's size,
   stiffness, smoothness and the requested accuracy (never from a model's name);
-* ``rtol``: the requested relative accuracy, passed to the engine, which certifies its number to it
-  or raises;
+* ``rtol``: the requested relative accuracy (default :data:`stability.floquet.DEFAULT_RTOL`, 2e-9, the
+  default of the engines themselves), passed to the engine, which certifies its number to it or raises;
 * ``options``: the engine's own (each engine lists what it accepts; anything else is a ``TypeError``).
 
 Every engine returns :class:`FloquetSolution` (the multipliers, the spectral radius, the engine's
@@ -40,12 +40,13 @@ from stability.engines import magnus as _magnus  # noqa: F401
 from stability.engines import modal as _modal  # noqa: F401
 from stability.engines.base import ENGINES, Engine, FloquetSolution, engine, register
 from stability.engines.rule import SystemProperties, choose_method, system_properties
+from stability.floquet import DEFAULT_RTOL
 
 __all__ = ["floquet", "FloquetSolution", "Engine", "ENGINES", "register", "engine", "choose_method",
            "system_properties", "SystemProperties"]
 
 
-def floquet(system: Any, period: Optional[float] = None, *, method: str = "auto", rtol: float = 1e-9,
+def floquet(system: Any, period: Optional[float] = None, *, method: str = "auto", rtol: float = DEFAULT_RTOL,
             **options: Any) -> FloquetSolution:
     """Floquet multipliers of ``x' = P(t) x`` by the engine ``method`` (see the module docstring).
 
@@ -58,7 +59,8 @@ def floquet(system: Any, period: Optional[float] = None, *, method: str = "auto"
         ``"auto"`` (the rule :func:`choose_method` on :func:`system_properties`) or a key of
         :data:`ENGINES`.
     rtol : float
-        Requested relative accuracy.
+        Requested relative accuracy (default :data:`stability.floquet.DEFAULT_RTOL`, as for the engines
+        called directly).
     **options
         The engine's options (:attr:`Engine.options`).
 

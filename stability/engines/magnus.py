@@ -39,7 +39,7 @@ class PaperEngine(Engine):
     when ``P`` is stiff).  The independent reference; never chosen by the rule."""
 
     name = "paper"
-    options = frozenset({"stability_tol", "reference", "small_multipliers"})
+    options = frozenset({"stability_tol", "reference", "small_multipliers", "error_estimate"})
 
     def run(self, system: Any, period: Optional[float], rtol: float, **options: Any) -> Any:
         from stability.floquet import floquet

@@ -44,6 +44,8 @@ from typing import Any, Optional
 
 import numpy as np
 
+from stability.floquet import DEFAULT_RTOL
+
 __all__ = ["SystemProperties", "system_properties", "choose_method", "MODAL_MAX_STEPS", "PROPERTY_SAMPLES"]
 
 #: Step budget of the frozen-modal engine in the rule (the largest step count a tuning plant of the
@@ -112,7 +114,7 @@ def system_properties(system: Any, period: Optional[float] = None, *,
                             trigonometric=trig)
 
 
-def choose_method(props: SystemProperties, *, rtol: float = 1e-9, magnus_steps: Optional[int] = None,
+def choose_method(props: SystemProperties, *, rtol: float = DEFAULT_RTOL, magnus_steps: Optional[int] = None,
                   modal_steps: int = MODAL_MAX_STEPS) -> str:
     """The engine for a system with ``props`` and the requested relative accuracy ``rtol``: the rule
     of the module docstring (``"magnus"``, ``"modal"`` or ``"hill"``)."""
