@@ -275,7 +275,7 @@ def test_uncontrolled_growth_until_linear_range_left(orbit8):
 def test_cli_json_and_figure(tmp_path, capsys):
     from flexstab.cli import main
 
-    rc = main(["validate", "--omega", "2pi", "--elements", "2", "--samples", "8", "--step", "0.02",
+    rc = main(["validate", "--omega", "2pi", "--elements", "2", "--samples", "16", "--step", "0.02",
                "--refinements", "1", "--compare", "1", "--json", "--out", str(tmp_path)])
     cap = capsys.readouterr()
     # one refinement gives an error bar but no verdict: not a passed check, so exit code 1 with the reason
