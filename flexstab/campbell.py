@@ -24,7 +24,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 __all__ = ["CampbellPointTask", "point_modes", "plot_campbell", "campbell_tables", "PRINCIPAL_RULE",
-           "MIN_RELIABLE_DIGITS"]
+           "MIN_RELIABLE_DIGITS", "CampbellOptions", "campbell_diagram", "check_campbell_options", "MAX_POINTS"]
 
 logger = logging.getLogger(__name__)
 
@@ -331,3 +331,161 @@ def plot_campbell(result: Any, branches: list, path: Path, *, title: str, max_br
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+# ----------------------------------------------------------------------------- the whole diagram (flexstab campbell)
+#: Most speeds of one diagram (each is an orbit, a linearisation and a Floquet analysis).
+MAX_POINTS = 1001
+
+
+@dataclass(frozen=True)
+class CampbellOptions:
+    """What :func:`campbell_diagram` computes.
+
+    Attributes
+    ----------
+    model : str
+        A model file ``PATH.py`` or a built-in model file name (not ``reduced`` or ``exudyn``).
+    omega_range : (float, float)
+        Lowest and highest speed (rad/s).
+    points : int
+        Speeds, evenly spaced (2 .. :data:`MAX_POINTS`).
+    kp, kd : tuple of float
+        Gains, one per drive (or one for every drive); empty: uncontrolled.
+    samples, steps : int, optional
+        Collocation samples per period; frozen-modal propagator steps per point (default adaptive).
+    elements : int, optional
+        ANCF elements of a built-in model.
+    modes : int
+        Branches drawn, lowest median frequency first.
+    min_mac : float, optional
+        Smallest MAC that continues a branch (default :data:`stability.campbell.MIN_MAC`).
+    workers : int, optional
+        Worker processes for the speeds.
+    out : Path
+        Output folder (created).
+    """
+
+    model: str
+    omega_range: tuple
+    points: int
+    kp: tuple = ()
+    kd: tuple = ()
+    samples: Optional[int] = None
+    steps: Optional[int] = None
+    elements: Optional[int] = None
+    modes: int = 10
+    min_mac: Optional[float] = None
+    workers: Optional[int] = None
+    out: Path = Path("results")
+
+
+def check_campbell_options(opts: "CampbellOptions") -> None:
+    """The checks of the options alone (before any model is loaded).
+
+    Raises
+    ------
+    ValueError
+        One line naming the option (as ``flexstab campbell`` spells it) and the problem.
+    """
+    if isinstance(opts.points, bool) or not 2 <= opts.points <= MAX_POINTS:
+        raise ValueError(f"--points must be an integer in 2..{MAX_POINTS}, got {opts.points}")
+    if opts.samples is not None and (opts.samples < 4 or opts.samples % 2):
+        raise ValueError(f"--samples must be an even integer >= 4, got {opts.samples}")
+    if opts.steps is not None and opts.steps < 4:
+        raise ValueError(f"--steps must be >= 4, got {opts.steps}")
+    if opts.modes < 1:
+        raise ValueError(f"--modes must be >= 1, got {opts.modes}")
+    if opts.min_mac is not None and not (0.0 <= opts.min_mac <= 1.0):
+        raise ValueError(f"--min-mac must lie in [0, 1], got {opts.min_mac}")
+    if opts.workers is not None and opts.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {opts.workers}")
+    if opts.model == "reduced":
+        raise ValueError("--model reduced: the Campbell diagram needs a model file or a built-in model file "
+                         "(e.g. single-link or exudyn)")
+
+
+def campbell_diagram(opts: "CampbellOptions", cfg: Any, progress: bool = True) -> dict:
+    """Compute the diagram of ``opts`` (``cfg``: the configuration, which decides the built-in single link);
+    write PNG, JSON and CSV into ``opts.out``; return the JSON-ready summary."""
+    import concurrent.futures as cf
+    import hashlib
+    import json
+
+    from flexstab.executor import SerialExecutor, make_executor
+    from flexstab.progress import make_bar, progress_bars
+    from flexstab.options import ensure_out_dir, is_model_file, resolve_model_definition
+    from linearize.periodic_orbit import DEFAULT_SAMPLES
+    from stability.campbell import MIN_MAC, campbell
+
+    check_campbell_options(opts)
+    definition, options = resolve_model_definition(opts.model, cfg, opts.elements)
+    lo, hi = opts.omega_range
+    omegas = np.linspace(lo, hi, int(opts.points))
+    samples = opts.samples if opts.samples is not None else DEFAULT_SAMPLES
+    min_mac = MIN_MAC if opts.min_mac is None else float(opts.min_mac)
+    kp = tuple(opts.kp) if opts.kp else ()
+    kd = tuple(opts.kd) if opts.kd else ()
+    task = CampbellPointTask(name=definition.name, source=definition.source if is_model_file(opts.model) else None,
+                             options=options, kp=kp, kd=kd, samples=samples, n_steps=opts.steps)
+    out_dir = ensure_out_dir(opts.out)
+    t0, c0 = time.perf_counter(), time.process_time()
+    # the command line's progress rule (flexstab.progress): tqdm on a terminal, lines on a pipe
+    bar = make_bar(progress_bars() if progress else False, total=omegas.size, desc="campbell", unit="speed")
+
+    def step(i: int, point: dict) -> None:
+        bar.set_postfix_str(f"Ω = {point['omega']:.6g} rad/s, {len(point['modes'])} modes, "
+                            f"{point['cpu_seconds']:.2f} s CPU")
+        bar.update(1)
+
+    close = bar.close
+    points: list = [None] * omegas.size
+    with make_executor("auto", max_workers=opts.workers, n_tasks=omegas.size) as ex:
+        try:
+            if isinstance(ex, SerialExecutor):
+                for i, w in enumerate(omegas):
+                    points[i] = task(float(w))
+                    step(i, points[i])
+            else:
+                futures = {ex.submit(task, float(w)): i for i, w in enumerate(omegas)}
+                for f in cf.as_completed(futures):
+                    i = futures[f]
+                    points[i] = f.result()
+                    step(i, points[i])
+        finally:
+            close()
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    result = campbell(omegas, modes_from_points(points), min_mac=min_mac)
+    branches = branch_table(result)
+    tag = hashlib.sha1(json.dumps([definition.name, definition.source, repr(sorted(options.items())), lo, hi,
+                                   int(opts.points), kp, kd, samples, opts.steps, min_mac]).encode()).hexdigest()[:8]
+    stem = out_dir / f"campbell_{definition.name}_{tag}"
+    png = plot_campbell(result, branches, stem.with_suffix(".png"), max_branches=opts.modes,
+                        title=f"Campbell diagram of {definition.name} ({omegas.size} speeds, "
+                              f"Ω = {lo:.4g} .. {hi:.4g} rad/s; modes tracked by MAC)")
+    csv_path = stem.with_suffix(".csv")
+    campbell_tables(result, points, csv_path)
+    point_cpu = [p["cpu_seconds"] for p in points]
+    summary = {
+        "model": opts.model,
+        "omegas": omegas.tolist(),
+        "kp": list(kp), "kd": list(kd),
+        "rule": PRINCIPAL_RULE,
+        "tracking": "MAC of the displacement shapes at t = 0 with each branch's last shape, one-to-one by "
+                    "scipy.optimize.linear_sum_assignment on 1 - MAC; below min_mac a new branch",
+        "min_mac": min_mac,
+        "branches": branches,
+        "points": [{k: v for k, v in p.items() if k != "modes"} | {"modes": [
+            {k: v for k, v in m.items() if k != "shape"} | {"branch": int(result.tracking.branches[i][j])}
+            for j, m in enumerate(p["modes"])]} for i, p in enumerate(points)],
+        "timing": {"wall_seconds": wall, "cpu_seconds_this_process": cpu,
+                   "cpu_seconds_per_point": point_cpu,
+                   "cpu_seconds_per_point_mean": float(np.mean(point_cpu))},
+        "figures": [str(png)],
+        "csv": str(csv_path),
+        "json": str(stem.with_suffix(".json")),
+    }
+    from stability.serialization import json_ready
+
+    stem.with_suffix(".json").write_text(json.dumps(json_ready(summary)))
+    return summary

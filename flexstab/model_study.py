@@ -10,13 +10,13 @@ beside the report:
    ``rho_d`` on the plant of :func:`flexstab.plants.plant_for` (the rule of
    ``tune --model`` and ``chart --model``: Hill's method for the built-in
    two-link, else the frozen-modal product, with
-   :func:`flexstab.commands.tune.tune_model_plant`'s step-doubling check at the
+   :func:`flexstab.tuning.tune_model_plant`'s step-doubling check at the
    tuned gains) and the labelled multipliers at the tuned gains from a separate
    evaluation (:func:`~linearize.analysis.analyze` with twice the loop's steps,
    at least its default and at most 4096 -- a Hill loop: its default -- with its
    own step-doubling estimate);
 3. ``charts``   -- the gain chart of the first drive (the others at their tuned
-   gains) and the Omega chart (:func:`flexstab.commands.chart.model_charts`);
+   gains) and the Omega chart (:func:`flexstab.chart_runs.model_charts`);
 4. ``validation`` -- multipliers measured from nonlinear Exudyn runs of the
    tuned closed loop (:func:`validation.multipliers.validate_model_multipliers`).
 
@@ -28,8 +28,14 @@ in the report, exit code 1) and the study goes on; so is a stage that computed b
 whose check failed (status ``"check failed"``, exit code 1): a tuning that did not
 converge, a separate evaluation at the tuned gains further than the tolerance plus
 its own estimate from ``rho_d``, a validation whose measured multipliers do not
-confirm the prediction.  Every stage is recomputed
-on each run (no resuming, unlike the built-in study).
+confirm the prediction.
+
+Resuming: the stages run on the study's stage runner (:mod:`flexstab.stages`), each writing its record
+``<stage>.stage.json`` with the hash of its inputs (the model file's bytes, its build options, Omega,
+the samples and the packages' source; the tuning and the charts also the target, the ranges and the
+quick mode; the charts and the validation also the gains they run at).  A rerun with the same inputs
+reuses the finished stages (the report and ``study.json`` say which: status ``"reused"``); a changed
+input recomputes the stages it reaches.  ``manifest.json`` says how the last run ended.
 
 ``quick``: coarser charts (5 x 5 gains, 3 Omegas), 300 Floquet evaluations per
 tuning pass (else 600); the orbit, linearisation, tuning tolerance, Floquet checks
@@ -43,14 +49,13 @@ import logging
 import math
 import resource
 import time
-import traceback
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 from flexstab.report import figure, table, text, to_html, to_markdown
-from flexstab.study import StudyResult
+from flexstab.stages import STATUS_CHECK_FAILED, StudyResult  # noqa: F401  (STATUS_CHECK_FAILED: exported)
 
 __all__ = ["ModelStudyOptions", "run_model_study", "tuning_check_failures", "STATUS_CHECK_FAILED",
            "TUNING_FAILED_VALIDATION", "QUICK_EVALUATIONS", "EVALUATIONS"]
@@ -64,9 +69,6 @@ EVALUATIONS = 600
 TUNING_FAILED_VALIDATION = "tuning failed: validated at zero gains"
 TUNING_FAILED_CHARTS = "tuning failed: the other drives at zero gains, the Omega chart's controlled curve at zero gains"
 
-#: Status of a stage that computed but whose check failed (tuning not converged, the separate evaluation
-#: outside rho_d +- (tolerance + estimate), validation not confirming the prediction): exit code 1.
-STATUS_CHECK_FAILED = "check failed"
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,8 @@ class ModelStudyOptions:
     progress : bool or callable
         Progress of the tuning and the charts: tqdm bars, or a bar factory (:mod:`flexstab.progress`; the
         CLI: tqdm on a terminal stderr, one line per step otherwise).
+    resume : bool
+        Reuse finished stages whose inputs are unchanged (default True).
     """
 
     out: Path = Path("results")
@@ -106,6 +110,7 @@ class ModelStudyOptions:
     quick: bool = False
     log: Optional[Callable[[str], None]] = None
     progress: Any = False
+    resume: bool = True
 
 
 def _cpu() -> float:
@@ -169,7 +174,7 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
     definition, options = resolve_model_definition(model, cfg, opts.elements,
                                                    **(damping.build_options() if damping is not None else {}))
     out = ensure_out_dir(opts.out)
-    from flexstab.study import folder_lock
+    from flexstab.stages import folder_lock
 
     with folder_lock(out):
         return _run_model_study(model, cfg, opts, definition, options, out, t0, c0)
@@ -178,12 +183,11 @@ def run_model_study(model: str, cfg: Any, opts: ModelStudyOptions) -> StudyResul
 def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: Any, options: dict, out: Path,
                      t0: float, c0: float) -> StudyResult:
     """:func:`run_model_study` in its locked output folder."""
-    import argparse
-
-    from flexstab.commands.chart import model_charts
-    from flexstab.commands.tune import factor_ranges, tune_model_plant
+    from flexstab import provenance as pv
+    from flexstab.tuning import factor_ranges, tune_model_plant
     from flexstab.options import gain_pairs
     from flexstab.plants import MAX_TUNING_STEPS, plant_choice_for
+    from flexstab.stages import Stage, StageOutput, StageRunner, stage_section
     from flexstab.study import validation_blocks
     from linearize.analysis import DEFAULT_PROPAGATOR_STEPS, analyze
     from linearize.hill_plant import HillModelPlant
@@ -195,20 +199,35 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
     TuningConfig(target=opts.target, kp_range=opts.kp_range, kd_range=opts.kd_range)  # checks before the orbit
     omega = float(opts.omega)
     say = opts.log or (lambda line: None)
-    stages: dict = {}
     sections: list = []
     state: dict = {}
 
     checks: list = []  # the running stage's failed checks (one line each)
     stage_notes: list = []  # the running stage's notes for the section and study.json (one line each)
 
-    def run(name: str, title: str, fn: Callable[[], list]) -> None:
-        say(f"study: {name} started")
-        ts, cs = time.perf_counter(), _cpu()
-        checks.clear()
-        stage_notes.clear()
-        caught: list = []
-        try:
+    # what decides each stage's numbers (its inputs hash): the model (its file's bytes), its build options,
+    # Omega, the collocation samples and the packages' source; the tuning and charts also the target, ranges
+    # and quick mode; the charts and the validation also the gains they run at (known when they start)
+    code = pv.code_hash()
+    base_inputs = {"model": model, "definition": definition.name,
+                   "source": pv.file_sha(Path(definition.source)) if definition.source else None,
+                   "options": repr(sorted(options.items(), key=lambda kv: kv[0])), "omega": omega,
+                   "samples": opts.samples, "code": code}
+    tuning_inputs = {"target": opts.target, "kp_range": list(opts.kp_range), "kd_range": list(opts.kd_range),
+                     "quick": opts.quick}
+    runner = StageRunner(out, {"model": model, "definition": definition.name, "source": definition.source,
+                               "omega": omega, "quick": opts.quick, "code_hash": code},
+                         order=("floquet", "tuning", "charts", "validation"), resume=opts.resume, log=opts.log,
+                         stamp=False, reraise=(ModelFileError,), one_line_errors=True)
+
+    def stage(name: str, title: str, fn: Callable[[], list], files: Callable[[], tuple] = tuple,
+              **inputs: Any) -> Any:
+        """Run (or reuse) stage ``name``; append its section.  ``fn()`` returns the section's blocks."""
+
+        def call() -> StageOutput:
+            checks.clear()
+            stage_notes.clear()
+            caught: list = []
             try:
                 with warnings.catch_warnings(record=True) as caught:
                     warnings.simplefilter("always")
@@ -224,33 +243,25 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
             blocks = blocks + [text(f"**Warning:** {n}") for n in notes]
             for n in notes:
                 say(f"study: {name}: warning: {n}")
-        except ModelFileError:
-            raise  # a bad model file is a usage error (one line, exit 2), not a failed stage
-        except Exception as exc:  # a failed stage is reported, the study goes on
-            el = time.perf_counter() - ts
-            err = f"{type(exc).__name__}: {' '.join(str(exc).split())}"
-            logger.error("stage %s failed: %s", name, err)
-            logger.debug("%s", "".join(traceback.format_exception(exc)))
-            stages[name] = {"status": "failed", "error": err, "elapsed": el}
-            sections.append((title, [text(f"**Stage failed:** `{err}`")]))
-            say(f"study: {name} failed after {el:.1f} s: {err}")
-            return
-        el, cpu = time.perf_counter() - ts, _cpu() - cs
-        stages[name] = {"status": STATUS_CHECK_FAILED if checks else "computed", "json": f"{name}.json",
-                        "elapsed": el, "cpu": cpu}
-        head = [text(f"Data: `{name}.json`; {el:.1f} s (CPU {cpu:.1f} s)")]
-        if stage_notes:
-            stages[name]["note"] = "; ".join(stage_notes)
-            head.append(text(f"**Note:** {'; '.join(stage_notes)}"))
-        if checks:
-            stages[name]["error"] = "; ".join(checks)
-            head.append(text(f"**Check failed:** {'; '.join(checks)}"))
-        sections.append((title, head + blocks))
-        say(f"study: {name} finished in {el:.1f} s" + (f"; check failed: {'; '.join(checks)}" if checks else ""))
+            return StageOutput(json=f"{name}.json", blocks=blocks, files=tuple(files()),
+                               check_failures=tuple(checks), notes=tuple(stage_notes))
+
+        run = runner.run_stage(Stage(name, call, {"stage": name, **base_inputs, **inputs}, title))
+        if run.ok:
+            sections.append((run.record.get("title") or title, stage_section(run.record, reused=run.reused)))
+        else:
+            sections.append((title, [text(f"**Stage failed:** `{run.error}`")]))
+        return run
+
+    def uncontrolled() -> Any:
+        """The uncontrolled analysis (orbit, linearisation, multipliers): computed once, also when the
+        floquet stage was reused and a later stage needs its orbit."""
+        if "uncontrolled" not in state:
+            state["uncontrolled"] = analyze(definition, omega, samples=opts.samples, **options)
+        return state["uncontrolled"]
 
     def floquet_stage() -> list:
-        res = analyze(definition, omega, samples=opts.samples, **options)
-        state["uncontrolled"] = res
+        res = uncontrolled()
         doc = res.summary()
         doc.update(omega=omega, floquet=res.floquet.to_dict())
         (out / "floquet.json").write_text(json.dumps(_ready(doc), indent=2))
@@ -266,7 +277,7 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
         ]
 
     def tuning_stage() -> list:
-        base = state["uncontrolled"]
+        base = uncontrolled()
         nd = len(base.drives)
         names, ranges = factor_ranges(nd, opts.kp_range, opts.kd_range, None)
         tcfg = TuningConfig(target=opts.target, ranges=ranges, names=names,
@@ -335,26 +346,26 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
         ]
 
     def charts_stage() -> list:
-        base = state["uncontrolled"]
-        kp, kd = state.get("gains", ([], []))
-        untuned = bool(base.drives) and not kp
+        from flexstab import chart_runs
+
+        kp, kd = gains()
+        untuned = bool(drives) and not kp
         if untuned:
             stage_notes.append(TUNING_FAILED_CHARTS)
-        args = argparse.Namespace(
-            model=model, elements=opts.elements, drive=None, samples=opts.samples, steps=None,
-            kp=tuple(kp) or None, kd=tuple(kd) or None, kp_range=list(opts.kp_range), kd_range=list(opts.kd_range),
-            grid=5 if opts.quick else 11, omega_points=3 if opts.quick else 9, omega_range=None,
-            target=opts.target, no_taguchi=True, out=str(out), scheduler=None, workers=None, omega=omega,
-            config=None, constants="auto",
-        )
-        s = model_charts(args, cfg, progress=opts.progress)
+        chart = chart_runs.ChartOptions(
+            model=model, out=out, omega=omega, kp_range=tuple(opts.kp_range), kd_range=tuple(opts.kd_range),
+            grid=5 if opts.quick else 11, target=opts.target, omega_points=3 if opts.quick else 9,
+            kp=tuple(kp) or None, kd=tuple(kd) or None, no_taguchi=True, elements=opts.elements,
+            samples=opts.samples)
+        s = chart_runs.model_charts(chart, cfg, progress=opts.progress)
+        chart_files.append(Path(s["json"]).name)
         (out / "charts.json").write_text(json.dumps(_ready(s), indent=2))
         figs = [Path(f).name for f in s["figures"]]
         o = s["omega_chart"]
         blocks = []
         if s["gain_chart"] is not None:
             g = s["gain_chart"]
-            others = [d for d in base.drives if d != s["charted_drive"]]
+            others = [d for d in drives if d != s["charted_drive"]]
             blocks.append(figure(figs[0], f"Dominant |ρ| over the (kp, kd) plane of drive {s['charted_drive']} "
                                           f"({len(g['kp'])} × {len(g['kd'])} grid)"
                                  + (f", {', '.join(others)} at "
@@ -376,9 +387,8 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
         from validation.multipliers import MultiplierCheckConfig, validate_model_multipliers
         from validation.plots import plot_multiplier_plane
 
-        kp, kd = state.get("gains", ([], []))
-        base = state.get("uncontrolled")
-        untuned = base is not None and bool(base.drives) and not kp
+        kp, kd = gains()
+        untuned = bool(drives) and not kp
         if untuned:  # the tuning stage failed: there are no tuned gains to validate
             stage_notes.append(TUNING_FAILED_VALIDATION)
         # the validation path's own step rule (suggested_step: unresolved damped modes keep spurious
@@ -396,36 +406,61 @@ def _run_model_study(model: str, cfg: Any, opts: ModelStudyOptions, definition: 
         plot_multiplier_plane([v], out / fig, titles=[f"{definition.name}, Ω = {omega:.4g} rad/s"],
                               suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
         if untuned:
-            gains = f"{TUNING_FAILED_VALIDATION}, " + _gains_text(base.drives, [0.0] * len(base.drives),
-                                                                  [0.0] * len(base.drives))
+            words = f"{TUNING_FAILED_VALIDATION}, " + _gains_text(drives, [0.0] * len(drives), [0.0] * len(drives))
         else:
-            gains = _gains_text(base.drives, kp, kd) if (base is not None and kp) else "no drives (uncontrolled)"
+            words = _gains_text(drives, kp, kd) if kp else "no drives (uncontrolled)"
         # the steps the measurement used (d["steps"]: chosen by its own rule, check.steps is empty for step=None)
-        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({gains}).",
+        return validation_blocks(d, f"Model `{definition.name}` under feed-forward + PD ({words}).",
                                  d.get("steps") or check.steps, fig)
 
-    run("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage)
-    has_drives = "uncontrolled" in state and bool(state["uncontrolled"].drives)
-    if has_drives:
-        run("tuning", f"PD gains by Taguchi tuning (ρ_d = {opts.target:g})", tuning_stage)
-    elif "uncontrolled" in state:
-        sections.append(("PD gains by Taguchi tuning", [text("The model has no drives: no gains to tune.")]))
-    if "uncontrolled" in state:
-        run("charts", "Stability charts", charts_stage)
-        run("validation", "Nonlinear validation", validation_stage)
+    def gains() -> tuple[list, list]:
+        """The tuned gains (this run's, else the reused tuning's ``tuning.json``); none if the tuning failed."""
+        if "gains" in state:
+            return state["gains"]
+        if tuned is not None and tuned.ok:
+            doc = json.loads((out / "tuning.json").read_text())
+            return list(doc["kp"]), list(doc["kd"])
+        return [], []
+
+    chart_files: list = []
+    drives: list = []
+    tuned = None
+    try:
+        fl = stage("floquet", f"Periodic orbit and uncontrolled multipliers at Ω = {omega:.6g} rad/s", floquet_stage,
+                   # the uncontrolled multipliers are final when no tuning rewrites them
+                   files=lambda: () if state["uncontrolled"].drives else ("multipliers.csv",))
+        if fl.ok:
+            drives = (list(state["uncontrolled"].drives) if "uncontrolled" in state
+                      else list(json.loads((out / "floquet.json").read_text())["drives"]))
+        if fl.ok and drives:
+            tuned = stage("tuning", f"PD gains by Taguchi tuning (ρ_d = {opts.target:g})", tuning_stage,
+                          files=lambda: ("multipliers.csv",), **tuning_inputs)
+        elif fl.ok:
+            sections.append(("PD gains by Taguchi tuning", [text("The model has no drives: no gains to tune.")]))
+        if fl.ok:
+            kp, kd = gains()
+            stage("charts", "Stability charts", charts_stage, files=lambda: tuple(chart_files), **tuning_inputs,
+                  elements=opts.elements, gains=[kp, kd])
+            stage("validation", "Nonlinear validation", validation_stage, gains=[kp, kd])
+    except BaseException as exc:
+        runner.stop(exc, time.perf_counter() - t0)
+        raise
     elapsed, cpu = time.perf_counter() - t0, _cpu() - c0
+    runner.finish(elapsed=elapsed, cpu=cpu)
+    reused = [n for n, r in runner.runs.items() if r.reused]
     preamble = [
         text(f"Model `{definition.name}`" + (f" from `{definition.source}`" if definition.source else "")
              + f" at Ω = {omega:.6g} rad/s (T = {2 * math.pi / omega:.6g} s); mode: {'quick' if opts.quick else 'full'}"
              + "; every number below comes from the JSON file named under its section (same folder)."),
-        text(f"Wall time {elapsed:.1f} s, CPU {cpu:.1f} s."),
+        text(f"Wall time {elapsed:.1f} s, CPU {cpu:.1f} s."
+             + (f" Reused from an earlier run with the same inputs: {', '.join(reused)}." if reused else "")),
     ]
     md, html_path = out / "report.md", out / "report.html"
     md.write_text(to_markdown(f"flexstab study: model {definition.name}", preamble, sections))
     html_path.write_text(to_html(f"flexstab study: model {definition.name}", preamble, sections))
     (out / "study.json").write_text(json.dumps({"model": model, "omega": omega, "quick": opts.quick,
-                                                "elapsed": elapsed, "cpu": cpu, "stages": stages}, indent=2))
-    return StudyResult(out, md, html_path, stages, elapsed)
+                                                "elapsed": elapsed, "cpu": cpu, "stages": runner.summaries()}, indent=2))
+    return StudyResult(out, md, html_path, runner.summaries(), elapsed)
 
 
 def _absolute_estimate(res) -> float:

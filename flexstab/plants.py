@@ -16,7 +16,7 @@ multiplier (drive modes and the first bending mode).  How it is evaluated depend
 :func:`plant_for` applies that rule; the three commands call it with the same tuning
 configuration, so at the same gains they evaluate the same quantity by the same method and
 discretisation.  ``tune``/``study`` may afterwards double a :class:`ModelPlant`'s steps when the
-step-doubling check at the tuned gains asks for it (:func:`flexstab.commands.tune.tune_model_plant`).
+step-doubling check at the tuned gains asks for it (:func:`flexstab.tuning.tune_model_plant`).
 
 :func:`whole_spectrum` reports, beside the tuned response, the spectral radius of the whole
 linearisation at the tuned gains (``tune --model`` and the study's two-link section).

@@ -34,6 +34,8 @@ __all__ = [
     "percent",
     "relative",
     "fixed",
+    "pi_multiple",
+    "omega_text",
 ]
 
 
@@ -92,6 +94,17 @@ def fixed(x: float, digits: int) -> str:
     if round(x, digits) == 0:
         x = 0.0
     return f"{x:.{digits}f}"
+
+
+def pi_multiple(omega: float) -> str:
+    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
+    k = f"{omega / math.pi:.4g}"
+    return "π" if k == "1" else f"{k}π"
+
+
+def omega_text(omega: float) -> str:
+    """``omega`` in units of pi rad/s, e.g. ``2π rad/s``."""
+    return f"{omega / math.pi:.4g}π rad/s"
 
 
 # ----------------------------------------------------------------------------- Markdown

@@ -45,7 +45,10 @@ the report blocks of its section and the SHA-256 of every file it wrote; its
 data JSON carries the same hashes under ``"study"``.  A rerun with unchanged
 inputs reuses the finished stages (the report says which), and the report is
 rendered only from stages whose records and files match the manifest, so it
-never mixes runs (:func:`render_report` raises otherwise).
+never mixes runs (:func:`render_report` raises otherwise).  The records, hashes
+and the manifest are :mod:`flexstab.provenance`'s; the stages run on
+:class:`flexstab.stages.StageRunner`, as those of a model file's study do
+(:mod:`flexstab.model_study`).
 
 Stages 5-6 need the Exudyn layer; if a stage fails, the report says so and
 names the error instead of the study crashing.
@@ -67,31 +70,25 @@ chain of :data:`EXUDYN_CHAINS`.
 """
 from __future__ import annotations
 
-import contextlib
-import datetime as _dt
-import hashlib
+import functools
 import json
 import logging
 import math
 import os
-import resource
-import threading
 import time
-import traceback
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterator, Optional, Sequence
+from typing import Callable, Optional, Sequence
 
+from flexstab import provenance as pv
 from flexstab.config import StudyConfig
-from flexstab.report import figure, relative, table, text, to_html, to_markdown
+from flexstab.report import figure, omega_text, pi_multiple, relative, table, text, to_html, to_markdown
+from flexstab.stages import LOCK_FILE, Stage, StageOutput, StageRunner, StudyResult, cpu_now, folder_lock, stage_section
 
 __all__ = ["StudyOptions", "StudyResult", "run_study", "render_report", "STAGES", "STAGE_TITLES", "config_hash",
            "validation_blocks", "folder_lock", "LOCK_FILE"]
 
 logger = logging.getLogger(__name__)
-
-#: Packages whose source code decides the numbers (hashed into every stage's inputs).
-_CODE_PACKAGES = ("mbs_models", "linearize", "stability", "taguchi", "validation", "flexstab")
 
 
 @dataclass(frozen=True)
@@ -130,30 +127,7 @@ class StudyOptions:
     jobs: int = 2
 
 
-@dataclass(frozen=True)
-class StudyResult:
-    """Where the report went and what each stage produced (or why it failed)."""
-
-    out: Path
-    report_md: Path
-    report_html: Path
-    stages: dict
-    elapsed: float
-
-    def __repr__(self) -> str:
-        status = ", ".join(f"{k}: {v.get('status', '?')}" for k, v in self.stages.items())
-        return f"StudyResult(out={str(self.out)!r}, elapsed={self.elapsed:.1f} s, stages=[{status}])"
-
-
 # ----------------------------------------------------------------------------- inputs and hashes
-def _canonical(obj) -> str:
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
-
-
-def _sha(text: str, n: int = 16) -> str:
-    return hashlib.sha256(text.encode()).hexdigest()[:n]
-
-
 def config_dict(cfg: StudyConfig) -> dict:
     """The configuration as a JSON-ready dict (what the manifest records)."""
     return {
@@ -170,27 +144,7 @@ def config_dict(cfg: StudyConfig) -> dict:
 
 def config_hash(cfg: StudyConfig) -> str:
     """Short SHA-256 of the configuration (manipulator and study settings)."""
-    return _sha(_canonical(config_dict(cfg)), 12)
-
-
-def _code_hash() -> str:
-    """SHA-256 of the source files of the packages on the data path (a code change invalidates stages)."""
-    import importlib.util
-
-    h = hashlib.sha256()
-    for name in _CODE_PACKAGES:
-        spec = importlib.util.find_spec(name)
-        if spec is None or not spec.submodule_search_locations:
-            continue
-        for root in spec.submodule_search_locations:
-            for f in sorted(Path(root).rglob("*.py")):
-                h.update(str(f.relative_to(root)).encode())
-                h.update(f.read_bytes())
-    return h.hexdigest()[:16]
-
-
-def _file_sha(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    return pv.short_hash(pv.canonical(config_dict(cfg)), 12)
 
 
 # ----------------------------------------------------------------------------- which cases
@@ -212,15 +166,8 @@ def _repro_omegas(cfg: StudyConfig, quick: bool) -> tuple[int, ...]:
     return (k if k is not None else 2,)
 
 
-def _w(omega: float) -> str:
-    k = omega / math.pi
-    return f"{k:.4g}π rad/s"
-
-
-def _pi(omega: float) -> str:
-    """``omega`` as a multiple of pi: ``π``, ``2π``, ``0.5π``."""
-    k = f"{omega / math.pi:.4g}"
-    return "π" if k == "1" else f"{k}π"
+_w = omega_text  # "2π rad/s"
+_pi = pi_multiple  # "2π"
 
 
 def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
@@ -232,7 +179,7 @@ def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float
         for kk, _, kp, kd, _ in TABLE3_PRINTED:
             if kk == k:
                 return kp, kd, "paper Table 3 gains"
-    rec = _load_record(opts.out, "table3")
+    rec = pv.load_record(opts.out, "table3")
     if rec is not None and rec.get("config_hash") == config_hash(cfg):
         for r in json.loads((opts.out / rec["json"]).read_text())["rows"]:
             if abs(r["omega"] - cfg.omega) <= 1e-9 * cfg.omega and abs(r["target"] - cfg.target) <= 1e-12:
@@ -246,7 +193,7 @@ def _reference_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float
 
 
 # ----------------------------------------------------------------------------- stages
-def _stage_table2(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_table2(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     from flexstab.paper_tables import paper_case, table2_blocks, table2_rows
 
     omegas = [k * math.pi for k in (2, 4, 6, 8)] if _is_paper(cfg) else []
@@ -256,10 +203,10 @@ def _stage_table2(cfg: StudyConfig, opts: StudyOptions) -> dict:
     (opts.out / "table2.json").write_text(json.dumps({"rows": rows}, indent=2))
     title = ("Floquet multipliers without control (paper Table 2)" if _is_paper(cfg)
              else f"Floquet multipliers without control at Ω = {_w(cfg.omega)}")
-    return {"json": "table2.json", "title": title, "blocks": table2_blocks(rows)}
+    return StageOutput(json="table2.json", title=title, blocks=table2_blocks(rows))
 
 
-def _stage_table3(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_table3(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     from flexstab.paper_tables import TABLE3_PRINTED, paper_case, table3_blocks, table3_rows
 
     cases = [c for c in TABLE3_PRINTED if c[0] in _repro_omegas(cfg, opts.quick)]
@@ -277,21 +224,16 @@ def _stage_table3(cfg: StudyConfig, opts: StudyOptions) -> dict:
         if paper_rows:
             blocks.append(text(f"At the study Ω = {_w(cfg.omega)} (ρ_d = {cfg.target:g}, no printed gains):"))
         blocks += table3_blocks(other)
-    return {"json": "table3.json", "title": title, "blocks": blocks}
+    return StageOutput(json="table3.json", title=title, blocks=blocks)
 
 
-def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
-    import argparse
+def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
+    from flexstab.chart_runs import ChartOptions, make_charts
 
-    from flexstab.commands.chart import make_charts
-
-    args = argparse.Namespace(
-        config=None, constants="auto", kp_range=list(cfg.kp_range), kd_range=list(cfg.kd_range),
-        grid=15 if opts.quick else 41, target=cfg.target, omega_range=None,
-        omega_points=31 if opts.quick else 121, kp=None, kd=None, no_taguchi=False, out=str(opts.out),
-        scheduler=opts.scheduler, workers=None, omega=cfg.omega, model="reduced", elements=None,
-    )
-    s = make_charts(args, progress=opts.progress, cfg=cfg)
+    chart = ChartOptions(model="reduced", out=opts.out, omega=cfg.omega, kp_range=tuple(cfg.kp_range),
+                         kd_range=tuple(cfg.kd_range), grid=15 if opts.quick else 41, target=cfg.target,
+                         omega_points=31 if opts.quick else 121, scheduler=opts.scheduler)
+    s = make_charts(chart, cfg, progress=opts.progress)
     g, o = s["gain_chart"], s["omega_chart"]
     names = [Path(f).name for f in s["figures"]]
     blocks = [
@@ -304,11 +246,11 @@ def _stage_charts(cfg: StudyConfig, opts: StudyOptions) -> dict:
         figure(names[1], f"max|ρ| against Ω, uncontrolled and with the tuned gains kp = {o['kp']:.4g} N·m/rad, "
                          f"kd = {o['kd']:.4g} N·m·s/rad."),
     ]
-    return {"json": Path(s["json"]).name, "title": f"Stability charts at Ω = {_w(cfg.omega)}",
-            "blocks": blocks, "files": names + [Path(s["json"]).name]}
+    return StageOutput(json=Path(s["json"]).name, title=f"Stability charts at Ω = {_w(cfg.omega)}",
+                       blocks=blocks, files=tuple(names + [Path(s["json"]).name]))
 
 
-def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     from flexstab.paper_tables import paper_case
     from flexstab.transients import CASES, Case, make_transients, paper_case_pair
 
@@ -348,10 +290,10 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> dict:
     paper_figs = sorted(c["figure"] for c in doc["cases"] if c["figure"] is not None)
     title = (f"Transient responses (paper Figs. {', '.join(map(str, paper_figs))})" if paper_figs
              else f"Transient responses at Ω = {_w(cfg.omega)}")
-    return {"json": "transients.json", "title": title, "blocks": blocks, "files": figs + ["transients.json"]}
+    return StageOutput(json="transients.json", title=title, blocks=blocks, files=tuple(figs + ["transients.json"]))
 
 
-def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
     import dataclasses
 
@@ -452,7 +394,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> dict:
              f"{verdicts['verdict_uncontrolled']['message']}; reference gains — "
              f"{verdicts['verdict_reference']['message']}; Taguchi gains — {verdicts['verdict_tuned']['message']}."),
     ]
-    return {"json": "exudyn.json", "title": f"Exudyn ANCF model at Ω = {_w(omega)}", "blocks": blocks}
+    return StageOutput(json="exudyn.json", title=f"Exudyn ANCF model at Ω = {_w(omega)}", blocks=blocks)
 
 
 # ----------------------------------------------------------------------------- verdicts (stability.verdict)
@@ -480,7 +422,7 @@ def _whole_loop_verdict(analysis, kp: float, kd: float) -> dict:
     return analyze(orbit.model, orbit.omega, kp=kp, kd=kd, samples=orbit.samples, orbit=orbit).verdict.to_dict()
 
 
-def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """The verdict's sensitivity to the mesh (2/4/8 elements; 2/4 in quick mode) and to structural damping
     (none, and ``SENSITIVITY_DAMPING``) at the reference gains, Exudyn link."""
     from linearize.analysis import analyze
@@ -526,8 +468,8 @@ def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> dict:
               [[r["elements"], r["damping"], r["verdict"], f"{r['spectral_radius']:.10g} ({r['spectral_radius_mode']})",
                 r["undamped_count"], f"{r['dominant_modulus']:.5f}"] for r in rows]),
     ]
-    return {"json": "sensitivity.json", "title": f"Verdict sensitivity to mesh and damping at Ω = {_w(cfg.omega)}",
-            "blocks": blocks}
+    return StageOutput(json="sensitivity.json", blocks=blocks,
+                       title=f"Verdict sensitivity to mesh and damping at Ω = {_w(cfg.omega)}")
 def _sensitivity_words(rows: list) -> str:
     """What the sensitivity table shows, per damping, from its rows (never a claim the numbers do not make)."""
     parts = []
@@ -548,14 +490,14 @@ def _sensitivity_words(rows: list) -> str:
 
 
 def _validation_gains(cfg: StudyConfig, opts: StudyOptions) -> tuple[float, float, str]:
-    rec = _load_record(opts.out, "exudyn")
+    rec = pv.load_record(opts.out, "exudyn")
     if rec is not None and rec.get("config_hash") == config_hash(cfg) and rec.get("quick") == opts.quick:
         r = json.loads((opts.out / rec["json"]).read_text())["rows"][0]
         return r["tuned_kp"], r["tuned_kd"], "Taguchi on Exudyn (exudyn.json)"
     return _reference_gains(cfg, opts)
 
 
-def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """Multipliers measured from nonlinear Exudyn runs of the tuned closed loop at the study Omega.
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
@@ -594,8 +536,8 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> dict:
                                   f"{source}).", check.steps, fig)
     from flexstab.checks import validation_failures
 
-    return {"json": "validation.json", "title": f"Nonlinear validation at Ω = {_w(cfg.omega)}", "blocks": blocks,
-            "files": [fig, "validation.json"], "check_failures": validation_failures(d)}
+    return StageOutput(json="validation.json", title=f"Nonlinear validation at Ω = {_w(cfg.omega)}", blocks=blocks,
+                       files=(fig, "validation.json"), check_failures=tuple(validation_failures(d)))
 
 
 def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> list:
@@ -632,7 +574,7 @@ def validation_blocks(d: dict, what: str, steps: Sequence[float], fig: str) -> l
     return blocks
 
 
-def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
+def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """The built-in two-link arm at the study Omega: see :mod:`flexstab.two_link_report`."""
     from flexstab.two_link_report import stage_two_link
 
@@ -640,7 +582,7 @@ def _stage_two_link(cfg: StudyConfig, opts: StudyOptions) -> dict:
 
 
 #: Registry of the study's stages, in order.
-STAGES: dict[str, Callable[[StudyConfig, StudyOptions], dict]] = {
+STAGES: dict[str, Callable[[StudyConfig, StudyOptions], StageOutput]] = {
     "table2": _stage_table2,
     "table3": _stage_table3,
     "charts": _stage_charts,
@@ -662,52 +604,6 @@ STAGE_TITLES: dict[str, str] = {
     "two_link": "Two-link flexible arm",
     "sensitivity": "Verdict sensitivity to mesh and damping",
 }
-
-
-# ----------------------------------------------------------------------------- records
-def _record_path(out: Path, name: str) -> Path:
-    return out / f"{name}.stage.json"
-
-
-def _load_record(out: Path, name: str) -> Optional[dict]:
-    p = _record_path(out, name)
-    if not p.exists():
-        return None
-    try:
-        return json.loads(p.read_text())
-    except (OSError, json.JSONDecodeError):
-        return None
-
-
-def _stage_files(r: dict) -> list[str]:
-    files = list(r.get("files") or [])
-    files += [b["file"] for b in r.get("blocks", []) if b["kind"] == "figure"]
-    if r.get("json"):
-        files.append(r["json"])
-    return sorted(set(files))
-
-
-def _record_valid(out: Path, rec: Optional[dict], inputs_hash: str) -> bool:
-    """The record is for these inputs and every file it names is still the one it wrote."""
-    if rec is None or rec.get("inputs_hash") != inputs_hash or "error" in rec:
-        return False
-    for f, sha in rec.get("files", {}).items():
-        p = out / f
-        if not p.exists() or _file_sha(p) != sha:
-            return False
-    return True
-
-
-def _stamp_json(path: Path, stamp: dict) -> None:
-    """Add ``"study": stamp`` (config and inputs hashes) to a stage's data JSON."""
-    doc = json.loads(path.read_text())
-    if isinstance(doc, dict):
-        doc["study"] = stamp
-        path.write_text(json.dumps(doc, indent=2, default=str))
-
-
-def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
 # ----------------------------------------------------------------------------- report
@@ -733,7 +629,7 @@ def render_report(out: Path) -> tuple[Path, Path]:
         has changed since the stage wrote it (the report would mix runs).
     """
     out = Path(out)
-    manifest = json.loads((out / "manifest.json").read_text())
+    manifest = json.loads((out / pv.MANIFEST).read_text())
     chash = manifest["config_hash"]
     cfg_doc = manifest["config"]
     from mbs_models.parameters import ManipulatorParameters
@@ -744,7 +640,7 @@ def render_report(out: Path) -> tuple[Path, Path]:
     sections = []
     reused = []
     for name, entry in manifest["stages"].items():
-        rec = _load_record(out, name)
+        rec = pv.load_record(out, name)
         title = (rec or {}).get("title") or STAGE_TITLES.get(name, name)
         if entry.get("status") == "failed":
             sections.append((title, [text(f"**Stage failed:** `{entry.get('error', 'unknown error')}`")]))
@@ -756,15 +652,11 @@ def render_report(out: Path) -> tuple[Path, Path]:
                                f"({rec.get('config_hash')} != {chash}); the report would mix runs")
         for f, sha in rec["files"].items():
             p = out / f
-            if not p.exists() or _file_sha(p) != sha:
+            if not p.exists() or pv.file_sha(p) != sha:
                 raise RuntimeError(f"{out}: {f} changed after stage {name!r} wrote it; the report would mix runs")
-        head = f"Data: `{rec['json']}`; {rec['elapsed']:.1f} s" + (
-            f" (CPU {rec['cpu']:.1f} s)" if isinstance(rec.get("cpu"), (int, float)) else "")
         if entry.get("status") == "reused":
-            head += f"; reused from the run finished at {rec['finished_at']} (inputs unchanged)"
             reused.append(title)
-        checks = [text(f"**Check failed:** {'; '.join(rec['check_failures'])}")] if rec.get("check_failures") else []
-        sections.append((title, [text(head)] + checks + rec["blocks"]))
+        sections.append((title, stage_section(rec, reused=entry.get("status") == "reused")))
     quick = manifest["quick"]
     omega = cfg.omega
     preamble = [
@@ -791,62 +683,6 @@ def render_report(out: Path) -> tuple[Path, Path]:
 
 
 # ----------------------------------------------------------------------------- driver
-#: The lock file of a study's output folder: holds the pid of the study writing there.
-LOCK_FILE = ".flexstab.lock"
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by another user
-        return True
-    return True
-
-
-@contextlib.contextmanager
-def folder_lock(out: Path) -> Iterator[Path]:
-    """Hold ``out/.flexstab.lock`` (this process's pid) while the block runs: one study per folder.
-
-    A lock left by a process that no longer runs (killed with SIGKILL, a crashed machine) is stale:
-    it is replaced, with a log line.
-
-    Raises
-    ------
-    ValueError
-        Another running process holds the folder (one line naming it, its pid and the lock file).
-    """
-    path = Path(out) / LOCK_FILE
-    for _ in range(2):
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                pid = int(path.read_text().split()[0])
-            except (OSError, ValueError, IndexError):
-                pid = -1
-            if pid > 0 and pid != os.getpid() and _pid_alive(pid):
-                raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (pid {pid}; "
-                                 f"lock file {path}): wait for it to finish or choose another --out") from None
-            logger.warning("removing the stale lock %s (pid %s is not running)", path, pid)
-            path.unlink(missing_ok=True)
-            continue
-        with os.fdopen(fd, "w") as fh:
-            fh.write(f"{os.getpid()}\n")
-        break
-    else:  # pragma: no cover - another process took the stale lock between our two attempts
-        raise ValueError(f"output folder {str(out)!r} is in use by another flexstab study (lock file {path})")
-    try:
-        yield path
-    finally:
-        try:
-            if path.read_text().split()[0] == str(os.getpid()):
-                path.unlink()
-        except (OSError, IndexError):
-            pass
-
-
 def _prepare_out(out: Path) -> None:
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -868,17 +704,9 @@ EXUDYN_LANE = tuple(s for chain in EXUDYN_CHAINS for s in chain)
 FULL_ONLY = ("two_link",)
 
 
-def _cpu_now() -> float:
-    """CPU seconds of this process and of its finished (waited-for) child processes."""
-    ch = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.process_time() + ch.ru_utime + ch.ru_stime
-
-
-def _execute(name: str, cfg: StudyConfig, opts: StudyOptions) -> tuple[dict, float, float]:
-    """Run stage ``name``; return its result, wall and CPU seconds (this process + its pools)."""
-    ts, cs = time.perf_counter(), _cpu_now()
-    r = STAGES[name](cfg, opts)
-    return r, time.perf_counter() - ts, _cpu_now() - cs
+def _call_stage(name: str, cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
+    """Stage ``name`` of :data:`STAGES` (looked up where it runs: a forked process sees this one's registry)."""
+    return StageOutput.of(STAGES[name](cfg, opts))
 
 
 def _preload(stages: Sequence[str]) -> None:
@@ -919,7 +747,7 @@ def run_study(cfg: StudyConfig = StudyConfig(), opts: StudyOptions = StudyOption
         If the output folder cannot be created or an unknown stage is named.
     """
     t0 = time.perf_counter()
-    c0 = _cpu_now()
+    c0 = cpu_now()
     if isinstance(opts.jobs, bool) or not isinstance(opts.jobs, int) or opts.jobs < 1:
         raise ValueError(f"jobs must be a positive integer, got {opts.jobs!r}")
     stages = opts.stages or tuple(s for s in STAGES if not (opts.quick and s in FULL_ONLY))
@@ -937,203 +765,67 @@ def _run_study(cfg: StudyConfig, opts: StudyOptions, stages: Sequence[str], out:
     """:func:`run_study` in its locked output folder."""
     say = opts.log or (lambda line: None)
     chash = config_hash(cfg)
-    code = _code_hash()
-    old = None
-    if (out / "manifest.json").exists():
-        try:
-            old = json.loads((out / "manifest.json").read_text())
-        except (OSError, json.JSONDecodeError):
-            old = None
+    code = pv.code_hash()
+    old = pv.read_manifest(out)
     if old is not None and old.get("config_hash") != chash:
         say(f"study: {out} held a study of another configuration ({old.get('config_hash')}); "
             "its report is replaced and none of its stages is reused")
     for f in ("report.md", "report.html", "study.json"):  # never leave a report of another run beside this one
         (out / f).unlink(missing_ok=True)
-    manifest = {"config": config_dict(cfg), "config_hash": chash, "code_hash": code, "quick": opts.quick,
-                "started_at": _now(), "status": "running", "stages": {}}
-    lock = threading.RLock()
-    entries: dict[str, dict] = {}
-
-    def write_manifest() -> None:
-        with lock:
-            manifest["stages"] = {k: entries[k] for k in stages if k in entries}  # report order = stage order
-            (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
-
-    write_manifest()
-    results: dict[str, dict] = {}
     bar = None
     if opts.progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=len(stages), desc="study", unit="stage")
     index = {name: i for i, name in enumerate(stages, 1)}
+    runner = StageRunner(out, {"config": config_dict(cfg), "config_hash": chash, "code_hash": code,
+                               "quick": opts.quick}, order=stages, resume=opts.resume, log=opts.log,
+                         tag=lambda name: f"study: [{index[name]}/{len(stages)}] {name}",
+                         record_fields={"config_hash": chash, "quick": opts.quick}, stamp=True, bar=bar)
 
-    def tag(name: str) -> str:
-        return f"study: [{index[name]}/{len(stages)}] {name}"
+    def stage(name: str, o: StudyOptions) -> Stage:
+        def inputs() -> dict:  # evaluated when the stage is about to run
+            d = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
+            if name == "validation":  # reads the gains tuned by the exudyn stage
+                d["gains"] = list(_validation_gains_for_hash(cfg, opts))
+            return d
 
-    def prepare(name: str) -> Optional[tuple[dict, str]]:
-        """Inputs of ``name``; ``None`` (and the stage recorded as reused) if its record is still valid."""
-        inputs = {"stage": name, "config": config_dict(cfg), "quick": opts.quick, "code": code}
-        if name == "validation":  # reads the gains tuned by the exudyn stage
-            inputs["gains"] = list(_validation_gains_for_hash(cfg, opts))
-        ihash = _sha(_canonical(inputs))
-        rec = _load_record(out, name)
-        if opts.resume and _record_valid(out, rec, ihash) and rec.get("config_hash") == chash:
-            say(f"{tag(name)} reused (inputs unchanged since {rec['finished_at']})")
-            with lock:
-                results[name] = {"status": "reused", "json": rec["json"], "elapsed": rec["elapsed"],
-                                 "cpu": rec.get("cpu")}
-                entries[name] = {"status": "reused", "inputs_hash": ihash, "elapsed": 0.0}
-                if rec.get("check_failures"):  # a reused stage keeps its failed checks (and exit code 1)
-                    results[name].update(status="check failed", error="; ".join(rec["check_failures"]))
-            done(name)
-            return None
-        _record_path(out, name).unlink(missing_ok=True)
-        say(f"{tag(name)} started")
-        return inputs, ihash
-
-    def done(name: str) -> None:
-        write_manifest()
-        if bar is not None:
-            with lock:
-                bar.set_postfix_str(name)
-                bar.update(1)
-
-    def failed(name: str, ihash: str, exc: BaseException, el: float) -> None:
-        logger.error("stage %s failed: %s", name, exc)
-        logger.debug("%s", "".join(traceback.format_exception(exc)))
-        err = f"{type(exc).__name__}: {exc}"
-        say(f"{tag(name)} failed after {el:.1f} s: {err}")
-        with lock:
-            results[name] = {"status": "failed", "error": err, "elapsed": el}
-            entries[name] = {"status": "failed", "error": err, "inputs_hash": ihash, "elapsed": el}
-        done(name)
-
-    def finished(name: str, inputs: dict, ihash: str, r: dict, el: float, cpu: float) -> None:
-        stamp = {"config_hash": chash, "inputs_hash": ihash, "stage": name}
-        _stamp_json(out / r["json"], stamp)
-        files = {f: _file_sha(out / f) for f in _stage_files(r)}
-        record = {"stage": name, "title": r.get("title", STAGE_TITLES[name]), "config_hash": chash,
-                  "inputs_hash": ihash, "inputs": inputs, "quick": opts.quick, "json": r["json"],
-                  "blocks": r["blocks"], "files": files, "elapsed": el, "cpu": cpu, "finished_at": _now(),
-                  "check_failures": list(r.get("check_failures") or [])}
-        _record_path(out, name).write_text(json.dumps(record, indent=2, default=str))
-        checks = list(r.get("check_failures") or [])  # flexstab.checks: computed, but a check failed
-        status = "check failed" if checks else "computed"
-        say(f"{tag(name)} finished in {el:.1f} s" + (f"; check failed: {'; '.join(checks)}" if checks else ""))
-        with lock:
-            results[name] = {"status": status, "json": r["json"], "elapsed": el, "cpu": cpu}
-            entries[name] = {"status": status, "inputs_hash": ihash, "elapsed": el, "cpu": cpu}
-            if checks:
-                results[name]["error"] = entries[name]["error"] = "; ".join(checks)
-        done(name)
-
-    def run_here(name: str) -> None:
-        p = prepare(name)
-        if p is None:
-            return
-        ts = time.perf_counter()
-        try:
-            r, el, cpu = _execute(name, cfg, opts)
-        except Exception as exc:  # a failed stage is reported, the study goes on
-            failed(name, p[1], exc, time.perf_counter() - ts)
-        else:
-            finished(name, p[0], p[1], r, el, cpu)
+        return Stage(name, functools.partial(_call_stage, name, cfg, o), inputs, STAGE_TITLES[name])
 
     chains = [[s for s in stages if s in chain] for chain in EXUDYN_CHAINS] if opts.jobs >= 2 else []
     chains = [c for c in chains if c]
     here = [s for s in stages if not any(s in c for c in chains)]
     if not here and chains:  # nothing else to overlap with: the first chain runs here
         here, chains = chains[0], chains[1:]
-    pools: list = []
-    helpers: list = []
-    lane_error: list = []
-    stopping = threading.Event()
-    if chains:
-        import concurrent.futures as cf
-        import multiprocessing
+    remote = replace(opts, progress=False, log=None)
+    from flexstab.threads import blas_threads
 
-        from flexstab.threads import blas_threads
-
-        _preload(stages)  # imported once here, inherited by the forked processes
-        for _ in chains:
-            # start each process now, from this thread while it is the only one: a fork from a helper
-            # thread could copy a lock (the import lock) that the main thread holds at that moment
-            pools.append(cf.ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"),
-                                                initializer=_lane_worker_init,
-                                                initargs=(os.getpid(), blas_threads())))
-            pools[-1].submit(int).result()
-        remote = replace(opts, progress=False, log=None)
-
-        def drive_lane(chain: list, pool) -> None:  # waits on its process (no CPU here), records its stages
-            try:
-                for name in chain:
-                    p = prepare(name)
-                    if p is None:
-                        continue
-                    ts = time.perf_counter()
-                    fut = pool.submit(_execute, name, cfg, remote)
-                    try:
-                        r, el, cpu = fut.result()
-                    except Exception as exc:
-                        if stopping.is_set():  # the study was interrupted: its process was stopped, no failure
-                            return
-                        failed(name, p[1], exc, time.perf_counter() - ts)
-                    else:
-                        finished(name, p[0], p[1], r, el, cpu)
-            except BaseException as exc:  # noqa: BLE001  (re-raised in the main thread)
-                lane_error.append(exc)
-
-        for chain, pool in zip(chains, pools):
-            helpers.append(threading.Thread(target=drive_lane, args=(chain, pool), name="flexstab-study-lane",
-                                            daemon=True))
-            helpers[-1].start()
     try:
-        for name in here:
-            run_here(name)
-        for helper in helpers:
-            helper.join()
-    except BaseException as exc:
-        stopping.set()
-        # the manifest says how the run ended: Ctrl-C / SIGTERM (KeyboardInterrupt, see flexstab.cli) or an error
-        manifest.update({"status": "interrupted" if isinstance(exc, KeyboardInterrupt) else "failed",
-                         "finished_at": _now(), "elapsed": time.perf_counter() - t0})
-        try:
-            write_manifest()
-        except OSError:
-            pass
-        for pool in pools:  # interrupted: stop the other processes now, do not wait for their stages
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=False, cancel_futures=True)
-        pools = []
-        raise
+        runner.run([stage(n, opts) for n in here], [[stage(n, remote) for n in c] for c in chains],
+                   preload=lambda: _preload(stages), initializer=_lane_worker_init,
+                   initargs=(os.getpid(), blas_threads()))
     finally:
-        for pool in pools:
-            pool.shutdown(wait=True)
         if bar is not None:
             bar.close()
-    if lane_error:
-        raise lane_error[0]
     elapsed = time.perf_counter() - t0
-    cpu = _cpu_now() - c0
-    manifest.update({"status": "finished", "finished_at": _now(), "elapsed": elapsed, "cpu": cpu})
-    write_manifest()
+    cpu = cpu_now() - c0
+    runner.finish(elapsed=elapsed, cpu=cpu)
     md, ht = render_report(out)
     from flexstab.verdict_report import verdict_summary
 
+    entries = runner.manifest["stages"]
     computed = {k for k, e in entries.items() if e.get("status") in ("computed", "reused")}
     verdict = verdict_summary(out, cfg.omega, computed)
+    results = runner.summaries()
     (out / "study.json").write_text(json.dumps({"verdict": verdict, "elapsed": elapsed, "cpu": cpu, "quick": opts.quick,
-                                                "jobs": opts.jobs, "config_hash": chash,
-                                                "stages": {k: results[k] for k in stages if k in results}},
+                                                "jobs": opts.jobs, "config_hash": chash, "stages": results},
                                                indent=2, default=str))
-    return StudyResult(out, md, ht, {k: results[k] for k in stages if k in results}, elapsed)
+    return StudyResult(out, md, ht, results, elapsed)
 
 
 def _validation_gains_for_hash(cfg: StudyConfig, opts: StudyOptions) -> tuple:
     """The source of the validation gains (for the stage's input hash) without computing any."""
-    rec = _load_record(opts.out, "exudyn")
+    rec = pv.load_record(opts.out, "exudyn")
     if rec is not None and rec.get("config_hash") == config_hash(cfg) and rec.get("quick") == opts.quick:
         return ("exudyn", rec["inputs_hash"])
     return ("reference",)

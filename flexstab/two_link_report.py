@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 from flexstab.report import figure, table, text
+from flexstab.stages import StageOutput
 from stability.gains import Gains
 
 __all__ = ["stage_two_link", "CHECK_MODAL_STEPS", "CACHE_NAME", "CACHE_PARTS", "cache_keys", "fresh_parts",
@@ -47,15 +48,15 @@ def script_hash() -> Optional[str]:
 
 def cache_keys(target: float, args: Optional[dict] = None) -> dict:
     """What the script's numbers depend on besides Omega (each part is stored per Omega): the
-    SHA-256 of the packages' source (:func:`flexstab.study._code_hash`, as ``chart --model`` keys its
+    SHA-256 of the packages' source (:func:`flexstab.provenance.code_hash`, as ``chart --model`` keys its
     stores) and of the script (:func:`script_hash`), the default mesh, the four-gain ranges and rho_d;
     with ``args``, the stage's own command-line arguments (e.g. the robust stage's ``grid``,
     ``robust_iterations``) under ``args``.  JSON-normalised (comparable with a file's)."""
-    from flexstab.study import _code_hash
+    from flexstab.provenance import code_hash
     from flexstab.two_link import TUNING_RANGES
     from mbs_models.builtin.two_link import DEFAULT_ELEMENTS
 
-    keys = {"code": _code_hash(), "script": script_hash(), "elements": DEFAULT_ELEMENTS,
+    keys = {"code": code_hash(), "script": script_hash(), "elements": DEFAULT_ELEMENTS,
             "ranges": [list(r) for r in TUNING_RANGES], "target": float(target)}
     if args is not None:
         keys["args"] = dict(args)
@@ -120,8 +121,8 @@ def _cpu() -> float:
     return time.process_time() + ch.ru_utime + ch.ru_stime
 
 
-def stage_two_link(cfg: Any, opts: Any) -> dict:
-    """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> dict``).
+def stage_two_link(cfg: Any, opts: Any) -> StageOutput:
+    """Stage function for :data:`flexstab.study.STAGES` (signature ``(cfg, opts) -> StageOutput``).
 
     At the study Omega: the orbit and linearisation of the built-in two-link arm, its labelled
     multipliers uncontrolled, the four-gain Taguchi tuning to the study's rho_d (Hill response,
@@ -132,7 +133,7 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     """
     from flexstab.arm_figures import plot_floquet_mode, plot_poses
     from flexstab.plants import whole_spectrum
-    from flexstab.study import _pi
+    from flexstab.report import pi_multiple as _pi
     from flexstab.two_link import TUNING_RANGES, tune_four_gains, two_link_floquet
 
     out = Path(opts.out)
@@ -231,5 +232,5 @@ def stage_two_link(cfg: Any, opts: Any) -> dict:
     ]
     if not tuned.converged:
         blocks.insert(2, text(f"**Tuning did not reach ρ_d:** {tuned.message}."))
-    return {"json": "two_link.json", "title": f"Two-link flexible arm at Ω = {_pi(omega)} rad/s", "blocks": blocks,
-            "files": ["two_link.json", poses, mode_png]}
+    return StageOutput(json="two_link.json", title=f"Two-link flexible arm at Ω = {_pi(omega)} rad/s", blocks=blocks,
+                       files=("two_link.json", poses, mode_png))

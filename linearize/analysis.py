@@ -57,6 +57,13 @@ FRAMES = ("modal", "model")
 #: Above this step-doubling estimate of the spectral radius or of the dominant multiplier
 #: :func:`analyze` warns that the propagator is not converged.
 PROPAGATOR_WARNING = 1e-4
+#: :func:`_sampling_order`: a sampled linearisation whose trigonometric interpolant converges at an
+#: order below this in the samples (between every fourth and every other sample) is not smooth: a
+#: drive's acceleration jump makes ``P(t)`` jump and the interpolant converge like ``1/N`` (measured
+#: ~0.2 on a bang-bang drive) where the smooth built-in models show 8 and more at 32 samples.
+SAMPLING_MIN_ORDER = 2.0
+#: Relative interpolation errors below this are rounding (no order information).
+SAMPLING_NOISE = 1e-12
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
 #: A mode carries a drive's name, and counts as one the drives can move, only when that drive's share
@@ -529,6 +536,7 @@ def analyze(
     if refine and method != "paper" and not res.all_certified:
         res = _refine_to_contract(lin, res, rtol, sm)
     res = _declared_breakpoints(orbit, res)
+    res = _check_sampling(lin, res, rtol)
     lap("floquet")
     modes = label_multipliers(lin, orbit, res)
     lap("labels")
@@ -646,24 +654,82 @@ def _contract_steps(res: Any, rtol: float) -> int:
 
 
 def _declared_breakpoints(orbit: PeriodicOrbit, res: Any) -> Any:
-    """``res`` uncertified, with the reason, when a drive of the model declares breakpoints.
+    """``res`` uncertified, with the reason, when a drive of the model declares breakpoints that the
+    orbit was not sampled on.
 
-    The linearisation is sampled on the orbit and interpolated trigonometrically
-    (:class:`~linearize.system.LinearizedPeriodicSystem`): a smooth ``P(t)`` whatever the motion, so a
-    declared non-smooth motion is not represented to the accuracy the estimates speak of (they see the
-    propagator's error on the interpolant, not the interpolant's).  Warns (``RuntimeWarning``).
+    :func:`~linearize.periodic_orbit.find_orbit` samples piece by piece when a drive declares
+    breakpoints (:mod:`linearize.piecewise`; ``orbit.breakpoints``), and the linearisation then jumps
+    where the motion does.  An orbit sampled on the equispaced grid (given by the caller) is
+    interpolated trigonometrically: a smooth ``P(t)`` whatever the motion, so a declared non-smooth
+    motion is not represented to the accuracy the estimates speak of (they see the propagator's error
+    on the interpolant, not the interpolant's).  Warns (``RuntimeWarning``).
     """
     from dataclasses import replace
 
     from mbs_models.model_file import build_model
 
     drives = build_model(orbit.model, orbit.omega).drives
-    declared = {d.name: d.breakpoints for d in drives if d.breakpoints}
+    T = orbit.period
+    sampled = {round(float(b) % T / T, 9) for b in (getattr(orbit, "breakpoints", ()) or ())}
+    declared = {d.name: d.breakpoints for d in drives
+                if d.breakpoints and not all(round(float(b) % T / T, 9) in sampled | {0.0, 1.0} for b in d.breakpoints)}
     if not declared:
         return res
     which = ", ".join(f"{name} at t = {', '.join(f'{b:.4g}' for b in bps)}" for name, bps in declared.items())
-    reason = (f"the drive motion is non-smooth ({which}); the sampled linearisation is smooth (trigonometric "
-              f"interpolation) and does not represent it")
+    reason = (f"the drive motion is non-smooth ({which}); the orbit was not sampled on these times and its "
+              f"linearisation (trigonometric interpolation) is smooth: it does not represent the motion")
+    warnings.warn(f"multipliers not certified: {reason}", RuntimeWarning, stacklevel=3)
+    return replace(res, certified=np.zeros(len(res.certified), bool),
+                   uncertified_reasons=tuple(r or reason for r in res.uncertified_reasons))
+
+
+def _sampling_order(lin: LinearizedPeriodicSystem) -> tuple[float, float, str]:
+    """``(q, e, name)``: the lowest order of convergence in the samples among ``M, C, K`` of ``lin``
+    whose interpolation error ``e`` is above :data:`SAMPLING_NOISE`, with that error and the matrix.
+
+    ``e`` is the largest error, relative to the matrix's largest entry, of the trigonometric interpolant
+    of every other sample at the samples in between (the interpolant of half the samples: the samples
+    are nested, so no new evaluation); ``e0`` the same for every fourth sample; ``q = log2(e0 / e)``.
+    ``(inf, 0, "")`` when no matrix is informative or there are too few samples (fewer than 16, or not a
+    multiple of 4)."""
+    from linearize.fourier import trig_interpolate
+
+    N, T = lin.samples, lin.period
+    if N < 16 or N % 4:
+        return math.inf, 0.0, ""
+    worst = (math.inf, 0.0, "")
+    for name, S in (("M", lin.M), ("C", lin.C), ("K", lin.K)):
+        scale = float(np.max(np.abs(S))) or 1.0
+        e = float(np.max(np.abs(trig_interpolate(S[0::2], T, lin.times[1::2]) - S[1::2]))) / scale
+        e0 = float(np.max(np.abs(trig_interpolate(S[0::4], T, lin.times[2::4]) - S[2::4]))) / scale
+        if not e > SAMPLING_NOISE:
+            continue
+        q = math.log2(e0 / e) if e0 > e else 0.0
+        if q < worst[0]:
+            worst = (q, e, name)
+    return worst
+
+
+def _check_sampling(lin: LinearizedPeriodicSystem, res: Any, rtol: float) -> Any:
+    """``res`` uncertified, with the reason, when the equispaced samples do not resolve a smooth ``P``.
+
+    The propagator's estimates see the error of the propagation of the interpolated ``P``, not the
+    interpolant's own error; a smooth linearisation makes the latter negligible (spectral), a
+    non-smooth one (an undeclared acceleration jump of a drive) does not: the interpolant's order in
+    the samples (:func:`_sampling_order`) is then below :data:`SAMPLING_MIN_ORDER` while its error
+    from half the samples is above ``rtol``.  Warns (``RuntimeWarning``).  A piecewise-sampled
+    linearisation (declared breakpoints) is left alone.
+    """
+    from dataclasses import replace
+
+    if lin.breakpoints:
+        return res
+    q, e, name = _sampling_order(lin)
+    if not (q < SAMPLING_MIN_ORDER and e > rtol):
+        return res
+    reason = (f"the sampled linearisation is not smooth: its {name} converges at order {q:.2g} in the samples "
+              f"(interpolation error {e:.1e} from every other sample); a drive's motion is probably "
+              f"non-smooth -- declare its breakpoints (docs/accuracy.md)")
     warnings.warn(f"multipliers not certified: {reason}", RuntimeWarning, stacklevel=3)
     return replace(res, certified=np.zeros(len(res.certified), bool),
                    uncertified_reasons=tuple(r or reason for r in res.uncertified_reasons))

@@ -63,7 +63,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -287,7 +287,8 @@ def _rotation_log(H: np.ndarray) -> np.ndarray:
 def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "np.ndarray | None" = None,
                      drives: "np.ndarray | None" = None,
                      stiffness: "np.ndarray | None" = None,
-                     signs: "np.ndarray | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     signs: "np.ndarray | None" = None,
+                     grid: "Any | None" = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Smooth periodic basis ``N`` of ``null C_q`` and its derivatives at the samples.
 
     Parameters
@@ -377,7 +378,7 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
         N = np.concatenate([ND, W], axis=2)
     if frame is not None:
         N = F @ N
-    D1, D2 = differentiation_matrices(period, Kn)
+    D1, D2 = differentiation_matrices(period, Kn) if grid is None else (grid.D1, grid.D2)
     flat = N.reshape(Kn, -1)
     N_t = (D1 @ flat).reshape(N.shape)
     N_tt = (D2 @ flat).reshape(N.shape)
@@ -431,8 +432,10 @@ def linearize_orbit(
     kdv = _gains(kd, d, "kd") if d else np.zeros(0)
     signs = getattr(orbit, "signs", None)
     flips = signs is not None and np.any(np.asarray(signs) < 0)
+    grid = getattr(orbit, "grid", None)
     N, N_t, N_tt = null_space_basis(tb.Cq, orbit.times, orbit.period, frame=corotating_frame(orbit),
-                                    drives=orbit.drive_vectors, stiffness=tb.K, signs=signs if flips else None)
+                                    drives=orbit.drive_vectors, stiffness=tb.K, signs=signs if flips else None,
+                                    grid=grid)
     B = orbit.drive_vectors
     Kf = tb.K if reaction_stiffness else tb.K_force
     Kf = Kf + (B * kpv) @ B.T
@@ -463,6 +466,7 @@ def linearize_orbit(
         drive_names=orbit.drive_names,
         basis=N,
         basis_t=N_t,
+        breakpoints=tuple(getattr(orbit, "breakpoints", ()) or ()),
     )
     from dataclasses import replace
 

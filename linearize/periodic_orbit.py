@@ -57,6 +57,7 @@ from linearize.exudyn_system import ExudynSystem
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
                                sample_times, trig_interpolate)
+from linearize.piecewise import PiecewiseGrid
 from mbs_models.model_file import BuiltModel, ModelDefinition, ModelFileError, build_model, resolve_model
 
 __all__ = [
@@ -299,6 +300,7 @@ class PeriodicOrbit:
     signs: Optional[np.ndarray] = field(default=None, repr=False)
     references: Optional[np.ndarray] = field(default=None, repr=False)
     autonomous: bool = False
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         n = self.q.shape[1]
@@ -319,6 +321,18 @@ class PeriodicOrbit:
         return apply_map(q, self.shift, self.signs, self.references, j), self.signs ** j * np.asarray(v, dtype=float)
 
     @property
+    def grid(self) -> Optional[PiecewiseGrid]:
+        """The piecewise sampling (:class:`~linearize.piecewise.PiecewiseGrid`) when the drives declare
+        breakpoints; ``None`` for the equispaced trigonometric one."""
+        if not self.breakpoints:
+            return None
+        grid = self.__dict__.get("_grid")
+        if grid is None:
+            grid = PiecewiseGrid(self.period, self.breakpoints, self.samples)
+            object.__setattr__(self, "_grid", grid)  # a cache, not a field
+        return grid
+
+    @property
     def samples(self) -> int:
         return int(self.times.size)
 
@@ -331,8 +345,8 @@ class PeriodicOrbit:
         """``q0(t)`` at a whole number of periods ``t = j T`` (``q[0] + j shift``); other times
         by :meth:`state`."""
         j = round(float(t) / self.period)
-        if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)):
-            return self.state(float(t))[0]
+        if abs(float(t) - j * self.period) > 1e-9 * self.period * max(1, abs(j)) or self.breakpoints:
+            return self.state(float(t))[0]  # (piecewise sampling has no node at t = 0)
         return self.map_state(self.q[0], self.q_t[0], j)[0]
 
     @property
@@ -341,8 +355,13 @@ class PeriodicOrbit:
         return int(self.q.shape[1])
 
     def state(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(q, q', q'')`` at ``t`` by trigonometric interpolation."""
+        """``(q, q', q'')`` at ``t`` by trigonometric interpolation (piecewise sampling: the ``C^1``
+        piecewise polynomial the collocation solved for and its derivatives, :attr:`grid`)."""
         ramp = np.multiply.outer(np.asarray(t, dtype=float), self.shift / self.period)
+        grid = self.grid
+        if grid is not None:  # (no sign flips with breakpoints: refused by the collocation)
+            p = self.q_periodic
+            return (grid.smooth(p, t) + ramp, grid.smooth(p, t, 1) + self.shift / self.period, grid.smooth(p, t, 2))
         out = [trig_interpolate(self.q_periodic, self.period, t) + ramp, trig_interpolate(self.q_t, self.period, t),
                trig_interpolate(self.q_tt, self.period, t)]
         a = self.antiperiodic
@@ -354,6 +373,9 @@ class PeriodicOrbit:
 
     def torque(self, t: float | np.ndarray) -> np.ndarray:
         """Feed-forward torques at ``t`` (shape ``(d,)`` or ``(m, d)``)."""
+        grid = self.grid
+        if grid is not None:
+            return grid.interpolate(self.torques, t)
         return trig_interpolate(self.torques, self.period, t)
 
     def summary(self) -> dict:
@@ -646,8 +668,14 @@ class _Collocation:
         self.system = ExudynSystem(built)
         self.T = built.period
         self.K = int(samples)
-        self.times = sample_times(self.T, self.K)
-        self.D1, self.D2 = differentiation_matrices(self.T, self.K)
+        breakpoints = sorted({float(b) for dr in built.drives for b in (getattr(dr, "breakpoints", None) or ())})
+        #: piecewise sampling when a drive declares breakpoints (:mod:`linearize.piecewise`), else None
+        self.grid: Optional[PiecewiseGrid] = PiecewiseGrid(self.T, breakpoints, self.K) if breakpoints else None
+        if self.grid is not None:
+            self.times, self.D1, self.D2 = self.grid.times, self.grid.D1, self.grid.D2
+        else:
+            self.times = sample_times(self.T, self.K)
+            self.D1, self.D2 = differentiation_matrices(self.T, self.K)
         self.B = built.drive_vectors()
         self.n, self.m, self.d = self.system.n, self.system.m, len(built.drives)
         self.s = self.n + self.m + self.d
@@ -687,6 +715,9 @@ class _Collocation:
         self.signs = np.ones(self.n) if signs is None else np.asarray(signs, dtype=float).copy()
         self.references = np.zeros(self.n) if references is None else np.asarray(references, dtype=float).copy()
         self.anti = np.flatnonzero(self.signs < 0)
+        if self.anti.size and self.grid is not None:
+            raise ModelFileError("declared breakpoints on a model whose Euler parameters change sign over a "
+                                 "period are not supported: declare no breakpoints, or use NodeRigidBodyRxyz")
         if self.anti.size:
             self.D1a, self.D2a = antiperiodic_differentiation_matrices(self.T, self.K)
             self.solver, self.pattern = "dense", None  # per-coordinate derivative matrices: dense Newton
@@ -1328,20 +1359,25 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
                      shift: Optional[np.ndarray] = None, signs: Optional[np.ndarray] = None,
-                     references: Optional[np.ndarray] = None) -> float:
+                     references: Optional[np.ndarray] = None, grid: Optional[PiecewiseGrid] = None) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
     n = Q.shape[1]
     s = np.zeros(n) if shift is None else np.asarray(shift, dtype=float)
     sg = np.ones(n) if signs is None else np.asarray(signs, dtype=float)
     refs = np.zeros(n) if references is None else np.asarray(references, dtype=float)
+    if grid is None:
+        P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
+        q0, v0 = Q[0], V[0]
+    else:  # piecewise sampling: no node at t = 0, the state there from the collocation polynomial
+        P = Q - grid.times[:, None] * (s[None, :] / T)
+        q0, v0 = grid.smooth(P, 0.0), grid.smooth(P, 0.0, 1) + s / T
     try:
-        qT, vT, _ = _simulate(built_p, Q[0], V[0], T, SHOOTING_STEPS_PER_SAMPLE * samples)
+        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples)
     except ExudynRunError:
         return math.inf
-    x0 = np.concatenate([apply_map(Q[0], s, sg, refs), sg * V[0]])
+    x0 = np.concatenate([apply_map(q0, s, sg, refs), sg * v0])
     xT = np.concatenate([qT, vT])
-    P = Q - np.arange(Q.shape[0])[:, None] * (s[None, :] / Q.shape[0])  # the periodic part
     # ... at least the integrator's own resolution of the state (an orbit at rest in its periodic
     # part, e.g. a rotor spinning steadily, has no variation to compare with)
     floor = SHOOTING_FLOOR * max(1.0, float(np.max(np.abs(Q))), float(np.max(np.abs(V))))
@@ -1414,7 +1450,7 @@ def find_orbit(
         structured one above :data:`~linearize.collocation_solver.STRUCTURED_THRESHOLD`
         unknowns.  Both solve the same equations to the same tolerance.
     guess : PeriodicOrbit, optional
-        Start Newton from this orbit's samples (same model and ``samples``, usually a
+        Start Newton from this orbit's samples (same model, ``samples`` and sample phases ``t / T``, usually a
         nearby omega: continuation along an omega sweep) instead of one simulated
         period; if Newton fails from it, the usual guess and continuation follow.
     **options
@@ -1445,7 +1481,8 @@ def find_orbit(
     history: list = []
     ok = False
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
-            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d:
+            guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d and \
+            np.allclose(guess.times / guess.period, col.times / col.T, rtol=0.0, atol=1e-12):
         col.set_shift(guess.shift, guess.signs, guess.references)
         X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
@@ -1503,7 +1540,8 @@ def find_orbit(
     lap("tangent")
     shooting = math.nan
     if verify:
-        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.signs, col.references)
+        shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.signs, col.references,
+                                    col.grid)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1522,6 +1560,7 @@ def find_orbit(
         timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
         references=col.references.copy(), autonomous=bool(col.autonomous) and float(np.max(np.abs(V))) >
         PHASE_MOTION * max(1.0, float(np.max(np.abs(Q)))) / col.T,
+        breakpoints=() if col.grid is None else col.grid.boundaries,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)

@@ -9,6 +9,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from linearize.fourier import trig_interpolate
+from linearize.piecewise import PiecewiseGrid
 from stability.periodic import first_order_matrix
 
 __all__ = ["LinearizedPeriodicSystem"]
@@ -74,6 +75,10 @@ class LinearizedPeriodicSystem:
     basis, basis_t : ndarray, shape (N, n_ode2, n), optional
         ``delta q = N(t) y`` and ``N'(t)``: the map back to Exudyn's ODE2
         coordinates (a model file's linearisation); ``delta q' = N y' + N' y``.
+    breakpoints : tuple of float
+        Piece boundaries of a piecewise-sampled orbit (a drive with declared breakpoints,
+        :mod:`linearize.piecewise`; ``0`` included): the samples are that grid's nodes and ``P`` is
+        interpolated piece by piece.  :func:`stability.floquet` lands its steps on them.
 
     Notes
     -----
@@ -101,6 +106,7 @@ class LinearizedPeriodicSystem:
     drive_names: tuple = ()
     basis: Optional[np.ndarray] = None
     basis_t: Optional[np.ndarray] = None
+    breakpoints: tuple = ()
 
     def __post_init__(self) -> None:
         for name in ("M", "C", "K"):
@@ -165,12 +171,33 @@ class LinearizedPeriodicSystem:
             object.__setattr__(self, "_table", table)  # a cache, not a field (replace() drops it)
         return table
 
+    @property
+    def grid(self) -> Optional[PiecewiseGrid]:
+        """The piecewise sampling of the orbit (:class:`~linearize.piecewise.PiecewiseGrid`) when it was
+        sampled piece by piece (:attr:`breakpoints`); ``None`` for equispaced samples."""
+        if not self.breakpoints:
+            return None
+        grid = self.__dict__.get("_grid")
+        if grid is None:
+            grid = PiecewiseGrid(self.period, self.breakpoints, self.samples)
+            if not np.allclose(grid.times, self.times, rtol=0.0, atol=1e-12 * self.period):
+                raise ValueError("breakpoints given, but the sample times are not their piecewise grid")
+            object.__setattr__(self, "_grid", grid)  # a cache, not a field
+        return grid
+
     def matrices(self, times: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Interpolated ``(M, C, K)`` at ``times``, each of shape ``(m, n, n)``.
 
         :func:`linearize.fourier.trig_interpolate` of each, in real arithmetic
-        (``sum_k a_k cos(k w t) - b_k sin(k w t)``: one real product for the three)."""
+        (``sum_k a_k cos(k w t) - b_k sin(k w t)``: one real product for the three); with
+        :attr:`breakpoints`, piece by piece the polynomial through the piece's samples
+        (:meth:`~linearize.piecewise.PiecewiseGrid.interpolate`: ``P`` may jump at a breakpoint).
+        """
         t = np.atleast_1d(np.asarray(times, dtype=float))
+        grid = self.grid
+        if grid is not None:
+            out = grid.interpolate(np.stack([self.M, self.C, self.K], axis=1), t)
+            return out[:, 0], out[:, 1], out[:, 2]
         k = np.arange(self.samples // 2 + 1)
         arg = (2.0 * np.pi / self.period) * np.outer(t, k)
         rows = np.concatenate([np.cos(arg), -np.sin(arg)], axis=1)
@@ -187,8 +214,11 @@ class LinearizedPeriodicSystem:
 
     def _trace(self, t: np.ndarray) -> np.ndarray:
         """``tr P(t) = -tr(M^-1 C)(t)`` (only ``M`` and ``C`` interpolated, no ``P`` built)."""
-        M = trig_interpolate(self.M, self.period, t)
-        C = trig_interpolate(self.C, self.period, t)
+        if self.grid is not None:
+            M, C, _ = self.matrices(t)
+        else:
+            M = trig_interpolate(self.M, self.period, t)
+            C = trig_interpolate(self.C, self.period, t)
         return -np.trace(np.linalg.solve(M, C), axis1=1, axis2=2)
 
     def trace_integral(self, points: int = TRACE_POINTS) -> float:
@@ -198,6 +228,15 @@ class LinearizedPeriodicSystem:
         from stability.floquet import TRACE_RTOL
 
         T = self.period
+        grid = self.grid
+        if grid is not None:
+            # piece by piece: the interpolant is a polynomial of degree m_j - 1 on piece j, and tr(M^-1 C)
+            # a smooth function of it; Gauss-Legendre with 64 nodes per piece
+            x, w = np.polynomial.legendre.leggauss(64)
+            total = 0.0
+            for a, b in zip(grid.edges[:-1], grid.edges[1:]):
+                total += 0.5 * (b - a) * float(np.sum(w * self._trace(a + 0.5 * (b - a) * (x + 1.0))))
+            return total
         K = TRACE_MIN_POINTS // 2
         tr = self._trace(np.arange(K) * (T / K))
         total, abs_total = float(np.sum(tr)), float(np.sum(np.abs(tr)))

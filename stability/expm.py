@@ -178,24 +178,26 @@ def expm_soa(A: np.ndarray) -> np.ndarray:
     if not math.isfinite(alpha):
         return np.full_like(A, np.nan)
     s = max(0, int(math.ceil(math.log2(alpha / THETA_TAYLOR)))) if alpha > 0 else 0
-    if s:
-        f = 2.0**-s
+    # the scaling 2^-s is folded into the coefficients, c_k 2^-ks A^k = c_k (2^-s A)^k: powers of two
+    # scale exactly, so this equals scaling the powers (bit for bit away from under/overflow)
+    f = 2.0**-s
+    if s > 32:  # c_16 2^-16s would approach the underflow threshold: scale the powers instead
         A, A2, A3, A4 = A * f, A2 * f**2, A3 * f**3, A4 * f**4
+        f = 1.0
+    c = _PS_BLOCKS * (f ** np.arange(TAYLOR_DEGREE)).reshape(4, 4)
+    c16 = _TAYLOR[16] * f**16
+    # the four degree-3 blocks B_j = sum_{i>=1} c_{4j+i} A^i in one product (4 x 3) @ (3 x n n N)
+    powers = np.stack([A, A2, A3]).reshape(3, -1)
+    B = (c[:, 1:] @ powers).reshape((4,) + A.shape)
     diag = np.arange(n)
-    c = _PS_BLOCKS
-
-    def block(j: int, X: np.ndarray) -> np.ndarray:
-        """``B_j + X`` with ``B_j = c_{4j} I + c_{4j+1} A + c_{4j+2} A^2 + c_{4j+3} A^3``."""
-        X += c[j, 1] * A
-        X += c[j, 2] * A2
-        X += c[j, 3] * A3
-        X[diag, diag] += c[j, 0]
-        return X
-
-    X = block(3, _TAYLOR[16] * A4)
-    X = block(2, mm_soa(A4, X))
-    X = block(1, mm_soa(A4, X))
-    X = block(0, mm_soa(A4, X))
+    B[:, diag, diag] += c[:, :1, None]  # + c_{4j} I
+    X = B[3] + c16 * A4
+    X = mm_soa(A4, X)
+    X += B[2]
+    X = mm_soa(A4, X)
+    X += B[1]
+    X = mm_soa(A4, X)
+    X += B[0]
     for _ in range(s):
         X = mm_soa(X, X)
     return X

@@ -38,7 +38,9 @@ multiplier is above the noise floor, on the multipliers themselves.
 """
 from __future__ import annotations
 
+import cmath
 import functools
+import itertools
 import logging
 import math
 import time
@@ -47,7 +49,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
-from scipy.linalg.lapack import dgebal, dgeev
+from scipy.linalg.lapack import dgebal, dgeev, dgesdd
 
 from stability.expm import expm_near_block_diagonal, expm_soa, expm_stack, mm_soa
 from stability.magnus import (
@@ -129,6 +131,8 @@ TRACE_MIN_POINTS = 64
 #: points, so the change from ``K`` to ``2 K`` bounds the error of the ``K`` sum;
 #: 1e-13 is above the rounding of a 512-term sum (~ 9 eps).
 TRACE_RTOL = 1e-13
+#: Unit roundoff times 2 (``np.finfo(float).eps``), as a plain float.
+_EPS = float(np.finfo(float).eps)
 
 
 @frozen_result
@@ -375,6 +379,23 @@ def _eigvals(Phi: np.ndarray) -> np.ndarray:
     return np.linalg.eigvals(Phi).astype(complex)
 
 
+def _fro(X: np.ndarray) -> float:
+    """Frobenius norm of a real matrix: ``sqrt(x . x)`` of its entries, as ``np.linalg.norm`` computes
+    it, without that function's argument handling."""
+    v = X.ravel()
+    return math.sqrt(float(v @ v)) if v.dtype.kind == "f" else float(np.linalg.norm(X))
+
+
+def _norm2(Phi: np.ndarray) -> float:
+    """``||Phi||_2``, the largest singular value (LAPACK ``dgesdd`` directly for a real matrix: twice as fast
+    as ``np.linalg.svd`` on a 4x4; the same routine)."""
+    if Phi.dtype == np.float64 and Phi.ndim == 2 and np.isfinite(Phi).all():
+        _, sv, _, info = dgesdd(Phi, compute_uv=0)
+        if info == 0:
+            return float(sv[0])
+    return float(np.linalg.svd(Phi, compute_uv=False)[0])
+
+
 def _spectrum(Phi: np.ndarray) -> _Spectrum:
     vals = _eigvals(Phi)
     logs = np.log(np.abs(vals))  # -inf for an exact zero (callers run under np.errstate)
@@ -386,6 +407,19 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
 #: Largest system whose spectra are paired between refinement levels by an assignment
 #: (:func:`_match`, ``O(n^3)``); larger ones are paired by sort order.
 MATCH_MAX_N = 1500
+
+
+def _sort_order_pairs(av: list, bv: list, la: list, lb: list) -> bool:
+    """Whether ``bv[i]`` is the nearest of ``bv`` to ``av[i]`` for every ``i`` and the log moduli agree
+    to 0.5 (plain Python: a handful of numbers)."""
+    for x, y, lx, ly in zip(av, bv, la, lb):
+        if not abs(lx - ly) < 0.5:
+            return False
+        d = abs(x - y)
+        for z in bv:
+            if not d <= abs(x - z):  # (NaN: not paired)
+                return False
+    return True
 
 
 def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
@@ -401,27 +435,52 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
+    from scipy.optimize import linear_sum_assignment
+
     if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
-        av, bv = a.values.tolist(), b.values.tolist()
-        if all(abs(x - bv[i]) <= min(abs(x - y) for y in bv) for i, x in enumerate(av)) \
-                and all(abs(x - y) < 0.5 for x, y in zip(a.log_moduli.tolist(), b.log_moduli.tolist())):
+        if _sort_order_pairs(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist()):
             return b
     else:
         near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
         if np.array_equal(near, np.arange(n)) and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
             return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
-    from scipy.optimize import linear_sum_assignment
-
-    la, lb = a.log_moduli, b.log_moduli
-    finite = np.concatenate([la[np.isfinite(la)], lb[np.isfinite(lb)]])
-    low = (float(finite.min()) if finite.size else 0.0) - 50.0
-    la, lb = np.where(np.isfinite(la), la, low), np.where(np.isfinite(lb), lb, low)
-    dphase = np.angle(a.values[:, None] * np.conj(b.values[None, :]))
-    cost = np.hypot(la[:, None] - lb[None, :], np.where(np.isfinite(dphase), dphase, math.pi))
-    if np.all(np.diag(cost) <= cost.min(axis=1) + 1e-15) and np.all(np.diag(cost) <= cost.min(axis=0) + 1e-15):
-        return b  # sort order already pairs every multiplier with its nearest
-    _, cols = linear_sum_assignment(cost)
+    if n <= SMALL_N:
+        cost = _log_distances(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist())
+        cols = [row.index(min(row)) for row in cost]
+    else:
+        la, lb = a.log_moduli, b.log_moduli
+        finite = np.concatenate([la[np.isfinite(la)], lb[np.isfinite(lb)]])
+        low = (float(finite.min()) if finite.size else 0.0) - 50.0
+        la, lb = np.where(np.isfinite(la), la, low), np.where(np.isfinite(lb), lb, low)
+        dphase = np.angle(a.values[:, None] * np.conj(b.values[None, :]))
+        cost = np.hypot(la[:, None] - lb[None, :], np.where(np.isfinite(dphase), dphase, math.pi))
+        cols = cost.argmin(axis=1).tolist()
+    if sorted(cols) == list(range(n)):
+        # every multiplier's nearest counterpart is a different one: that pairing is an optimal
+        # assignment (each term of the sum at its row minimum), no Hungarian step needed
+        if cols == list(range(n)):
+            return b
+    else:
+        _, cols = linear_sum_assignment(np.asarray(cost))
     return _Spectrum(b.values[cols], b.log_moduli[cols])
+
+
+def _log_distances(av: list, bv: list, la: list, lb: list) -> list:
+    """:func:`_match`'s cost matrix for a handful of multipliers, in plain Python: ``hypot`` of the
+    difference of the log moduli (an exact zero's ``-inf`` replaced by 50 below the smallest finite
+    one) and of the phase of ``a_i conj(b_j)`` (``pi`` where that is not finite), as rows."""
+    finite = [x for x in la + lb if math.isfinite(x)]
+    low = (min(finite) if finite else 0.0) - 50.0
+    la = [x if math.isfinite(x) else low for x in la]
+    lb = [x if math.isfinite(x) else low for x in lb]
+    rows = []
+    for x, lx in zip(av, la):
+        row = []
+        for y, ly in zip(bv, lb):
+            d = cmath.phase(x * y.conjugate())
+            row.append(math.hypot(lx - ly, d if math.isfinite(d) else math.pi))
+        rows.append(row)
+    return rows
 
 
 def _multiplier_changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
@@ -520,7 +579,7 @@ def _rounding_levels(spec: _Spectrum, norm: float, steps: int) -> np.ndarray:
     """Relative rounding level of each multiplier of a product of ``steps`` factors:
     ``10 sqrt(steps) eps ||Phi|| / |rho_i|`` (random accumulation of one rounding per factor,
     relative to the multiplier; the absolute floor of a small multiplier is set by ``||Phi||``)."""
-    level = 10.0 * math.sqrt(max(steps, 1)) * np.finfo(float).eps * norm * np.exp(-spec.log_moduli)
+    level = 10.0 * math.sqrt(max(steps, 1)) * _EPS * norm * np.exp(-spec.log_moduli)
     return np.where(np.isfinite(level), level, np.inf)
 
 
@@ -565,6 +624,8 @@ class _LevelEstimate:
     clusters: tuple  # ((indices...), bound, nilpotent norm) of defective / clustered groups
     rounding_limited: bool  # the cluster bounds rest on a matrix estimate at the rounding level
     noise: np.ndarray  # relative rounding level of each multiplier (:func:`_rounding_levels`)
+    error: float = math.nan  # :func:`_estimate` of ``estimates`` (what ``accuracy`` covers)
+    phase_error: float = math.nan  # :func:`_estimate` of ``phase_estimates``
 
 
 def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.ndarray, p: float,
@@ -584,8 +645,9 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
         return ESTIMATE_SAFETY * d2 / (r2**p - 1.0), np.full(d2.shape, math.nan)
     r1 = Ns[-2] / Ns[-3]
     q_obs = _observed_order(Ns[-3:], d1, d2, p)
-    informative = (d2 > ORDER_NOISE * noise) & (d1 > ORDER_NOISE * noise)
-    q = np.where(informative, np.clip(q_obs, MIN_ORDER, p), float(p))
+    level = ORDER_NOISE * noise
+    informative = (d2 > level) & (d1 > level)
+    q = np.where(informative, np.minimum(np.maximum(q_obs, MIN_ORDER), p), float(p))
     # well below the scheme's order there is no error expansion to extrapolate (a jump of P inside a
     # step: the error depends on where the jump falls in the grid, not smoothly on N): first order,
     # the order of a step across a jump, or the observed one if lower
@@ -594,28 +656,39 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     # an observed order above p + 4 is no leading term of the (even) error expansion: the last two
     # levels agree by accident (the error changes sign between them), so the previous change decides
     accidental = informative & (q_obs > p + ACCIDENTAL_ORDER_EXCESS)
-    est = ESTIMATE_SAFETY * np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
-    return est, np.where(informative, q_obs, math.nan)
+    if accidental.any():
+        last = np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
+    return ESTIMATE_SAFETY * last, np.where(informative, q_obs, math.nan)
+
+
+def _matrix_changes(levels: Sequence["_Solve"]) -> tuple[np.ndarray, float, Optional[float], float]:
+    """``(change, d2, d1, floor)``: the finest change of the (balanced) monodromy matrix, its Frobenius
+    norm and the one before (None with two levels), and the rounding level ``floor`` of the product."""
+    Phi, mid = levels[-1].monodromy, levels[-2].monodromy
+    norm = _fro(Phi)  # Frobenius norms: >= the 2-norms, and cheap
+    # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
+    # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
+    floor = 2.0 * math.sqrt(levels[-1].n_steps) * _EPS * norm
+    change = Phi - mid
+    d1 = _fro(mid - levels[-3].monodromy) if len(levels) >= 3 else None
+    return change, _fro(change), d1, floor
+
+
+def _matrix_error(change: np.ndarray, d2: float, est: float, floor: float) -> tuple[np.ndarray, float, float]:
+    """``(E, eta, floor)`` of :func:`_matrix_estimate` from the normwise estimate ``est``."""
+    eta = float(est) if math.isfinite(est) else math.inf
+    E = change * (eta / d2) if d2 > 0 and math.isfinite(eta) else np.zeros_like(change)
+    return E, max(eta, floor), floor
 
 
 def _matrix_estimate(levels: Sequence["_Solve"], p: float) -> tuple[np.ndarray, float, float]:
     """``(E, eta, floor)``: the estimated error matrix ``Phi_true - Phi_finest`` (balanced
     coordinates: the finest change scaled by :func:`_extrapolated_estimate`'s factor on the normwise
     changes), its 2-norm ``eta`` (at least ``floor``) and the rounding level ``floor`` of the product."""
-    Ns = [lv.n_steps for lv in levels]
-    Phi = levels[-1].monodromy
-    norm = float(np.linalg.norm(Phi))  # Frobenius norms: >= the 2-norms, and cheap
-    # rounding of a product of N factors: one rounding per factor, accumulating like a random walk
-    # (Higham 2002, Sec. 3.5: N n eps is the worst case), on the Frobenius norm (>= the 2-norm)
-    floor = 2.0 * math.sqrt(Ns[-1]) * np.finfo(float).eps * norm
-    change = Phi - levels[-2].monodromy
-    d2 = np.array([float(np.linalg.norm(change))])
-    d1 = np.array([float(np.linalg.norm(levels[-2].monodromy - levels[-3].monodromy))]) \
-        if len(levels) >= 3 else None
-    est, _ = _extrapolated_estimate(Ns, d1, d2, p, np.array([floor / ORDER_NOISE]))
-    eta = float(est[0]) if np.isfinite(est[0]) else math.inf
-    E = change * (eta / d2[0]) if d2[0] > 0 and math.isfinite(eta) else np.zeros_like(change)
-    return E, max(eta, floor), floor
+    change, d2, d1, floor = _matrix_changes(levels)
+    est, _ = _extrapolated_estimate([lv.n_steps for lv in levels], None if d1 is None else np.array([d1]),
+                                    np.array([d2]), p, np.array([floor / ORDER_NOISE]))
+    return _matrix_error(change, d2, float(est[0]), floor)
 
 
 #: Two multipliers closer than this many times the sum of their changes over the last refinement
@@ -658,8 +731,20 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
     return hi
 
 
+def _any_near(lam: list, previous: list, keep: list) -> bool:
+    """Whether two of the ``keep`` multipliers lie within :data:`CLUSTER_RADIUS` times the sum of their
+    changes (``lam`` and the paired ``previous`` level) of each other: the test of :func:`_cluster_bounds`."""
+    moved = [abs(a - b) for a, b in zip(lam, previous)]
+    for i in range(len(lam)):
+        for j in range(i + 1, len(lam)):
+            if keep[i] and keep[j] and abs(lam[i] - lam[j]) <= CLUSTER_RADIUS * (moved[i] + moved[j]):
+                return True
+    return False
+
+
 def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
-                    previous: Optional[_Spectrum] = None) -> tuple[np.ndarray, tuple, bool]:
+                    previous: Optional[_Spectrum] = None,
+                    matrix: Optional[tuple] = None) -> tuple[np.ndarray, tuple, bool]:
     """Absolute error bounds of multipliers in defective or clustered groups (NaN elsewhere).
 
     Which multipliers form a group: the estimated error matrix ``E`` (:func:`_matrix_estimate`)
@@ -681,6 +766,7 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     acts on the group, the coupling to the other eigenvalues through ``T12`` (``gap`` = their
     distance from the group) and the rounding level.  For a semisimple double multiplier
     ``nu ~ 0`` and the bound is first order; for a Jordan block it is the square root.
+    ``matrix``: :func:`_matrix_estimate`'s ``(E, eta, floor)`` when the caller has it already.
     Returns ``(bounds, groups, rounding_limited)``.
     """
     n = spec.values.size
@@ -688,14 +774,24 @@ def _cluster_bounds(spec: _Spectrum, levels: Sequence["_Solve"], p: float,
     if n < 2 or len(levels) < 2 or n > MATCH_MAX_N:
         return bounds, (), False
     lam = spec.values
-    dist = np.abs(lam[:, None] - lam[None, :])
     previous = _match(spec, levels[-2].spectrum) if previous is None else previous
+    if n <= SMALL_N:  # the common case, decided in plain Python (a handful of numbers)
+        lams, logs = lam.tolist(), spec.log_moduli.tolist()
+        if matrix is not None:  # only multipliers the estimate covers can form a group (below)
+            top, low = logs[0] + math.log(ESTIMATE_FLOOR), 100.0 * matrix[2]
+            keep = [lg >= top and abs(z) > low for z, lg in zip(lams, logs)]
+        else:
+            keep = [True] * n
+        if not _any_near(lams, previous.values.tolist(), keep):
+            return bounds, (), False
+    dist = np.abs(lam[:, None] - lam[None, :])
     moved = np.abs(lam - previous.values)  # change over the last refinement
     near = dist <= CLUSTER_RADIUS * (moved[:, None] + moved[None, :])
-    np.fill_diagonal(near, False)
+    diag = np.arange(n)
+    near[diag, diag] = False
     if not near.any():
         return bounds, (), False
-    E, eta, floor = _matrix_estimate(levels, p)
+    E, eta, floor = _matrix_estimate(levels, p) if matrix is None else matrix
     Phi = levels[-1].monodromy
     # only multipliers the estimate covers: modulus >= ESTIMATE_FLOOR of the largest, above rounding
     covered = (spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)) & (np.abs(lam) > 100.0 * floor)
@@ -781,32 +877,52 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     fine = levels[-1]
     spec = fine.spectrum
     Ns = [lv.n_steps for lv in levels[-3:]]
-    norm = float(np.linalg.norm(fine.monodromy))  # Frobenius: >= ||Phi||_2
+    norm = _fro(fine.monodromy)  # Frobenius: >= ||Phi||_2
     noise = _rounding_levels(spec, norm, fine.n_steps)
 
-    def changes(a: _Spectrum, b: _Spectrum) -> np.ndarray:
-        """Rows: what ``accuracy`` measures, the phase (``b`` already paired with ``a``)."""
-        dmod = np.abs(np.expm1(a.log_moduli - b.log_moduli))
-        dph = np.abs(np.angle(a.values * np.conj(b.values)))
-        d = np.stack([dmod if accuracy in ("moduli", "dominant") else np.maximum(dmod, dph), dph])
-        return np.where(np.isfinite(d), d, np.inf)
-
     mid = _match(spec, levels[-2].spectrum)
-    d2 = changes(spec, mid)
-    d1 = changes(mid, _match(mid, levels[-3].spectrum)) if len(levels) >= 3 else None
-    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noise[None, :])
+    three = len(levels) >= 3
+    # the changes of both pairs of levels at once: rows (fine, mid) - (mid, coarse)
+    if three:
+        coarse = _match(mid, levels[-3].spectrum)
+        va, vb = np.array((spec.values, mid.values)), np.array((mid.values, coarse.values))  # np.stack, cheaper
+        la, lb = np.array((spec.log_moduli, mid.log_moduli)), np.array((mid.log_moduli, coarse.log_moduli))
+    else:
+        va, vb, la, lb = spec.values[None], mid.values[None], spec.log_moduli[None], mid.log_moduli[None]
+    dmod = np.abs(np.expm1(la - lb))
+    dph = np.abs(np.angle(va * np.conj(vb)))
+    if accuracy not in ("moduli", "dominant"):
+        dmod = np.maximum(dmod, dph)
+    # rows: what ``accuracy`` measures, the phase, the normwise change of the matrix (for the
+    # cluster bounds' error matrix, :func:`_matrix_estimate`), each (pairs, n)
+    change, m2, m1, floor = _matrix_changes(levels)
+    d = np.empty((dmod.shape[0], 3, dmod.shape[1]))
+    d[:, 0], d[:, 1] = dmod, dph
+    d[0, 2] = m2
+    if three:
+        d[1, 2] = m1
+    d[~np.isfinite(d)] = np.inf
+    d2 = d[0]
+    d1 = d[1] if three else None
+    noises = np.empty((3, noise.size))
+    noises[0] = noises[1] = noise
+    noises[2] = floor / ORDER_NOISE
+    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noises)
     est, phase, q_obs = both[0], both[1], q_both[0]
-    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid)
-    rel = bounds * np.exp(-spec.log_moduli)
-    has = np.isfinite(bounds)
-    est = np.where(has, np.maximum(est, rel), est)
-    phase = np.where(has, np.maximum(phase, rel), phase)
+    matrix = _matrix_error(change, m2, float(both[2][0]), floor)
+    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
+    if groups:
+        rel = bounds * np.exp(-spec.log_moduli)
+        has = np.isfinite(bounds)
+        est = np.where(has, np.maximum(est, rel), est)
+        phase = np.where(has, np.maximum(phase, rel), phase)
     est = np.maximum(np.where(np.isfinite(est), est, np.inf), noise)
     phase = np.maximum(np.where(np.isfinite(phase), phase, np.inf), noise)
     keep = spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)
     observed = q_obs[keep & np.isfinite(q_obs)]
     order = float(observed.min()) if observed.size else math.nan
-    return _LevelEstimate(est, phase, order, len(levels) >= 3, groups, limited, noise)
+    return _LevelEstimate(est, phase, order, len(levels) >= 3, groups, limited, noise,
+                          _estimate(est, spec, 1.0, accuracy), _estimate(phase, spec, 1.0))
 
 
 def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> float:
@@ -1234,18 +1350,18 @@ def _magnus_solves_small(
     hs = [period / N for N in Ns]
     times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
-    P = wrapped.evaluate(times)
-    Pg = np.ascontiguousarray(P.reshape(Ntot, q, n, n).transpose(1, 2, 3, 0))  # (q, n, n, Ntot)
+    Pg = np.empty((q, n, n, Ntot))  # matrix-major (q, n, n, Ntot)
+    if isinstance(wrapped, _Balanced):  # the balancing in the same pass as the transposition
+        np.multiply(wrapped.wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0),
+                    wrapped.ratio[None, :, :, None], out=Pg)
+    else:
+        Pg[...] = wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0)
     h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
     label = "/".join(str(N) for N in Ns)
     with np.errstate(over="ignore", invalid="ignore"):
-        Om = magnus_exponents_soa(scheme, Pg, h)
+        Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
-            if scheme.order == 4:
-                mean = 0.5 * (Pg[0] + Pg[1])
-            else:
-                mean = (5.0 * Pg[0] + 8.0 * Pg[1] + 5.0 * Pg[2]) / 18.0
-            column = np.abs(Om - h * mean).sum(axis=0).max(axis=0)  # per sub-interval
+            column = np.abs(C).sum(axis=0).max(axis=0)  # per sub-interval
             if optional_first and len(Ns) > 1 and not float(column[:Ns[0]].max()) <= COMMUTATOR_LIMIT:
                 # the coarsest level does not resolve P: drop it (the caller refines further)
                 keep = slice(Ns[0], Ntot)
@@ -1259,22 +1375,16 @@ def _magnus_solves_small(
                     f"with {label} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
                 )
         E = expm_soa(Om)
-        if len(Ns) == 2 and Ns[1] == 2 * Ns[0]:
-            # the pilot pair: one level of the fine product brings it to N factors, then both
-            # products reduce together (half the batched products)
-            N = Ns[0]
-            fine = E[:, :, N:]
-            both = np.stack([E[:, :, :N], mm_soa(fine[:, :, 1::2], fine[:, :, 0::2])], axis=3)
-            products = ordered_product_soa(both.reshape(n, n, 2 * N), blocks=2)
-        else:
-            products = None
+        products = _level_products(E, Ns)
+        diag = np.arange(n)
+        traces = np.add.reduceat(Om[diag, diag].sum(axis=0), [0, *itertools.accumulate(Ns[:-1])])
         out = []
         start = 0
         for i, N in enumerate(Ns):
             block = slice(start, start + N)
             start += N
             # a non-finite factor makes the product non-finite
-            Phi = products[:, :, i] if products is not None else ordered_product_soa(E[:, :, block])
+            Phi = products[i]
             if not np.isfinite(Phi).all():
                 raise _Unresolved(
                     f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
@@ -1282,10 +1392,41 @@ def _magnus_solves_small(
                     f"{float(np.abs(Om[:, :, block]).sum(axis=0).max()):.3g})",
                     genuine_overflow=True,
                 )
-            log_det = float(np.trace(np.sum(Om[:, :, block], axis=2)))
             factors = np.ascontiguousarray(E[:, :, block].transpose(2, 0, 1)) if keep_factors else None
-            out.append(_Solve(N, Phi, _spectrum(Phi), log_det, factors))
+            out.append(_Solve(N, Phi, _spectrum(Phi), float(traces[i]), factors))
     return out
+
+
+def _level_products(E: np.ndarray, Ns: Sequence[int]) -> list[np.ndarray]:
+    """``E_N ... E_1`` of each consecutive block of ``Ns`` factors of the stack ``E`` ``(n, n, sum Ns)``.
+
+    When the counts double from level to level (``Ns[i] = 2^i Ns[0]``, the refinement ladder), the
+    finest block is reduced by one pairwise level, reduced together with the next one, and so on,
+    until all have ``Ns[0]`` factors; then they reduce together (``log2 Ns[0]`` batched products
+    for all the levels instead of one sequence each).  The same products in the same order as
+    :func:`~stability.magnus.ordered_product_soa` on each block.
+    """
+    n = E.shape[0]
+    bounds = [0, *itertools.accumulate(Ns)]  # (np.cumsum of a short list costs more)
+    blocks = [E[:, :, bounds[i]:bounds[i + 1]] for i in range(len(Ns))]
+    N0 = Ns[0]
+    ladder = len(Ns) > 1 and all(N == N0 * 2**i for i, N in enumerate(Ns))
+    if not ladder:
+        return [ordered_product_soa(b) for b in blocks]
+    # from the finest down: carry = the blocks already reduced to the current count, interleaved
+    carry = blocks[-1]
+    width = 1  # how many sequences are interleaved in carry
+    for i in range(len(Ns) - 2, -1, -1):
+        k = carry.shape[2] // width
+        shaped = carry.reshape(n, n, k, width)
+        half = mm_soa(shaped[:, :, 1::2].reshape(n, n, -1), shaped[:, :, 0::2].reshape(n, n, -1))
+        half = half.reshape(n, n, k // 2, width)
+        # prepend level i (same count now) as the first interleaved sequence
+        carry = np.concatenate([blocks[i].reshape(n, n, k // 2, 1), half], axis=3)
+        width += 1
+        carry = carry.reshape(n, n, -1)
+    products = ordered_product_soa(carry, blocks=width)  # (n, n, width): level order
+    return [products[:, :, i] for i in range(width)]
 
 
 def _matrix_change(fine: np.ndarray, coarse: np.ndarray) -> float:
@@ -1414,9 +1555,7 @@ def _magnus_method(scheme: MagnusScheme) -> Callable[..., _Propagation]:
                 solve, solve_many, lambda lv: _level_estimates(lv, p, accuracy), rtol, max_steps, scheme,
                 lambda: _start_steps(scheme, wrapped, period, max_steps, probe), accuracy)
         if info is not None:
-            changes = info.estimates
-            est = _estimate(changes, fine.spectrum, 1.0, accuracy)
-            phase_est = _estimate(info.phase_estimates, fine.spectrum, 1.0)
+            changes, est, phase_est = info.estimates, info.error, info.phase_error
         else:
             changes, est, phase_est = None, (math.nan if fixed is None else fixed), math.nan
         companions = []
@@ -1488,8 +1627,8 @@ def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: 
 def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     """``max_k ||Omega_k - h Pbar_k||_1`` over the sub-intervals of ``Pg`` (shape ``(m, q, n, n)``)."""
     with np.errstate(over="ignore", invalid="ignore"):
-        return float(np.max(np.sum(np.abs(magnus_exponents(scheme, Pg, h) - h * _quadrature_mean(scheme, Pg)),
-                                   axis=1)))
+        _, C = magnus_exponents(scheme, Pg, h, split=True)
+        return float(np.max(np.sum(np.abs(C), axis=1)))
 
 
 def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
@@ -1548,9 +1687,9 @@ def _adaptive(solve, solve_many, estimate, rtol: float, max_steps: int, scheme: 
         fine = levels[-1]
         est = math.inf
         if info is not None:
-            est = _estimate(info.estimates, fine.spectrum, 1.0, accuracy)
+            est = info.error
             if accuracy == "multipliers":
-                est = max(est, _estimate(info.phase_estimates, fine.spectrum, 1.0))
+                est = max(est, info.phase_error)
             if info.order_checked and est <= rtol:
                 return fine, levels, info, False
             if info.order_checked and info.rounding_limited and info.clusters:
@@ -1638,10 +1777,10 @@ class _Balanced:
         self.wrapped = wrapped
         self.period = wrapped.period
         self.n = wrapped.n
-        self._ratio = scale[None, :] / scale[:, None]
+        self.ratio = scale[None, :] / scale[:, None]  # powers of two: the scaling is exact
 
     def evaluate(self, times: np.ndarray) -> np.ndarray:
-        return self.wrapped.evaluate(times) * self._ratio
+        return self.wrapped.evaluate(times) * self.ratio
 
     def __call__(self, t: float) -> np.ndarray:
         return self.evaluate(np.array([t]))[0]
@@ -1946,6 +2085,11 @@ def _piecewise_trace(wrapped: Any, pieces: Sequence[tuple[float, float]]) -> flo
     return total
 
 
+#: The reasons of :func:`_certify` and :func:`recertify` that do not depend on the multiplier.
+_BELOW_FLOOR = "below the rounding floor of the formed product: phase (sign) unknown"
+_OUTSIDE = f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)"
+
+
 def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, phase_known: np.ndarray,
              adaptive: bool, method: str) -> tuple[np.ndarray, tuple]:
     """Which multipliers meet the accuracy contract, and why each other one does not.
@@ -1986,11 +2130,9 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
         mask &= dominant_mask(spec.log_moduli, changes)
     for i in range(n):
         if not phase_known[i]:
-            reasons[i] = "below the rounding floor of the formed product: phase (sign) unknown" + (
-                "" if covered[i] else f"; modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy "
-                                      f"contract)")
+            reasons[i] = _BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE)
         elif not covered[i]:
-            reasons[i] = f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)"
+            reasons[i] = _OUTSIDE
         elif changes is None:
             reasons[i] = "no error estimate (fixed n_steps with error_estimate=False)"
         elif not mask[i]:
@@ -2059,11 +2201,9 @@ def recertify(result: FloquetResult, rtol: Optional[float] = None) -> FloquetRes
         if certified[i]:
             reasons.append("")
         elif not known[i]:
-            reasons.append("below the rounding floor of the formed product: phase (sign) unknown" + (
-                "" if covered[i] else f"; modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy "
-                                      f"contract)"))
+            reasons.append(_BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE))
         elif not covered[i]:
-            reasons.append(f"modulus below {ESTIMATE_FLOOR:g} of the largest (outside the accuracy contract)")
+            reasons.append(_OUTSIDE)
         elif not has_estimate:
             reasons.append("no error estimate")
         else:
@@ -2109,11 +2249,11 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     else:
         trace = _trace_integral(P, wrapped, T)
     n = spec.values.size
-    noise = float(n * np.finfo(float).eps * np.linalg.svd(prop.monodromy, compute_uv=False)[0])  # ||Phi||_2
+    noise = float(n * _EPS * _norm2(prop.monodromy))
     moduli = np.exp(spec.log_moduli)
-    noise_digits = np.clip(np.log10(moduli / noise), 0.0, 16.0)
+    noise_digits = np.minimum(np.maximum(np.log10(moduli / noise), 0.0), 16.0)  # np.clip, cheaper
     if prop.changes is not None:
-        refine_digits = np.clip(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0, 16.0)
+        refine_digits = np.minimum(np.maximum(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0), 16.0)
     else:
         refine_digits = np.full(n, 16.0)
     digits = np.minimum(noise_digits, refine_digits)

@@ -23,14 +23,24 @@ REPR_ITEMS = 4
 REPR_TEXT = 60
 
 
+@functools.lru_cache(maxsize=None)
+def _field_names(klass: type) -> frozenset:
+    """The dataclass field names of ``klass`` (cached: a class's fields do not change)."""
+    return frozenset(f.name for f in dataclasses.fields(klass))
+
+
 def freeze_arrays(obj: Any) -> None:
     """Replace every writable numpy array field of the dataclass ``obj`` by a read-only view."""
-    for f in dataclasses.fields(obj):
-        v = getattr(obj, f.name, None)
-        if isinstance(v, np.ndarray) and v.flags.writeable:
+    ndarray, setattr_ = np.ndarray, object.__setattr__
+    fields = _field_names(type(obj))
+    values = getattr(obj, "__dict__", None)
+    if values is None:  # slots
+        values = {name: getattr(obj, name, None) for name in fields}
+    for name, v in list(values.items()):
+        if isinstance(v, ndarray) and v.flags.writeable and name in fields:
             view = v.view()
             view.flags.writeable = False
-            object.__setattr__(obj, f.name, view)
+            setattr_(obj, name, view)
 
 
 def _number(x: Any) -> str:

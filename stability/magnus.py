@@ -52,7 +52,7 @@ def _comm(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return A @ B - B @ A
 
 
-def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarray:
+def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float, split: bool = False):
     """Magnus exponents ``Omega_k`` from ``P`` at the Gauss points.
 
     Parameters
@@ -62,16 +62,23 @@ def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarr
         ``P`` at the ``q`` Gauss nodes of each of the ``N`` sub-intervals.
     h : float
         Step length.
+    split : bool
+        Also return the commutator part ``C_k = Omega_k - h Pbar_k`` (``Pbar_k`` the Gauss mean
+        of ``P`` over the sub-interval), computed directly.
 
     Returns
     -------
     ndarray, shape (N, n, n)
+        ``Omega``; with ``split``, ``(Omega, C)``.
     """
     if scheme.order == 2:
-        return h * Pg[:, 0]
+        Om = h * Pg[:, 0]
+        return (Om, np.zeros_like(Om)) if split else Om
     if scheme.order == 4:
         A1, A2 = Pg[:, 0], Pg[:, 1]
-        return 0.5 * h * (A1 + A2) + (math.sqrt(3) / 12.0) * h * h * _comm(A2, A1)
+        C = (math.sqrt(3) / 12.0) * h * h * _comm(A2, A1)
+        Om = 0.5 * h * (A1 + A2) + C
+        return (Om, C) if split else Om
     if scheme.order == 6:
         A1, A2, A3 = Pg[:, 0], Pg[:, 1], Pg[:, 2]
         a1 = h * A2
@@ -79,7 +86,9 @@ def magnus_exponents(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarr
         a3 = (10.0 / 3.0) * h * (A3 - 2.0 * A2 + A1)
         c1 = _comm(a1, a2)
         c2 = -(1.0 / 60.0) * _comm(a1, 2.0 * a3 + c1)
-        return a1 + a3 / 12.0 + (1.0 / 240.0) * _comm(-20.0 * a1 - a3 + c1, a2 + c2)
+        C = (1.0 / 240.0) * _comm(-20.0 * a1 - a3 + c1, a2 + c2)
+        Om = a1 + a3 / 12.0 + C  # a1 + a3 / 12 = h (5 A1 + 8 A2 + 5 A3) / 18, the Gauss mean
+        return (Om, C) if split else Om
     raise ValueError(f"unsupported Magnus order {scheme.order}")
 
 
@@ -134,13 +143,22 @@ def _comm_soa(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return mm_soa(A, B) - mm_soa(B, A)
 
 
-def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.ndarray:
-    """:func:`magnus_exponents` for matrix-major stacks: ``Pg`` of shape ``(q, n, n, N)``, result ``(n, n, N)``."""
+def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h, split: bool = False):
+    """:func:`magnus_exponents` for matrix-major stacks: ``Pg`` of shape ``(q, n, n, N)``, result ``(n, n, N)``.
+
+    ``h`` is the step length (a scalar, or one per sub-interval, shape ``(N,)``).  With ``split``,
+    returns ``(Omega, C)`` where ``C`` is the commutator part of the exponent, ``Omega - h Pbar`` with
+    ``Pbar`` the Gauss-quadrature mean of ``P`` over the sub-interval (computed directly, not as that
+    difference; zero for ``magnus2``).
+    """
     if scheme.order == 2:
-        return h * Pg[0]
+        Om = h * Pg[0]
+        return (Om, np.zeros_like(Om)) if split else Om
     if scheme.order == 4:
         A1, A2 = Pg[0], Pg[1]
-        return 0.5 * h * (A1 + A2) + (math.sqrt(3) / 12.0) * h * h * _comm_soa(A2, A1)
+        C = (math.sqrt(3) / 12.0) * (h * h) * _comm_soa(A2, A1)
+        Om = 0.5 * h * (A1 + A2) + C
+        return (Om, C) if split else Om
     if scheme.order == 6:
         A1, A2, A3 = Pg[0], Pg[1], Pg[2]
         a1 = h * A2
@@ -148,7 +166,12 @@ def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> np.n
         a3 = (10.0 / 3.0) * h * (A3 - 2.0 * A2 + A1)
         c1 = _comm_soa(a1, a2)
         c2 = -(1.0 / 60.0) * _comm_soa(a1, 2.0 * a3 + c1)
-        return a1 + a3 / 12.0 + (1.0 / 240.0) * _comm_soa(-20.0 * a1 - a3 + c1, a2 + c2)
+        C = _comm_soa(-20.0 * a1 - a3 + c1, a2 + c2)
+        C *= 1.0 / 240.0
+        # a1 + a3 / 12 = h (5 A1 + 8 A2 + 5 A3) / 18, the Gauss mean
+        Om = a1 + a3 / 12.0
+        Om += C
+        return (Om, C) if split else Om
     raise ValueError(f"unsupported Magnus order {scheme.order}")
 
 

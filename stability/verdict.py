@@ -321,5 +321,22 @@ def judge_floquet(result: Any, *, labels: Optional[Sequence[str]] = None,
 
 
 def verdict_band(rho: float, tol: float, decay_periods: float = DECAY_PERIODS) -> str:
-    """The rule for one modulus (the spectral radius) with one absolute error band ``tol``."""
-    return judge([rho], [tol], decay_periods=decay_periods, stability_tol=0.0).verdict
+    """The rule for one modulus (the spectral radius) with one absolute error band ``tol``.
+
+    The verdict :func:`judge` gives for ``[rho], [tol]`` (``stability_tol = 0``), without building its
+    message: unstable when ``rho - tol > 1``, otherwise critical when ``rho + tol > r*``
+    (:func:`threshold`) and ``rho - tol <= 1``, otherwise asymptotically stable; a NaN or negative
+    ``tol`` is unknown (inf).
+    """
+    rho, tol = float(rho), float(tol)
+    if math.isnan(rho) or rho < 0.0:
+        return judge([rho], [tol], decay_periods=decay_periods, stability_tol=0.0).verdict  # its error
+    r_star = threshold(decay_periods)
+    if math.isnan(tol) or tol < 0.0:
+        tol = math.inf
+    lower, upper = rho - tol, rho + tol  # judge's comparisons, NaN (inf - inf) included
+    if lower > 1.0:
+        return VERDICT_UNSTABLE
+    if upper > r_star and lower <= 1.0:
+        return VERDICT_CRITICAL
+    return VERDICT_STABLE

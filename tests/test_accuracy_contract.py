@@ -349,13 +349,17 @@ def test_drive_breakpoints_are_validated():
 
 
 @pytest.mark.slow
-def test_declared_drive_breakpoints_leave_the_model_file_result_uncertified():
-    """The sampled, trigonometrically interpolated linearisation cannot represent a non-smooth motion:
-    a drive that declares breakpoints gets its multipliers reported as not certified, with the reason."""
+def test_declared_drive_breakpoints_sample_the_orbit_piecewise():
+    """A drive that declares breakpoints gets its orbit sampled piece by piece: on a smooth motion the
+    piecewise and the equispaced sampling (independent grids, interpolants and step placements) give
+    the same certified multipliers to the contract; an orbit that was *not* sampled on the declared
+    breakpoints (equispaced, handed in) leaves the result uncertified, with the reason."""
+    import dataclasses
     import importlib.util
     from pathlib import Path
 
     from linearize.analysis import analyze
+    from linearize.periodic_orbit import find_orbit
 
     spec = importlib.util.spec_from_file_location("rigid_two_link", Path(__file__).parent / "models" /
                                                   "rigid_two_link.py")
@@ -367,7 +371,18 @@ def test_declared_drive_breakpoints_leave_the_model_file_result_uncertified():
         drives[0]["breakpoints"] = (0.25, 0.75)
         return drives
 
+    piecewise = analyze(build, 2 * math.pi, verify_orbit=False)
+    assert piecewise.orbit.breakpoints == pytest.approx((0.0, 0.25, 0.75))
+    equispaced = analyze(m.build, 2 * math.pi, verify_orbit=False)
+    assert piecewise.floquet.all_certified and equispaced.floquet.all_certified
+    a, b = piecewise.floquet.multipliers, equispaced.floquet.multipliers
+    assert np.max(np.abs(a - b) / np.abs(b)) <= 2 * CONTRACT_RTOL
+    # an equispaced orbit of the declaring model: the declared times are not represented
+    orbit = find_orbit(build, 2 * math.pi, verify=False)
+    plain = dataclasses.replace(orbit, times=equispaced.orbit.times, q=equispaced.orbit.q, q_t=equispaced.orbit.q_t,
+                                q_tt=equispaced.orbit.q_tt, lambdas=equispaced.orbit.lambdas,
+                                torques=equispaced.orbit.torques, tangent=equispaced.orbit.tangent, breakpoints=())
     with pytest.warns(RuntimeWarning, match="non-smooth"):
-        res = analyze(build, 2 * math.pi, verify_orbit=False)
+        res = analyze(build, 2 * math.pi, orbit=plain)
     assert not res.floquet.certified.any()
     assert "shoulder at t = 0.25, 0.75" in res.floquet.uncertified_reasons[0]

@@ -199,3 +199,33 @@ def test_cli_full_map_json_and_exit_code(capsys):
     ref = o.mathieu_multipliers(OMEGA_K, o._pend.AMPLITUDE, o._pend.DAMPING, False)
     assert fm["agrees"] and not fm["unmatched"] and rc == 0
     assert all(abs(m - abs(ref[0])) <= e for m, e in zip(fm["multipliers"], fm["error_bars"]))
+
+
+@pytest.mark.parametrize("level", [0, -1])
+def test_amplitude_error_measured_at_one_level_covers_a_quadratic_bias(level):
+    """Runs with a quadratic term (one-sided perturbations: every fitted level is biased by ``c a``).
+    With the half-amplitude repeat -- at the coarsest level or at the finest -- every measured modulus
+    is within its bar of an exact multiplier; without it one is not (the check can fail)."""
+    A = _system()
+    linear = _trapezoidal_images(A)
+    norm = energy_norm(np.eye(3), np.eye(3))
+    exact = np.abs(np.linalg.eigvals(scipy.linalg.expm(A * T)))
+
+    def images(h, D):
+        X = linear(h, D)
+        return X + 0.3 * X * X
+
+    def misses(check):
+        cfg = FullMapConfig(step=T / 2048, refinements=3, amplitude=1e-2, slowest=6, amplitude_check=check,
+                            amplitude_level=level)
+        res = measure_full_map(images, norm, cfg)
+        assert res.multipliers and not res.diverged
+        return [m.modulus for m in res.multipliers if np.min(np.abs(exact - m.modulus)) > m.error_bar]
+
+    assert misses(True) == []
+    assert misses(False), "without the amplitude check the biased modulus must fall outside its bar"
+
+
+def test_amplitude_level_must_name_a_step_level():
+    with pytest.raises(ValueError, match="amplitude_level"):
+        FullMapConfig(step=0.1, refinements=2, amplitude_level=3)

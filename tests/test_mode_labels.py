@@ -97,7 +97,7 @@ def test_the_dominant_multiplier_is_one_the_drive_moves(chain):
 def test_tune_names_the_unreachable_mode_before_any_array(monkeypatch):
     """``unreachable_mode`` at the range centre names the lateral mode with its label and zero drive
     share; ``tune`` prints it before the first orthogonal array runs."""
-    from flexstab.commands import tune
+    from flexstab import tuning as tune
     from linearize.analysis import model_plant
     from taguchi.tuning import TuningConfig
 

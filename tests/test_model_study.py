@@ -124,7 +124,7 @@ def test_tuning_whose_check_fails_is_check_failed_exit_1(tmp_path, monkeypatch, 
     are stubbed out (they raise: stage "failed") and the nonlinear validation is a stand-in whose
     measurement does not confirm the prediction (``agrees`` false): that stage computes, so it must be
     "check failed" as well."""
-    import flexstab.commands.chart as chart
+    import flexstab.chart_runs as chart
     import flexstab.study as fs
     import validation.multipliers as vm
     import validation.plots as vp
@@ -187,7 +187,7 @@ def test_failed_tuning_validates_at_zero_gains_and_says_so(tmp_path, monkeypatch
     and study.json say "tuning failed: validated at zero gains" (it used to say "no drives (uncontrolled)" for
     a model that has two).  The tuning is made to fail by a stand-in plant rule that raises; the charts are
     stubbed out and the nonlinear measurement is a stand-in recording the gains it is asked for (cheap)."""
-    import flexstab.commands.chart as chart
+    import flexstab.chart_runs as chart
     import flexstab.plants as plants
     import flexstab.study as fs
     import validation.multipliers as vm
@@ -223,3 +223,56 @@ def test_failed_tuning_validates_at_zero_gains_and_says_so(tmp_path, monkeypatch
     assert json.loads((out / "validation.json").read_text())["gains_source"] == TUNING_FAILED_VALIDATION
     assert TUNING_FAILED_VALIDATION in headers[0] and "no drives" not in headers[0]
     assert f"**Note:** {TUNING_FAILED_VALIDATION}" in (out / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_a_second_run_reuses_every_stage_and_a_changed_input_reruns_what_it_reaches(tmp_path):
+    """Resuming (flexstab.stages): the same inputs again -> every stage "reused", a small fraction of the
+    first run's CPU, every data file byte for byte the same; then a changed target (an input of the
+    tuning, the charts and, through the gains, the validation, not of the orbit) -> the floquet stage
+    reused, the others computed.  Rejects a model study that recomputes everything (it used to) and one
+    that reuses a stage whose inputs changed."""
+    from flexstab.stages import cpu_now
+
+    out = tmp_path / "o"
+
+    def run(*extra):
+        c0 = cpu_now()
+        rc = cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(out), *extra])
+        return rc, cpu_now() - c0, json.loads((out / "study.json").read_text())["stages"]
+
+    rc, cpu1, first = run()
+    assert rc == 0 and {v["status"] for v in first.values()} == {"computed"}
+    data = {f: (out / f).read_bytes() for f in ("floquet.json", "tuning.json", "charts.json", "validation.json",
+                                               "multipliers.csv")}
+    rc, cpu2, again = run()
+    assert rc == 0 and {k: v["status"] for k, v in again.items()} == dict.fromkeys(first, "reused")
+    assert cpu2 < 0.1 * cpu1, (cpu1, cpu2)
+    assert all((out / f).read_bytes() == b for f, b in data.items())
+    report = (out / "report.md").read_text()
+    assert report.count("reused from the run finished at") == 4
+    assert json.loads((out / "manifest.json").read_text())["status"] == "finished"
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[study]\ntarget = 0.35\n")
+    rc, _, changed = run("--config", str(cfg))
+    assert rc == 0
+    assert {k: v["status"] for k, v in changed.items()} == {"floquet": "reused", "tuning": "computed",
+                                                           "charts": "computed", "validation": "computed"}
+    assert json.loads((out / "tuning.json").read_text())["target"] == 0.35
+    assert json.loads((out / "tuning.stage.json").read_text())["inputs"]["target"] == 0.35
+
+
+def test_interrupted_model_study_says_so_in_its_manifest(tmp_path, monkeypatch, capsys):
+    """Ctrl-C inside a stage: exit 130, ``manifest.json`` "interrupted", the folder's lock released (the model
+    study runs on the paper study's stage runner; it had no manifest).  A stand-in ``analyze`` is interrupted."""
+    import linearize.analysis as la
+    from flexstab.stages import LOCK_FILE
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(la, "analyze", interrupted)
+    assert cli_main(["study", "--model", DOUBLE, "--quick", "--out", str(tmp_path)]) == 130
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["status"] == "interrupted" and manifest["stages"] == {}
+    assert not (tmp_path / LOCK_FILE).exists() and not (tmp_path / "report.md").exists()

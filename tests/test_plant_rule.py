@@ -33,7 +33,6 @@ RANGES = ["--kp-range", "0", "30", "--kd-range", "0", "10"]
 
 
 def _stub_tune_after_checks(monkeypatch):
-    import flexstab.commands.tune as tune
     import flexstab.plants as plants
     import flexstab.two_link as tl
 
@@ -42,13 +41,13 @@ def _stub_tune_after_checks(monkeypatch):
         magnus_error_estimate = 0.0
         hill_error_estimate = 0.0
 
-    monkeypatch.setattr(tune, "whole_spectrum", lambda *a, **k: {})
+    monkeypatch.setattr(plants, "whole_spectrum", lambda *a, **k: {})
     monkeypatch.setattr(plants, "mesh_dependence", lambda *a, **k: [])
     monkeypatch.setattr(tl, "check_multiplier", lambda *a, **k: Check())
 
 
 def _stub_study_tail(monkeypatch):
-    import flexstab.commands.chart as chart
+    import flexstab.chart_runs as chart
     import validation.multipliers as vm
 
     def stub(*a, **k):
@@ -169,14 +168,15 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(stub_model_fil
     import sys
     from types import SimpleNamespace
 
-    import flexstab.commands.chart as chart
-    import flexstab.commands.tune as tune
+    import flexstab.chart_runs as chart
     import flexstab.model_study as ms
+    import flexstab.plants as plants
+    import flexstab.tuning as tune
 
     seen: dict = {}
     monkeypatch.setattr(sys.stderr, "isatty", lambda: tty)
 
-    def fake_charts(args, progress=True, cfg=None):
+    def fake_charts(opts, cfg, progress=True):
         seen["chart"] = progress
         return {"gain_chart": None, "figures": []}
 
@@ -194,7 +194,7 @@ def test_progress_rule_is_the_same_for_tune_chart_and_study_model(stub_model_fil
                            spectral_measure=lambda kp, kd: 0.3)
     monkeypatch.setattr(chart, "make_charts", fake_charts)
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
-    monkeypatch.setattr(tune, "plant_choice_for", lambda *a, **k: PlantChoice(base))
+    monkeypatch.setattr(plants, "plant_choice_for", lambda *a, **k: PlantChoice(base))
     monkeypatch.setattr(tune, "tune_model_plant", fake_tune)
     monkeypatch.setattr(ms, "run_model_study", fake_study)
     assert cli_main(["chart", "--model", "x.py", "--out", str(tmp_path)]) == 0

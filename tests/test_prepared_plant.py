@@ -67,7 +67,7 @@ def test_cli_exudyn_plant_is_the_single_link_model_file(monkeypatch):
     """``tune --model exudyn`` builds the model-file plant of ``single-link`` with the configured manipulator
     and elements (the generic path), never the hand-derived link's plant."""
     import linearize.analysis as analysis
-    from flexstab.commands import tune
+    from flexstab import tuning as tune
     from mbs_models.parameters import ManipulatorParameters
 
     seen = {}

@@ -76,14 +76,14 @@ def test_fallback_records_come_back_from_workers(pool):
     import concurrent.futures as cf
     import multiprocessing
 
-    from flexstab.commands.tune import _FallbackRecorder
+    from flexstab.tuning import FallbackRecorder
     from taguchi.tuning import GainObjective
 
     plant = _Falling()
     inner = (cf.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) if pool
              else cf.ThreadPoolExecutor(1))
     with inner:
-        ex = _FallbackRecorder(inner, plant)
+        ex = FallbackRecorder(inner, plant)
         ys = list(ex.map(GainObjective(plant), [(1.0, 2.0), (3.0, 4.0)]))
     assert ys == [3.0, 7.0]
     assert [r["gains"] for r in ex.records] == [[1.0, 2.0], [3.0, 4.0]] and plant.fallback_runs == []

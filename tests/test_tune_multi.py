@@ -164,7 +164,7 @@ def test_propagator_steps_doubles_until_the_error_fits_the_tolerance():
     """A second-order response r_n = r + c / n^2: the chosen n has (4/3)|r_n - r_2n| = c / n^2 <= tol / 4."""
     from dataclasses import dataclass
 
-    from flexstab.commands.tune import MAX_TUNING_STEPS, propagator_steps
+    from flexstab.plants import MAX_TUNING_STEPS, propagator_steps
     from taguchi.tuning import TuningConfig
 
     @dataclass(frozen=True)
@@ -218,9 +218,10 @@ def _use_plant(monkeypatch, tune, plant) -> None:
 
     base = SimpleNamespace(drives=plant.drives, orbit=SimpleNamespace(model=None), linearization=None)
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
+    import flexstab.plants as plants
     from flexstab.plants import PlantChoice
 
-    monkeypatch.setattr(tune, "plant_choice_for", lambda definition, orbit, lin, cfg: PlantChoice(plant))
+    monkeypatch.setattr(plants, "plant_choice_for", lambda definition, orbit, lin, cfg: PlantChoice(plant))
 
 
 def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails(stub_model_file, monkeypatch, capsys):
@@ -229,7 +230,7 @@ def test_tuning_repeated_with_more_steps_when_the_check_at_the_tuned_gains_fails
     (2.9e-5); the final gains are within tol + 2.9e-5 of rho_d in the exact response (n -> infinity)."""
     from dataclasses import dataclass
 
-    import flexstab.commands.tune as tune
+    import flexstab.tuning as tune
 
     def exact(kp, kd):
         return 1.0 / (1.0 + 0.1 * (sum(kp) + sum(kd)))
@@ -258,7 +259,7 @@ def _fake_tune(monkeypatch, capsys, shift):
     ``shift(n)`` in the gain sum; returns the JSON of ``tune``."""
     from dataclasses import dataclass
 
-    import flexstab.commands.tune as tune
+    import flexstab.tuning as tune
 
     @dataclass(frozen=True)
     class Fake:
@@ -279,7 +280,7 @@ def test_repeated_pass_starts_from_the_tuned_gains_with_narrowed_ranges(stub_mod
     """After the step-doubling check fails, the next pass starts around the previous gains with ranges of
     RESTART_WIDTH x the initial width (not from the initial ranges) and needs no more evaluations than the
     first; the result still meets the tolerance in the exact response."""
-    from flexstab.commands.tune import RESTART_WIDTH
+    from flexstab.tuning import RESTART_WIDTH
 
     d = _fake_tune(monkeypatch, capsys, lambda n: 0.0)
     first = d["iterations"][0]
@@ -311,7 +312,7 @@ def test_recheck_outside_the_tolerance_exits_1_with_one_line(stub_model_file, mo
     from dataclasses import dataclass
     from typing import Optional
 
-    import flexstab.commands.tune as tune
+    import flexstab.tuning as tune
 
     @dataclass(frozen=True)
     class Fake:
@@ -339,7 +340,7 @@ def test_recheck_outside_the_tolerance_exits_1_with_one_line(stub_model_file, mo
 def test_check_failure_names_the_recheck_method():
     """The one-line reason names how the re-check was made (Hill path: the streamed product, not "twice
     the propagator steps"); a re-check within rho_d +- tol and a converged tuning give None."""
-    from flexstab.commands.tune import check_failure
+    from flexstab.tuning import check_failure
 
     d = {"converged": True, "message": "", "target": 0.3, "tolerance": 3e-4,
          "verified_spectral_radius": 0.3010, "verified_method": "magnus2, 32768 steps (streamed)"}
@@ -358,7 +359,7 @@ def test_tune_records_a_step_choice_stopped_at_the_cap(stub_model_file, monkeypa
     from dataclasses import dataclass
     from types import SimpleNamespace
 
-    import flexstab.commands.tune as tune
+    import flexstab.tuning as tune
     from flexstab.plants import PlantChoice, propagator_choice
 
     @dataclass(frozen=True)
@@ -374,8 +375,10 @@ def test_tune_records_a_step_choice_stopped_at_the_cap(stub_model_file, monkeypa
         return PlantChoice(sc.plant, steps=sc)
 
     base = SimpleNamespace(drives=Fake.drives, orbit=SimpleNamespace(model=None), linearization=None)
+    import flexstab.plants as plants
+
     monkeypatch.setattr(tune, "build_plant", lambda *a, **k: base)
-    monkeypatch.setattr(tune, "plant_choice_for", choice)
+    monkeypatch.setattr(plants, "plant_choice_for", choice)
     argv = ["tune", "--model", "fake.py", "--target", "0.3", "--kp-range", "0", "10", "--kd-range", "0", "10"]
     with pytest.warns(RuntimeWarning, match="MAX_TUNING_STEPS"):
         assert cli_main(argv + ["--json"]) == 0

@@ -113,3 +113,20 @@ def test_damped_mathieu_in_stable_band(periods, expected):
     # the wrong answer of the former rule (stable whenever rho < 1 - tol) is rejected here
     if expected == VERDICT_CRITICAL:
         assert res.spectral_radius < 1.0 - 1e-6 and v.verdict != VERDICT_STABLE
+
+
+def test_verdict_band_is_judge_on_one_modulus():
+    """The short rule for the spectral radius gives the verdict of the full rule on every edge: the
+    threshold and 1 approached from both sides, zero / inf / NaN / negative bands, rho at 0 and inf."""
+    r_star = threshold()
+    rhos = [0.0, 0.5, r_star - 1e-9, r_star, r_star + 1e-9, 1.0 - 1e-12, 1.0, 1.0 + 1e-12, 2.0, math.inf]
+    tols = [0.0, 1e-12, 1e-9, 1e-3, 0.5, 2.0, math.inf, math.nan, -1.0]
+    for rho in rhos:
+        for tol in tols:
+            for periods in (10.0, DECAY_PERIODS):
+                expected = judge([rho], [tol], decay_periods=periods, stability_tol=0.0).verdict
+                assert verdict_band(rho, tol, periods) == expected, (rho, tol, periods)
+    with pytest.raises(ValueError):
+        verdict_band(math.nan, 0.0)
+    with pytest.raises(ValueError):
+        verdict_band(-1.0, 0.0)

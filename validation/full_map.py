@@ -126,9 +126,13 @@ class FullMapConfig:
     floor : float
         Moduli below this are not reported.
     amplitude_check : bool
-        Repeat the finest level with half the amplitude: the one-sided images err by ``c a``, so
+        Repeat one level with half the amplitude: the one-sided images err by ``c a``, so
         the value at ``a`` is ``2 |mu(a) - mu(a/2)|`` off; that is added to each bar
-        (``amplitude_error``).  Costs one more finest level.
+        (``amplitude_error``).  Costs one more run of that level.
+    amplitude_level : int
+        Which level the half-amplitude run repeats (index into :attr:`steps`; ``-1``, the default,
+        is the finest).  The amplitude error ``c a`` does not depend on the step to leading order,
+        so ``0`` (the coarsest, cheapest level) measures it at a fraction of the cost.
     """
 
     step: Optional[float] = None
@@ -139,6 +143,7 @@ class FullMapConfig:
     seed: int = 0
     floor: float = FULL_MAP_FLOOR
     amplitude_check: bool = True
+    amplitude_level: int = -1
 
     def __post_init__(self) -> None:
         for name in ("refinements", "slowest", "seed"):
@@ -164,6 +169,10 @@ class FullMapConfig:
             object.__setattr__(self, name, float(v))
         if not (0.0 < float(self.floor) < 1.0):
             raise ValueError(f"floor must be in (0, 1), got {self.floor!r}")
+        lv = self.amplitude_level
+        if isinstance(lv, bool) or int(lv) != lv or not (-(self.refinements + 1) <= lv <= self.refinements):
+            raise ValueError(f"amplitude_level must index one of the {self.refinements + 1} step levels, got {lv!r}")
+        object.__setattr__(self, "amplitude_level", int(lv))
 
     @property
     def steps(self) -> tuple:
@@ -414,7 +423,7 @@ def measure_full_map(
     if maps and not diverged and config.amplitude_check:
         t1 = time.perf_counter()
         try:
-            X1h = 2.0 * np.asarray(images(config.steps[len(maps) - 1], 0.5 * D), dtype=float)
+            X1h = 2.0 * np.asarray(images(config.steps[config.amplitude_level], 0.5 * D), dtype=float)
             At = np.linalg.lstsq(Z0.T, norm.transform(X1h).T, rcond=None)[0]
             half = At.T
         except Exception as exc:  # the simulator's own error types
@@ -425,17 +434,20 @@ def measure_full_map(
     info = dict(info or {})
     info["timings"] = {**info.get("timings", {}), **timings, "full_map": time.perf_counter() - tic}
     return full_map_from_maps(maps, config.steps[:len(maps)], config, p, n2, resid, diverged, reason, integrator,
-                              info, half_amplitude_map=half)
+                              info, half_amplitude_map=half, half_amplitude_level=config.amplitude_level)
 
 
 def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], config: FullMapConfig,
                        n_perturbations: int, state_dimension: int, fit_residual: Sequence[float] = (),
                        diverged: bool = False, reason: str = "",
                        integrator: str = "Newmark (beta = 1/4, gamma = 1/2, trapezoidal), index-2 constraints",
-                       info: Optional[dict] = None, half_amplitude_map: Optional[np.ndarray] = None) -> FullMapResult:
+                       info: Optional[dict] = None, half_amplitude_map: Optional[np.ndarray] = None,
+                       half_amplitude_level: int = -1) -> FullMapResult:
     """Steps 3-5 of the module docstring on fitted maps (one per step level, coarse to fine): tracked,
     extrapolated, the ``config.slowest`` largest kept.  Lets a measurement made level by level (e.g. each
-    level stored on disk as it finishes) be assembled without repeating the runs."""
+    level stored on disk as it finishes) be assembled without repeating the runs.
+    ``half_amplitude_map`` repeats level ``half_amplitude_level`` (default the finest) at half the
+    amplitude; the change, applied to every level, re-extrapolated and doubled, is added to each bar."""
     mults: list = []
     if maps and not diverged:
         from validation.multipliers import MEASURED_FRACTION
@@ -445,8 +457,16 @@ def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], confi
         for lv in tracks:
             amp_err = 0.0
             if half_amplitude_map is not None:
-                lv, amp_err = lv[:-1], 2.0 * abs(abs(lv[-1]) - abs(lv[-2]))
+                lv, half = lv[:-1], lv[-1]
+                delta = abs(half) - abs(lv[half_amplitude_level])
             value, bar, q, ok = extrapolate_modulus(lv)
+            if half_amplitude_map is not None:
+                # the amplitude's one-sided error c a, measured at one level, shifts every level by about
+                # the same amount: re-extrapolated, the change (doubled: a -> 0 from a and a/2) is the
+                # error at amplitude a, at least 2 |delta| (the shift of the multiplier itself)
+                shifted = [z * (abs(z) + delta) / abs(z) if z != 0 else z for z in lv]
+                moved = extrapolate_modulus(shifted)[0]
+                amp_err = 2.0 * max(abs(delta), abs(moved - value) if math.isfinite(moved) else 0.0)
             bar += amp_err
             ok = ok and bar <= MEASURED_FRACTION * max(value, 1e-300)
             mults.append(FullMapMultiplier(modulus=value, error_bar=bar, phase=float(np.angle(lv[-1])),

@@ -2,15 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import sys
 from pathlib import Path
 
-from flexstab.options import (add_model_options, check_model_arg, check_range_arg, dump_json, ensure_out_dir,
-                              gain_list, omega_type, positive_float, resolve_omega, result_output)
+from flexstab.options import add_model_options, dump_json, gain_list, omega_type, positive_float, result_output
 
-__all__ = ["register", "run", "make_charts"]
+__all__ = ["register", "run", "chart_options"]
 
 
 def register(sub) -> None:
@@ -20,7 +17,7 @@ def register(sub) -> None:
         description="Stability charts. Interrupted sweeps resume from what they wrote.",
     )
     p.add_argument("--model", default="reduced", metavar="MODEL",
-                   help="reduced (default), exudyn (the paper's link: single-link, Omega pi .. 8 pi), a built-in "
+                   help="reduced (default), exudyn (dominant damped multiplier; slower: use --grid ~11), a built-in "
                         "model file (single-link, two-link, laval-rotor, slider-crank) or a model file PATH.py (dominant labelled multiplier; "
                         "gain chart over one drive's (kp, kd), Omega chart with the orbit continued in Omega)")
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and built-in models)")
@@ -53,278 +50,29 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def make_charts(args: argparse.Namespace, progress=True, cfg=None) -> dict:
-    """Compute and plot both charts; return the JSON-ready summary.
+def chart_options(args: argparse.Namespace) -> "ChartOptions":
+    """The :class:`~flexstab.chart_runs.ChartOptions` of the parsed command line."""
+    from flexstab.chart_runs import ChartOptions
 
-    ``cfg`` (a :class:`~flexstab.config.StudyConfig`) overrides ``args.config``.
-    """
-    _check_args(args)  # before any numerical import
-    from flexstab.config import load_config
+    def pair(v):
+        return tuple(v) if v is not None else None
 
-    cfg = cfg if cfg is not None else load_config(args.config)
-    model = getattr(args, "model", "reduced")
-    if model != "reduced":
-        return model_charts(args, cfg, progress=progress)
-    from flexstab.charts import ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart, plot_omega_chart
-    from flexstab.executor import make_executor
-    from mbs_models.reduced import ReducedModel
-    from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
-
-    for flag in ("drive", "samples", "steps"):
-        if getattr(args, flag, None) is not None:
-            raise ValueError(f"--{flag} applies to model files only")
-    for flag in ("kp", "kd"):
-        v = getattr(args, flag, None)
-        if isinstance(v, (list, tuple)):
-            if len(v) != 1:
-                raise ValueError(f"--{flag}: --model {model} has one drive (the hub), got {len(v)} values")
-            setattr(args, flag, float(v[0]))
-    omega = resolve_omega(args, cfg)
-    kp_rng = tuple(args.kp_range) if args.kp_range else cfg.kp_range
-    kd_rng = tuple(args.kd_range) if args.kd_range else cfg.kd_range
-    if min(kp_rng) < 0 or min(kd_rng) < 0:
-        raise ValueError("gain ranges must be >= 0")
-    grid = args.grid if args.grid is not None else 41
-    n_omega = args.omega_points if args.omega_points is not None else 181
-    kp = check_grid(*kp_rng, grid, "kp")
-    kd = check_grid(*kd_rng, grid, "kd")
-    w_lo, w_hi = args.omega_range if args.omega_range else (math.pi, 10 * math.pi)
-    omegas = check_grid(w_lo, w_hi, n_omega, "omega")
-    target = args.target if args.target is not None else cfg.target
-    out = ensure_out_dir(args.out)
-    # the resumable stores are keyed by everything that changes the numbers
-    import hashlib
-
-    fingerprint = hashlib.sha1(
-        json.dumps([cfg.manipulator.to_dict(), args.constants], sort_keys=True).encode()
-    ).hexdigest()[:8]
-    tag = f"w{omega:.6g}_{args.constants}_{fingerprint}"
-    task = ReducedRadius(cfg.manipulator, args.constants)
-    omega_task = task
-    objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=args.constants))
-    label = "linearised reduced model"
-
-    path = None
-    tuned = None
-    if not args.no_taguchi:
-        tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
-                             progress=progress)
-        path = [it.incumbent_gains for it in tuned.iterations]
-    n_tasks = kp.size * kd.size
-    kind = "dask" if args.scheduler else "auto"
-    with make_executor(kind, max_workers=args.workers, scheduler=args.scheduler, n_tasks=n_tasks) as ex:
-        gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
-                        progress=progress)
-        gkp = args.kp if args.kp is not None else (tuned.kp if tuned else 0.0)
-        gkd = args.kd if args.kd is not None else (tuned.kd if tuned else 0.0)
-        otag = tag.split("_", 1)[1]
-        oc = omega_chart(omega_task, omegas, gkp, gkd, ex, out / f"chart_omega_{otag}_{gkp:.6g}_{gkd:.6g}.jsonl",
-                         progress=progress)
-    # figure and summary names identify every input that changes what is drawn (grid, ranges, target,
-    # Omega range, gains), so a coarse chart never overwrites the study's chart of the same system
-    drawn = hashlib.sha1(json.dumps(
-        [tag, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
-    ).encode()).hexdigest()[:8]
-    name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
-    png1 = plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label)
-    png2 = plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                            ylabel="max|ρ| (spectral radius)")
-    summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
-               "taguchi_path": [list(p) for p in path] if path else None,
-               "inputs": {"manipulator": cfg.manipulator.to_dict(), "constants": args.constants,
-                          "model": "reduced", "omega": omega, "grid": [kp.size, kd.size],
-                          "kp_range": list(kp_rng), "kd_range": list(kd_rng), "target": target,
-                          "omega_range": [float(w_lo), float(w_hi)], "omega_points": int(omegas.size)},
-               "figures": [str(png1), str(png2)], "json": str(out / f"chart_{name}.json")}
-    (out / f"chart_{name}.json").write_text(json.dumps(summary))
-    return summary
-
-
-def _check_args(args: argparse.Namespace) -> None:
-    """The checks of the arguments alone (no configuration, no model): grid sizes, counts, ranges."""
-    for flag, minimum in (("grid", 2), ("omega_points", 2), ("samples", 4), ("steps", 1), ("workers", 1)):
-        v = getattr(args, flag, None)
-        if v is not None and v < minimum:
-            raise ValueError(f"--{flag.replace('_', '-')} must be >= {minimum}, got {v}")
-    for flag in ("kp_range", "kd_range"):
-        check_range_arg(getattr(args, flag, None), "--" + flag.replace("_", "-"))
-    check_model_arg(getattr(args, "model", None))
-    w = getattr(args, "omega_range", None)
-    if w is not None and not w[0] < w[1]:
-        raise ValueError(f"--omega-range: omega range is empty or inverted: LO = {w[0]:g}, HI = {w[1]:g}")
-
-
-def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
-    """``--kp``/``--kd`` of a model file: one value for every drive, or one per drive (default 0)."""
-    if values is None:
-        return (0.0,) * n_drives
-    if len(values) == 1:
-        return tuple(values) * n_drives
-    if len(values) != n_drives:
-        raise ValueError(f"--{flag}: the model has {n_drives} drive(s); give one value or {n_drives}, got {len(values)}")
-    return tuple(values)
-
-
-def model_charts(args: argparse.Namespace, cfg, progress=True) -> dict:
-    """Both charts of a model file (``--model PATH.py`` or a built-in model file).
-
-    Gain chart: the dominant labelled multiplier over the (kp, kd) grid of one drive (``--drive``)
-    with the other drives at ``--kp``/``--kd``, at the chart Omega.  Omega chart: uncontrolled and
-    at the tuned (else the fixed) gains, each Omega's orbit continued from the nearest one computed.
-    Runs in this process (the model is loaded from a file).  Returns the JSON-ready summary.
-    """
-    import dataclasses
-    import hashlib
-
-    from flexstab.charts import (ModelPlants, ModelRadius, check_grid, dominant_ylabel, gain_chart, omega_chart,
-                                 plot_gain_chart, plot_omega_chart)
-    from flexstab.executor import make_executor
-    from flexstab.options import resolve_model_definition
-    from linearize.hill_plant import HillModelPlant
-    from linearize.periodic_orbit import DEFAULT_SAMPLES
-    from taguchi.tuning import TuningConfig, check_gain_range, taguchi_tune
-
-    # every option is checked before the first orbit
-    if args.scheduler or (args.workers not in (None, 1)):
-        raise ValueError("--scheduler/--workers: model-file charts run in this process (the model is loaded "
-                         "from a file and the orbits are continued point to point)")
-    omega = resolve_omega(args, cfg)
-    kp_rng = check_gain_range(args.kp_range if args.kp_range else cfg.kp_range, "--kp-range")
-    kd_rng = check_gain_range(args.kd_range if args.kd_range else cfg.kd_range, "--kd-range")
-    grid = args.grid if args.grid is not None else 11
-    kp = check_grid(*kp_rng, grid, "kp")
-    kd = check_grid(*kd_rng, grid, "kd")
-    exudyn = args.model == "exudyn"  # the paper's link: the paper's Omega range (pi .. 8 pi, 8 points)
-    default_range = (math.pi, 8 * math.pi) if exudyn else (0.5 * omega, 1.5 * omega)
-    w_lo, w_hi = args.omega_range if args.omega_range else default_range
-    omegas = check_grid(w_lo, w_hi, args.omega_points if args.omega_points is not None else (8 if exudyn else 9),
-                        "omega")
-    samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
-    if isinstance(samples, bool) or samples < 4 or samples % 2:
-        raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
-    steps = args.steps
-    if steps is not None and steps < 1:
-        raise ValueError(f"--steps must be >= 1, got {steps}")
-    target = args.target if args.target is not None else cfg.target
-    definition, options = resolve_model_definition(args.model, cfg, args.elements)
-    out = ensure_out_dir(args.out)
-
-    plants = ModelPlants(definition, options, samples=samples)
-    drives = plants.linearised(omega)[0].drive_names  # the orbit at the chart's Omega: the drives, the first check
-    nd = len(drives)
-    # the plant rule of tune and study --model (flexstab.plants.plant_for) with the tuning configuration they
-    # build from the same ranges and target: same method and discretisation, so the same response
-    tcfg = TuningConfig(target=target, ranges=(tuple(kp_rng), tuple(kd_rng)) * nd) if nd else None
-    task = ModelRadius(plants, config=tcfg, steps=steps)
-    if args.drive in (None, "all"):
-        idx = None if args.drive == "all" else 0
-    elif args.drive in drives:
-        idx = drives.index(args.drive)
-    else:
-        raise ValueError(f"--drive {args.drive!r}: the model's drives are {', '.join(drives) or '(none)'}")
-    fkp, fkd = _fixed_gains(args.kp, nd, "kp"), _fixed_gains(args.kd, nd, "kd")
-    task = dataclasses.replace(task, drive=idx, fixed_kp=fkp, fixed_kd=fkd)  # same plants (the cache object)
-    charted = ("all drives" if idx is None else drives[idx]) if nd else None
-
-    from flexstab.study import _code_hash
-
-    source = definition.source
-    code = hashlib.sha1(Path(source).read_bytes()).hexdigest()[:8] if source else definition.name
-    # the resumable stores are keyed by everything that changes the numbers: the model file, its
-    # options, the discretisation and the package's own source (a changed engine starts a new store)
-    # (the plant rule's inputs: fixed steps, or the ranges and target it chooses the discretisation from)
-    fingerprint = hashlib.sha1(json.dumps(
-        [definition.name, code, repr(sorted(options.items(), key=lambda kv: kv[0])), samples, steps,
-         repr(tcfg) if steps is None else None, _code_hash()]
-    ).encode()).hexdigest()[:8]
-    tag = f"{definition.name}_w{omega:.6g}_{fingerprint}"
-    choice = task.plants.choice(omega, task.config, task.steps)
-    plant, steps_choice = choice.plant, choice.steps
-    hill = isinstance(plant, HillModelPlant)
-    method = (f"Hill's method, {plant.harmonics} harmonics" if hill else f"{plant.n_steps} magnus2 steps")
-    label = f"model {definition.name} (dominant labelled multiplier, {method})"
-
-    path = tuned = None
-    gc = None
-    with make_executor("serial") as ex:
-        if nd:
-            if not args.no_taguchi:
-                def objective(g):  # (kp, kd) of the charted drive -> response at the chart Omega
-                    return task({"omega": float(omega), "kp": float(g[0]), "kd": float(g[1])})
-
-                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
-                             progress=progress)
-                path = [it.incumbent_gains for it in tuned.iterations]
-            ctag = f"{tag}_{'all' if idx is None else idx}_" + hashlib.sha1(
-                json.dumps([fkp, fkd]).encode()).hexdigest()[:6]
-            gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{ctag}.jsonl", target=target,
-                            progress=progress)
-        if tuned is not None:
-            gkp, gkd = task.gains(tuned.kp, tuned.kd, nd)
-        else:
-            gkp, gkd = list(fkp), list(fkd)
-        otag = hashlib.sha1(json.dumps([gkp, gkd]).encode()).hexdigest()[:6]
-        oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{tag}_{otag}.jsonl", progress=progress)
-    # discretisation check at the chart point of the Omega chart's gains.  ModelPlant: the value is the
-    # Richardson-extrapolated exponential midpoint (4th order, error ~ 16/15 |r_n - r_2n| asymptotically);
-    # 4/3 |r_n - r_2n| bounds the error for any observed order >= 2 (2^p / (2^p - 1) falls with p).
-    # Hill: the relative H vs H/2 change (spectral convergence: it bounds the error of H/2, so over-states
-    # that of H) times the modulus
-    hill_estimate = None
-    if hill:
-        m = plant.measure(gkp, gkd, error_estimate=True)
-        hill_estimate = float(m.hill_error_estimate)
-        estimate = hill_estimate * abs(m.dominant)
-    else:
-        from stability.refine import pair_estimate
-
-        r_n = plant.spectral_measure(gkp, gkd)
-        r_2n = dataclasses.replace(plant, n_steps=2 * plant.n_steps).spectral_measure(gkp, gkd)
-        estimate = pair_estimate(r_n, r_2n)
-    drawn = hashlib.sha1(json.dumps(
-        [tag, charted, fkp, fkd, kp.tolist(), kd.tolist(), target, omegas.tolist(), gkp, gkd, bool(args.no_taguchi)]
-    ).encode()).hexdigest()[:8]
-    name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
-    figures = []
-    if gc is not None:
-        figures.append(str(plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label,
-                                           drive="" if nd == 1 else charted)))
-    figures.append(str(plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                                        ylabel=dominant_ylabel(plants.linearised(omega)[0]))))
-    summary = {"gain_chart": gc.to_dict() if gc is not None else None, "omega_chart": oc.to_dict(),
-               "taguchi_path": [list(p) for p in path] if path else None,
-               # kp, kd: every drive's gains (the JSON typing rule), the charted drive's tuned, the others fixed
-               "tuned": ({"kp": list(gkp), "kd": list(gkd), "response": tuned.spectral_radius, "status": tuned.status,
-                          "evaluations": tuned.evaluations} if tuned is not None else None),
-               "drives": list(drives), "charted_drive": charted, "fixed_kp": list(fkp), "fixed_kd": list(fkd),
-               "response_method": "hill" if hill else "magnus2",
-               "harmonics": plant.harmonics if hill else None,
-               # stable fields; for Hill (no propagator) they hold the magnus2 labelling steps and the absolute
-               # H vs H/2 estimate (README "Charts of a model file"), so tune's names are added beside them
-               "propagator_steps": plant.label_steps if hill else plant.n_steps,
-               "propagator_error_estimate": estimate,
-               "label_steps": plant.label_steps if hill else None,
-               "hill_error_estimate": hill_estimate,  # relative, H vs H/2 at the chart's gains (as tune's)
-               "propagator_choice": steps_choice.to_dict() if steps_choice is not None else None,
-               "inputs": {"model": args.model, "source": source, "options": {k: repr(v) for k, v in options.items()},
-                          "omega": omega, "grid": [kp.size, kd.size], "kp_range": list(kp_rng),
-                          "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],
-                          "omega_points": int(omegas.size), "samples": samples},
-               "figures": figures, "json": str(out / f"chart_{name}.json")}
-    if exudyn:
-        summary["inputs"]["manipulator"] = cfg.manipulator.to_dict()
-    if gc is None:
-        summary["note"] = "the model has no drives: no gain chart (the Omega chart's two curves coincide)"
-    from stability.serialization import json_ready
-
-    (out / f"chart_{name}.json").write_text(json.dumps(json_ready(summary)))
-    return summary
+    return ChartOptions(
+        model=args.model, out=Path(args.out), omega=args.omega, kp_range=pair(args.kp_range),
+        kd_range=pair(args.kd_range), grid=args.grid, target=args.target, omega_range=pair(args.omega_range),
+        omega_points=args.omega_points,
+        kp=args.kp, kd=args.kd, no_taguchi=args.no_taguchi, constants=args.constants, elements=args.elements,
+        drive=args.drive, samples=args.samples, steps=args.steps, scheduler=args.scheduler, workers=args.workers)
 
 
 def run(args: argparse.Namespace) -> int:
+    from flexstab.chart_runs import check_chart_options, make_charts
+    from flexstab.config import load_config
     from flexstab.progress import progress_bars
 
-    s = make_charts(args, progress=progress_bars())  # on stderr: tqdm on a terminal, lines otherwise
+    opts = chart_options(args)
+    check_chart_options(opts)  # the options alone, before the configuration and any numerical import
+    s = make_charts(opts, load_config(args.config), progress=progress_bars())  # progress on stderr
     with result_output(args):
         if args.json:
             dump_json(s, sys.stdout)

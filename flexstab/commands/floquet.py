@@ -5,10 +5,10 @@ import argparse
 import math
 import sys
 
-from flexstab.options import (add_damping_option, add_model_options, check_model_arg, dump_json, gain_list,
-                              gains_as_lists, non_negative_float, resolve_damping, result_output)
+from flexstab.options import (add_damping_option, add_model_options, dump_json, gain_list, gains_as_lists,
+                              non_negative_float, result_output)
 
-__all__ = ["register", "run", "floquet_report"]
+__all__ = ["register", "run", "floquet_options", "floquet_report"]
 
 
 def register(sub) -> None:
@@ -31,7 +31,7 @@ def register(sub) -> None:
     p.add_argument("--method", default=None,
                    help="Floquet method (magnus6, magnus4, magnus2, paper); default magnus6 for the "
                         "reduced model, magnus2 for the Exudyn model")
-    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn and the built-in model files)")
+    p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
     add_damping_option(p)
     p.add_argument("--bending-damping", type=non_negative_float, default=0.0,
                    help="added to --damping: Exudyn's bendingDamping of the ANCF elements (N m^2 s; default 0)")
@@ -58,90 +58,26 @@ def _rtol_type(text: str) -> float:
     return value
 
 
+def floquet_options(args: argparse.Namespace) -> "FloquetOptions":
+    """The :class:`~flexstab.floquet_runs.FloquetOptions` of the parsed command line."""
+    from flexstab.floquet_runs import FloquetOptions
+
+    return FloquetOptions(model=args.model, omega=args.omega, kp=tuple(args.kp), kd=tuple(args.kd),
+                          constants=args.constants, samples=args.samples, method=args.method,
+                          elements=args.elements, damping=args.damping, bending_damping=args.bending_damping,
+                          axial_damping=args.axial_damping, small_multipliers=args.small_multipliers,
+                          rtol=args.rtol)
+
+
 def floquet_report(args: argparse.Namespace) -> dict:
-    """Compute the Floquet analysis requested by ``args`` and return the JSON-ready dict."""
-    builtin = args.model == "reduced"
-    # the checks of the arguments alone come before any numerical import
-    if builtin:
-        if len(args.kp) != 1 or len(args.kd) != 1:
-            raise ValueError(f"--model {args.model} has one drive (the hub): give one --kp and one --kd value")
-        if args.samples is not None:
-            raise ValueError("--samples applies to model files only")
-    else:
-        if args.samples is not None and (args.samples < 4 or args.samples % 2):
-            raise ValueError(f"--samples must be an even integer >= 4, got {args.samples}")
-        check_model_arg(args.model)
+    """``flexstab floquet``: :func:`flexstab.floquet_runs.floquet_analysis` of the command line (its checks
+    first, then the configuration)."""
     from flexstab.config import load_config
-    from stability import DEFAULT_METHOD, METHODS, floquet
+    from flexstab.floquet_runs import check_floquet_options, floquet_analysis
 
-    from stability.floquet import DEFAULT_RTOL, recertify
-
-    cfg = load_config(args.config)
-    omega = args.omega if args.omega is not None else cfg.omega
-    rtol = args.rtol if getattr(args, "rtol", None) is not None else cfg.rtol
-    method = args.method or (DEFAULT_METHOD if args.model == "reduced" else "magnus2")
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; available: {', '.join(sorted(METHODS))}")
-    if not builtin:
-        return _model_file_report(args, cfg, omega, method, rtol)
-    args.kp, args.kd = args.kp[0], args.kd[0]
-    out: dict = {"model": args.model}
-    damping = resolve_damping(args, cfg)
-    exudyn_only = [flag for flag, given in (("--elements", args.elements is not None),
-                                            ("--damping", damping.given)) if given]
-    if exudyn_only:
-        raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
-                         "(built-in or PATH.py), not to --model reduced")
-    from mbs_models.reduced import ReducedModel
-
-    model = ReducedModel(omega=omega, kp=args.kp, kd=args.kd, params=cfg.manipulator, constants=args.constants)
-    # the engine refines to min(its default, rtol); certified against rtol
-    res = floquet(model, method=method, small_multipliers=args.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
-    out["constants"] = args.constants
-    out.update(
-        {
-            "omega": omega,
-            "period": 2 * math.pi / omega,
-            "kp": args.kp,
-            "kd": args.kd,
-        }
-    )
-    res = recertify(res, rtol)
-    out.update(res.to_dict())
-    if "verdict_detail" not in out:  # the reduced model: no mode labels
-        from stability.verdict import judge_floquet
-
-        out["verdict_detail"] = judge_floquet(res).to_dict()
-    return out
-
-
-def _model_file_report(args: argparse.Namespace, cfg, omega: float, method: str, rtol: float) -> dict:
-    """Floquet analysis of a model file (``--model PATH.py`` or a built-in model file)."""
-    from linearize.analysis import analyze
-    from linearize.periodic_orbit import DEFAULT_SAMPLES
-    from flexstab.options import resolve_model_definition
-
-    damping = resolve_damping(args, cfg)
-    model, options = resolve_model_definition(args.model, cfg, args.elements, **damping.build_options())
-    samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
-    res = analyze(model, omega, kp=args.kp, kd=args.kd, samples=samples, method=method,
-                  small_multipliers=args.small_multipliers, rtol=rtol, **options)
-    out = {"model": args.model}
-    out.update(res.summary())
-    out["model"] = args.model
-    out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
-    out["damping"] = damping.to_dict()
-    if args.model == "exudyn":  # the keys of the paper's link (besides the model file's)
-        from mbs_models.damping import material_damping_values
-
-        p = cfg.manipulator
-        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
-                                                 damping.bending, damping.axial)
-        out.update({"elements": options["elements"], "reference": "periodic", "dominant_mode": res.dominant_mode,
-                    "undamped_multipliers": res.undamped_count, "bending_damping": bending,
-                    "axial_damping": axial})
-    out.update(res.floquet.to_dict())
-    return out
+    opts = floquet_options(args)
+    check_floquet_options(opts)
+    return floquet_analysis(opts, load_config(args.config))
 
 
 def _gains(v) -> str:

@@ -50,15 +50,16 @@ def run_model(args: argparse.Namespace, cfg) -> int:
     for flag, bad in (("--stages", args.stages is not None), ("--scheduler", args.scheduler is not None),
                       ("--jobs", args.jobs != 2)):
         if bad:
-            raise ValueError(f"{flag} applies to the paper's study, not to --model (a model study runs in this "
-                             "process, every stage recomputed)")
+            raise ValueError(f"{flag} applies to the paper's study, not to --model (a model study runs its "
+                             "stages in this process, in order)")
     samples = args.samples if args.samples is not None else DEFAULT_SAMPLES
     if samples < 4 or samples % 2:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
     opts = ModelStudyOptions(out=Path(args.out), omega=resolve_omega(args, cfg), target=cfg.target,
                              kp_range=tuple(cfg.kp_range), kd_range=tuple(cfg.kd_range), samples=samples,
                              elements=args.elements,
-                             quick=args.quick, progress=progress_bars(), log=_progress_log())
+                             quick=args.quick, progress=progress_bars(), log=_progress_log(),
+                             resume=not args.no_resume)
     return _report_exit_code(run_model_study(args.model, cfg, opts), getattr(args, "result_stdout", None))
 
 
