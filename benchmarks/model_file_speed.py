@@ -10,7 +10,7 @@ run at the same mesh:
   guess, Newton, accurate tangent blocks) and the one-period shooting check in
   Exudyn (the orbit's acceptance check, on by default in ``find_orbit``) reported
   separately, with the collocation residual and the shooting defect reached;
-* the hand-derived route (``linearize.link_floquet.exudyn_floquet``) at the
+* the hand-derived route (``_link_oracle.link_floquet.exudyn_floquet``, the test suite's oracle) at the
   same samples and steps: its dominant (hub) multiplier is the reference the
   generic one must equal to 1e-6;
 * the direct Exudyn monodromy (``direct_monodromy``, 2 n + 1 one-period
@@ -68,16 +68,20 @@ import argparse
 import json
 import math
 import os
+import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# the hand-derived link is the test suite's independent oracle (tests/_link_oracle)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 TABLE3 = [(2, 37.1617, 29.2410), (4, 28.7617, 11.7501), (6, 22.2666, 6.7208), (8, 23.0147, 6.8628)]
 
 
 def main(argv=None) -> int:
     from linearize.analysis import analyze
-    from linearize.link_floquet import direct_monodromy, exudyn_floquet
+    from _link_oracle.link_floquet import direct_monodromy, exudyn_floquet
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--elements", type=int, default=8)

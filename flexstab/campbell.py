@@ -400,9 +400,9 @@ def check_campbell_options(opts: "CampbellOptions") -> None:
         raise ValueError(f"--min-mac must lie in [0, 1], got {opts.min_mac}")
     if opts.workers is not None and opts.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {opts.workers}")
-    if opts.model in ("reduced", "exudyn"):
-        raise ValueError(f"--model {opts.model}: the Campbell diagram needs a model file or a built-in model file "
-                         f"(e.g. single-link instead of exudyn)")
+    if opts.model == "reduced":
+        raise ValueError("--model reduced: the Campbell diagram needs a model file or a built-in model file "
+                         "(e.g. single-link or exudyn)")
 
 
 def campbell_diagram(opts: "CampbellOptions", cfg: Any, progress: bool = True) -> dict:

@@ -98,10 +98,10 @@ def make_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     """
     check_chart_options(opts)  # before any numerical import
     model = opts.model
-    if model not in ("reduced", "exudyn"):
+    if model != "reduced":
         return model_charts(opts, cfg, progress=progress)
     from flexstab.charts import (
-        ExudynOmegaRadius, PlantRadius, ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
+        ReducedRadius, check_grid, gain_chart, omega_chart, plot_gain_chart,
         plot_omega_chart,
     )
     from flexstab.executor import make_executor
@@ -124,12 +124,11 @@ def make_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     kd_rng = tuple(opts.kd_range) if opts.kd_range else cfg.kd_range
     if min(kp_rng) < 0 or min(kd_rng) < 0:
         raise ValueError("gain ranges must be >= 0")
-    exudyn = model == "exudyn"
-    grid = opts.grid if opts.grid is not None else (11 if exudyn else 41)
-    n_omega = opts.omega_points if opts.omega_points is not None else (8 if exudyn else 181)
+    grid = opts.grid if opts.grid is not None else 41
+    n_omega = opts.omega_points if opts.omega_points is not None else 181
     kp = check_grid(*kp_rng, grid, "kp")
     kd = check_grid(*kd_rng, grid, "kd")
-    w_lo, w_hi = opts.omega_range if opts.omega_range else ((math.pi, 8 * math.pi) if exudyn else (math.pi, 10 * math.pi))
+    w_lo, w_hi = opts.omega_range if opts.omega_range else (math.pi, 10 * math.pi)
     omegas = check_grid(w_lo, w_hi, n_omega, "omega")
     target = opts.target if opts.target is not None else cfg.target
     out = ensure_out_dir(opts.out)
@@ -139,22 +138,11 @@ def make_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     fingerprint = hashlib.sha1(
         json.dumps([cfg.manipulator.to_dict(), opts.constants], sort_keys=True).encode()
     ).hexdigest()[:8]
-    if exudyn:
-        from linearize.link_floquet import exudyn_plant
-
-        elements = opts.elements or cfg.elements
-        tag = f"w{omega:.6g}_exudyn{elements}_{fingerprint}"
-        plant = exudyn_plant(cfg.manipulator, omega=omega, elements=elements, prepared=True)
-        task = PlantRadius(plant, float(omega))
-        omega_task = ExudynOmegaRadius(cfg.manipulator, elements)
-        objective = GainObjective(plant)
-        label = f"Exudyn model ({elements} elements; hub / first bending mode)"
-    else:
-        tag = f"w{omega:.6g}_{opts.constants}_{fingerprint}"
-        task = ReducedRadius(cfg.manipulator, opts.constants)
-        omega_task = task
-        objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=opts.constants))
-        label = "linearised reduced model"
+    tag = f"w{omega:.6g}_{opts.constants}_{fingerprint}"
+    task = ReducedRadius(cfg.manipulator, opts.constants)
+    omega_task = task
+    objective = GainObjective(ReducedModel(omega, params=cfg.manipulator, constants=opts.constants))
+    label = "linearised reduced model"
 
     path = None
     tuned = None
@@ -163,7 +151,7 @@ def make_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
                              progress=progress)
         path = [it.incumbent_gains for it in tuned.iterations]
     n_tasks = kp.size * kd.size
-    kind = "dask" if opts.scheduler else ("process" if exudyn and opts.workers != 1 else "auto")
+    kind = "dask" if opts.scheduler else "auto"
     with make_executor(kind, max_workers=opts.workers, scheduler=opts.scheduler, n_tasks=n_tasks) as ex:
         gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{tag}.jsonl", target=target,
                         progress=progress)
@@ -180,11 +168,11 @@ def make_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     name = f"{tag}_{kp.size}x{kd.size}_{drawn}"
     png1 = plot_gain_chart(gc, out / f"chart_gains_{name}.png", path, label=label)
     png2 = plot_omega_chart(oc, out / f"chart_omega_{name}.png", label=label,
-                            ylabel="dominant |ρ| (hub / first bending mode)" if exudyn else "max|ρ| (spectral radius)")
+                            ylabel="max|ρ| (spectral radius)")
     summary = {"gain_chart": gc.to_dict(), "omega_chart": oc.to_dict(),
                "taguchi_path": [list(p) for p in path] if path else None,
                "inputs": {"manipulator": cfg.manipulator.to_dict(), "constants": opts.constants,
-                          "model": "exudyn" if exudyn else "reduced", "omega": omega, "grid": [kp.size, kd.size],
+                          "model": "reduced", "omega": omega, "grid": [kp.size, kd.size],
                           "kp_range": list(kp_rng), "kd_range": list(kd_rng), "target": target,
                           "omega_range": [float(w_lo), float(w_hi)], "omega_points": int(omegas.size)},
                "figures": [str(png1), str(png2)], "json": str(out / f"chart_{name}.json")}
@@ -252,8 +240,11 @@ def model_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     grid = opts.grid if opts.grid is not None else 11
     kp = check_grid(*kp_rng, grid, "kp")
     kd = check_grid(*kd_rng, grid, "kd")
-    w_lo, w_hi = opts.omega_range if opts.omega_range else (0.5 * omega, 1.5 * omega)
-    omegas = check_grid(w_lo, w_hi, opts.omega_points if opts.omega_points is not None else 9, "omega")
+    exudyn = opts.model == "exudyn"  # the paper's link: the paper's Omega range (pi .. 8 pi, 8 points)
+    default_range = (math.pi, 8 * math.pi) if exudyn else (0.5 * omega, 1.5 * omega)
+    w_lo, w_hi = opts.omega_range if opts.omega_range else default_range
+    omegas = check_grid(w_lo, w_hi, opts.omega_points if opts.omega_points is not None else (8 if exudyn else 9),
+                        "omega")
     samples = opts.samples if opts.samples is not None else DEFAULT_SAMPLES
     if isinstance(samples, bool) or samples < 4 or samples % 2:
         raise ValueError(f"--samples must be an even integer >= 4, got {samples}")
@@ -366,6 +357,8 @@ def model_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
                           "kd_range": list(kd_rng), "target": target, "omega_range": [float(w_lo), float(w_hi)],
                           "omega_points": int(omegas.size), "samples": samples},
                "figures": figures, "json": str(out / f"chart_{name}.json")}
+    if exudyn:
+        summary["inputs"]["manipulator"] = cfg.manipulator.to_dict()
     if gc is None:
         summary["note"] = "the model has no drives: no gain chart (the Omega chart's two curves coincide)"
     from stability.serialization import json_ready

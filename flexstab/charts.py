@@ -21,7 +21,6 @@ from mbs_models.parameters import ManipulatorParameters
 __all__ = [
     "ReducedRadius",
     "PlantRadius",
-    "ExudynOmegaRadius",
     "ModelRadius",
     "ModelPlants",
     "GainChart",
@@ -54,10 +53,10 @@ class ReducedRadius:
 
 @dataclass(frozen=True)
 class PlantRadius:
-    """Picklable task for a plant at one Omega (e.g. the Exudyn linearisation): ``{"kp", "kd"} -> response``.
+    """Picklable task for a plant at one Omega: ``{"kp", "kd"} -> response``.
 
-    The response is ``plant.spectral_measure(kp, kd)`` (for the Exudyn link: the dominant multiplier
-    of the hub / first bending mode).  ``point["omega"]`` must be the plant's own Omega.
+    The response is ``plant.spectral_measure(kp, kd)`` (for a model file's plant: the dominant
+    labelled multiplier).  ``point["omega"]`` must be the plant's own Omega.
     """
 
     plant: Any
@@ -67,21 +66,6 @@ class PlantRadius:
         if abs(point["omega"] - self.omega) > 1e-12 * self.omega:
             raise ValueError(f"this plant was linearised at omega = {self.omega}, not {point['omega']}")
         return float(self.plant.spectral_measure(point["kp"], point["kd"]))
-
-
-@dataclass(frozen=True)
-class ExudynOmegaRadius:
-    """Picklable task: ``{"omega", "kp", "kd"} -> dominant |rho|`` of the Exudyn link (orbit per Omega)."""
-
-    params: ManipulatorParameters = field(default_factory=ManipulatorParameters)
-    elements: int = 4
-
-    def __call__(self, point: dict) -> float:
-        from linearize.link_floquet import exudyn_floquet
-
-        r = exudyn_floquet(self.params, omega=point["omega"], kp=point["kp"], kd=point["kd"],
-                           elements=self.elements, verify_orbit=False)
-        return float(abs(r.dominant_multiplier))
 
 
 class ModelPlants:

@@ -69,7 +69,7 @@ def check_floquet_options(opts: FloquetOptions) -> None:
     ValueError
         One line naming the option (as ``flexstab floquet`` spells it) and the problem.
     """
-    if opts.model in ("reduced", "exudyn"):
+    if opts.model == "reduced":
         if len(opts.kp) != 1 or len(opts.kd) != 1:
             raise ValueError(f"--model {opts.model} has one drive (the hub): give one --kp and one --kd value")
         if opts.samples is not None:
@@ -84,7 +84,7 @@ def floquet_analysis(opts: FloquetOptions, cfg: Any) -> dict:
     """The Floquet analysis of ``opts`` for the configuration ``cfg``: the JSON-ready dict of
     ``flexstab floquet --json``."""
     check_floquet_options(opts)
-    builtin = opts.model in ("reduced", "exudyn")
+    builtin = opts.model == "reduced"
     from stability import DEFAULT_METHOD, METHODS, floquet
 
     from stability.floquet import DEFAULT_RTOL, recertify
@@ -99,32 +99,17 @@ def floquet_analysis(opts: FloquetOptions, cfg: Any) -> dict:
     kp, kd = opts.kp[0], opts.kd[0]
     out: dict = {"model": opts.model}
     damping = resolve_damping(opts, cfg)
-    if opts.model == "reduced":
-        exudyn_only = [flag for flag, given in (("--elements", opts.elements is not None),
-                                                ("--damping", damping.given)) if given]
-        if exudyn_only:
-            raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
-                             "(built-in or PATH.py), not to --model reduced")
-        from mbs_models.reduced import ReducedModel
+    exudyn_only = [flag for flag, given in (("--elements", opts.elements is not None),
+                                            ("--damping", damping.given)) if given]
+    if exudyn_only:
+        raise ValueError(f"{', '.join(exudyn_only)} applies to --model exudyn only and to model files "
+                         "(built-in or PATH.py), not to --model reduced")
+    from mbs_models.reduced import ReducedModel
 
-        model = ReducedModel(omega=omega, kp=kp, kd=kd, params=cfg.manipulator, constants=opts.constants)
-        # the engine refines to min(its default, rtol); certified against rtol
-        res = floquet(model, method=method, small_multipliers=opts.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
-        out["constants"] = opts.constants
-    else:
-        from linearize.link_floquet import exudyn_floquet  # provided by the Exudyn layer
-
-        from mbs_models.damping import material_damping_values
-
-        elements = opts.elements if opts.elements is not None else cfg.elements
-        p = cfg.manipulator
-        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
-                                                 damping.bending, damping.axial)
-        ex = exudyn_floquet(p, omega=omega, kp=kp, kd=kd, elements=elements, method=method,
-                            bending_damping=bending, axial_damping=axial)
-        res = ex.floquet
-        out.update(ex.summary())
-        out.update({"bending_damping": bending, "axial_damping": axial, "damping": damping.to_dict()})
+    model = ReducedModel(omega=omega, kp=kp, kd=kd, params=cfg.manipulator, constants=opts.constants)
+    # the engine refines to min(its default, rtol); certified against rtol
+    res = floquet(model, method=method, small_multipliers=opts.small_multipliers, rtol=min(DEFAULT_RTOL, rtol))
+    out["constants"] = opts.constants
     out.update(
         {
             "omega": omega,
@@ -158,5 +143,14 @@ def _model_file_analysis(opts: FloquetOptions, cfg: Any, omega: float, method: s
     out["model"] = opts.model
     out.update({"omega": omega, "period": 2 * math.pi / omega, "kp": list(res.kp), "kd": list(res.kd)})
     out["damping"] = damping.to_dict()
+    if opts.model == "exudyn":  # the keys of the paper's link (besides the model file's)
+        from mbs_models.damping import material_damping_values
+
+        p = cfg.manipulator
+        bending, axial = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness,
+                                                 damping.bending, damping.axial)
+        out.update({"elements": options["elements"], "reference": "periodic", "dominant_mode": res.dominant_mode,
+                    "undamped_multipliers": res.undamped_count, "bending_damping": bending,
+                    "axial_damping": axial})
     out.update(res.floquet.to_dict())
     return out

@@ -9,7 +9,7 @@ from pathlib import Path
 __all__ = ["dump_json", "resolve_omega", "parse_omega", "omega_type", "add_model_options", "non_negative_float",
            "positive_float", "gain_list", "is_model_file", "resolve_model_definition", "ensure_out_dir", "gain_pairs",
            "check_range_arg", "check_model_arg", "result_output", "gains_as_lists", "GAIN_FIELDS",
-           "add_damping_option", "resolve_damping"]
+           "add_damping_option", "resolve_damping", "EXUDYN_ALIAS", "model_route"]
 
 _PI_FORM = re.compile(r"^\s*([-+]?[0-9]*\.?[0-9]*(?:[eE][-+]?[0-9]+)?)\s*\*?\s*pi\s*$", re.IGNORECASE)
 
@@ -73,6 +73,16 @@ def gain_list(text: str) -> tuple:
     return tuple(non_negative_float(p.strip()) for p in parts)
 
 
+#: ``--model exudyn`` is the paper's Exudyn ANCF link: the built-in model file ``single-link`` with the
+#: configured manipulator (default the paper's Table 1), on the generic model-file path.
+EXUDYN_ALIAS = "single-link"
+
+
+def model_route(model: str) -> str:
+    """The model a ``--model`` name is computed with: ``exudyn`` -> :data:`EXUDYN_ALIAS`, else itself."""
+    return EXUDYN_ALIAS if model == "exudyn" else model
+
+
 def is_model_file(model: str) -> bool:
     """Whether ``--model`` names a model file (a ``.py`` path) rather than a built-in model."""
     return str(model).endswith(".py")
@@ -112,6 +122,7 @@ def check_range_arg(rng, flag: str) -> None:
 def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
     """The one ``--model`` rule of every command for model files: ``(definition, build options)``.
 
+    * ``exudyn``: :data:`EXUDYN_ALIAS` (``single-link``, below);
     * a model file ``PATH.py``: its own defaults; ``--elements`` and the ``builtin_options``
       that are set (non-zero damping, ...) are rejected, they apply to built-in models only;
     * ``single-link``: the configured link (``cfg.manipulator``) with ``--elements`` or the
@@ -128,6 +139,7 @@ def resolve_model_definition(model: str, cfg, elements=None, **builtin_options):
     """
     from mbs_models.model_file import BUILTIN_MODELS, builtin_model, load_model_file
 
+    model = model_route(model)
     given = {k: v for k, v in builtin_options.items() if v}
     if is_model_file(model):
         material = given.pop("material_damping", None)

@@ -7,8 +7,8 @@ report can be traced to a file:
 2. ``table3``  -- Taguchi tuning of the reduced model to rho_d (paper Table 3);
 3. ``charts``  -- max|rho| over the gain plane (with the Taguchi path) and against Omega;
 4. ``transients`` -- linear transient responses (paper Figs. 2-9);
-5. ``exudyn``  -- the Exudyn ANCF model: periodic orbit, linearisation, Floquet
-   at the reference gains, Taguchi tuning on the Exudyn linearisation (``quick``:
+5. ``exudyn``  -- the Exudyn ANCF model (the built-in model file ``single-link``): periodic
+   orbit, linearisation, Floquet at the reference gains, Taguchi tuning on it (``quick``:
    at most 4 elements, 16 collocation samples, the tuning loop at half the
    propagator steps with the tuned gains re-evaluated at the full count);
 6. ``validation`` -- nonlinear Exudyn simulations of the tuned closed loop
@@ -295,7 +295,9 @@ def _stage_transients(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
 
 def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """Exudyn model at the study Omega: orbit, linearisation, Floquet at the reference gains; Taguchi on it."""
-    from linearize.link_floquet import ExudynPlant, exudyn_floquet
+    import dataclasses
+
+    from linearize.analysis import ModelPlant, analyze
     from mbs_models.reduced import ReducedModel
     from stability import floquet
     from stability.refine import pair_estimate
@@ -307,17 +309,12 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     # --quick: 16 collocation samples per period (32 in the full study; at 4 elements and 2pi the
     # dominant multipliers at the reference, zero and tuned gains agree to 1e-9 between the two)
     samples = 16 if opts.quick else 32
-    damp = {}
-    if getattr(cfg.damping, "given", False):  # [study] damping / --damping: the beams' structural damping
-        from mbs_models.damping import material_damping_values
-
-        b, a = material_damping_values(cfg.damping.material, cfg.manipulator.bending_stiffness,
-                                       cfg.manipulator.axial_stiffness, cfg.damping.bending, cfg.damping.axial)
-        damp = {"bending_damping": b, "axial_damping": a}
-    ef = exudyn_floquet(cfg.manipulator, omega=omega, kp=kp_r, kd=kd_r, elements=elements, samples=samples, **damp)
-    # tuning on the same linearisation: the gain-independent part (interpolation, mass-matrix solves,
-    # balancing) prepared once; same magnus2 scheme, nodes and step count as ExudynPlant.floquet
-    plant = ExudynPlant(ef.linearization.with_gains(0.0, 0.0)).prepared()
+    damp = getattr(cfg.damping, "given", False)  # [study] damping / --damping: the beams' structural damping
+    definition, options = _link_definition(cfg, elements, damped=damp)
+    ef = analyze(definition, omega, kp=kp_r, kd=kd_r, samples=samples, **options)
+    # tuning on the same orbit and linearisation (gains 0): the model-file plant (frozen-modal frame built at
+    # each evaluation's gains, extrapolated; linearize.analysis.TUNING_PROPAGATOR_STEPS)
+    plant = ModelPlant(ef.linearization.with_gains(0.0, 0.0), ef.orbit)
     uncontrolled = plant.spectral_measure(0.0, 0.0)
     tcfg = TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range,
                         max_evaluations=100 if opts.quick else 300)
@@ -325,7 +322,7 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     # --quick: the loop runs with half the plant's propagator steps; the tuned gains are re-evaluated
     # with the full count, and tuned again with it if the step-doubling estimate (second order: the
     # error of n steps ~ 4/3 |r_n - r_2n|) exceeds a quarter of the tuning tolerance
-    loop = ExudynPlant(plant.linearization, n_steps=plant.n_steps // 2).prepared() if opts.quick else plant
+    loop = dataclasses.replace(plant, n_steps=plant.n_steps // 2) if opts.quick else plant
     tuned = taguchi_tune(GainObjective(loop), tcfg)
     tuned_dominant = tuned.spectral_radius
     step_check = None
@@ -339,15 +336,15 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
             tuned_dominant, loop = tuned.spectral_radius, plant
     reduced = floquet(ReducedModel(omega, kp_r, kd_r, cfg.manipulator)).spectral_radius
     # ---- verdicts of the whole closed loop (stability.verdict; the verdict block of the report reads them)
-    verdicts = {"verdict_uncontrolled": _whole_loop_verdict(ef.linearization, 0.0, 0.0),
+    verdicts = {"verdict_uncontrolled": _whole_loop_verdict(ef, 0.0, 0.0),
                 "verdict_reference": ef.verdict.to_dict(),
-                "verdict_tuned": _whole_loop_verdict(ef.linearization, tuned.kp, tuned.kd)}
+                "verdict_tuned": _whole_loop_verdict(ef, tuned.kp, tuned.kd)}
     # ---- end of the verdicts
     row = {
         "omega": omega, "omega_over_pi": omega / math.pi, "elements": elements, "samples": samples,
         "target": cfg.target,
         "orbit_residual": float(ef.orbit.residual),
-        # one Exudyn period from the orbit's state (computed by exudyn_floquet's verify_orbit anyway)
+        # one Exudyn period from the orbit's state (computed by analyze's verify_orbit anyway)
         "orbit_shooting_residual": float(ef.orbit.shooting_residual),
         "uncontrolled_dominant": uncontrolled,
         "reference_kp": kp_r, "reference_kd": kd_r, "reference_gains_source": source,
@@ -368,10 +365,9 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     (opts.out / "exudyn.json").write_text(json.dumps({"rows": [row]}, indent=2))
     blocks = [
         text(f"Exudyn ANCF model ({elements} elements), linearised by central differences along its T-periodic "
-             "orbit; Floquet multipliers by the exponential-midpoint product (`magnus2`; the reference-gain and "
-             "whole-loop values in the frozen-modal frame, the Taguchi loop's in the linearisation's own "
-             "coordinates). 'dominant' = largest multiplier of the modes the reduced model has (hub, first "
-             "bending); "
+             "orbit (the built-in model file `single-link`); Floquet multipliers by the exponential-midpoint product "
+             "(`magnus2`) in the frozen-modal frame, Richardson-extrapolated. 'dominant' = largest multiplier of "
+             "the modes the reduced model has (hub, first bending); "
              + (f"structural damping of the beams: {cfg.damping.describe()}. " if damp else
                 "the axial and higher bending modes are undamped (no structural damping) and sit on the unit "
                 "circle. ")
@@ -407,24 +403,29 @@ def _stage_exudyn(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
 SENSITIVITY_DAMPING = 1e-5
 
 
-def _whole_loop_verdict(lin, kp: float, kd: float, steps: int = 512) -> dict:
-    """:func:`stability.verdict.judge_floquet` of the whole Exudyn linearisation at ``(kp, kd)`` (frozen-modal
-    frame, extrapolated), with the mode labels, as a dict."""
-    from linearize.link_floquet import classify_multipliers
-    from stability.modal import modal_floquet
-    from stability.verdict import judge_floquet
+def _link_definition(cfg: StudyConfig, elements: int, damped: bool = True) -> tuple:
+    """The paper's link on the generic path: the built-in model file ``single-link`` with the configured
+    manipulator and ``elements``, and (``damped``) the ``[study] damping`` of its beams;
+    ``(definition, build options)``."""
+    from flexstab.options import EXUDYN_ALIAS, resolve_model_definition
 
-    sys_ = lin.with_gains(kp, kd)
-    res = modal_floquet(sys_, method="magnus2", n_steps=steps, accuracy="moduli", extrapolate=True)
-    modes = classify_multipliers(sys_, res)
-    return judge_floquet(res, labels=[m["mode"] for m in modes],
-                         frequencies=[m["frequency_hz"] for m in modes]).to_dict()
+    extra = cfg.damping.build_options() if damped and getattr(cfg.damping, "given", False) else {}
+    return resolve_model_definition(EXUDYN_ALIAS, cfg, elements, **extra)
+
+
+def _whole_loop_verdict(analysis, kp: float, kd: float) -> dict:
+    """:func:`stability.verdict.judge_floquet` of the whole closed loop at ``(kp, kd)`` about the orbit of
+    ``analysis`` (a :class:`~linearize.analysis.ModelFloquetResult`), with the mode labels, as a dict."""
+    from linearize.analysis import analyze
+
+    orbit = analysis.orbit
+    return analyze(orbit.model, orbit.omega, kp=kp, kd=kd, samples=orbit.samples, orbit=orbit).verdict.to_dict()
 
 
 def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     """The verdict's sensitivity to the mesh (2/4/8 elements; 2/4 in quick mode) and to structural damping
     (none, and ``SENSITIVITY_DAMPING``) at the reference gains, Exudyn link."""
-    from linearize.link_floquet import exudyn_floquet
+    from linearize.analysis import analyze
     from mbs_models.damping import material_damping_values
 
     kp, kd, source = _reference_gains(cfg, opts)
@@ -441,10 +442,13 @@ def _stage_sensitivity(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     for e in meshes:
         orbit = None
         for name, b, a in dampings:
-            ex = exudyn_floquet(p, omega=cfg.omega, kp=kp, kd=kd, elements=e, samples=16 if opts.quick else 32,
-                                bending_damping=b, axial_damping=a, verify_orbit=False,
-                                orbit=orbit if (b == 0.0 and a == 0.0) else None)
-            if b == 0.0 and a == 0.0:
+            definition, options = _link_definition(cfg, e, damped=False)
+            undamped = b == 0.0 and a == 0.0
+            if not undamped:
+                options.update(bending_damping=b, axial_damping=a)
+            ex = analyze(definition, cfg.omega, kp=kp, kd=kd, samples=16 if opts.quick else 32, verify_orbit=False,
+                         orbit=orbit if undamped else None, **options)
+            if undamped:
                 orbit = ex.orbit
             v = ex.verdict.to_dict()
             rows.append({"elements": e, "damping": name, "bending_damping": b, "axial_damping": a,
@@ -498,20 +502,28 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
     else the reference gains (see the module docstring).  Measurement:
-    :func:`validation.multipliers.validate_link_multipliers`: the one-period map of the
+    :func:`validation.multipliers.validate_model_multipliers` on the built-in model file
+    ``single-link``: the one-period map of the
     nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
     linearisation within the measurement's own error bar.
     """
-    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+    from mbs_models.reduced import ReducedModel
+    from stability import floquet
+    from validation.multipliers import (MultiplierCheckConfig, prediction_from_multipliers,
+                                        validate_model_multipliers)
     from validation.plots import plot_multiplier_plane
 
     kp, kd, source = _validation_gains(cfg, opts)
     elements = 2 if opts.quick else min(cfg.elements, 4)
-    # three step levels also in quick mode (two give no verdict); --quick starts them at twice the step
-    # (2e-3, 1e-3, 5e-4 s on the 2-element link: half the integration work); the step-convergence check
-    # and its error bar decide whether that is fine enough, as at any step
-    check = MultiplierCheckConfig(refinements=2, step=2e-3 if opts.quick else MultiplierCheckConfig.step)
-    v = validate_link_multipliers(cfg.manipulator, cfg.omega, kp, kd, elements=elements, config=check)
+    # three step levels also in quick mode (two give no verdict); --quick starts them at 2e-3 s (about half
+    # the integration work of the default step); the step-convergence check and its error bar decide whether
+    # that is fine enough, as at any step
+    check = MultiplierCheckConfig(refinements=2, step=2e-3 if opts.quick else None, amplitude=None)
+    definition, options = _link_definition(cfg, elements, damped=False)
+    reduced = floquet(ReducedModel(cfg.omega, kp, kd, cfg.manipulator))
+    v = validate_model_multipliers(definition, cfg.omega, kp, kd, config=check,
+                                   alternatives=[prediction_from_multipliers("reduced model", reduced.multipliers)],
+                                   **options)
     d = v.to_dict()
     d.update({"omega_over_pi": cfg.omega / math.pi, "gains_source": source})
     (opts.out / "validation.json").write_text(json.dumps({"rows": [d]}, indent=2, default=float))

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Optional
 
-from flexstab.options import check_model_arg, check_range_arg, gain_pairs, gains_as_lists, resolve_damping
+from flexstab.options import check_model_arg, check_range_arg, gain_pairs, gains_as_lists, model_route, resolve_damping
 
 if TYPE_CHECKING:
     from taguchi.tuning import TuningConfig
@@ -93,7 +93,7 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None, da
     :class:`~mbs_models.damping.DampingSpec`, default ``cfg.damping``)."""
     damping = damping if damping is not None else getattr(cfg, "damping", None)
     given = damping is not None and damping.given
-    if model not in ("reduced", "exudyn"):
+    if model != "reduced":
         from flexstab.options import resolve_model_definition
         from linearize.analysis import model_plant
 
@@ -103,24 +103,11 @@ def build_plant(model: str, cfg, omega: float, constants: str, elements=None, da
         if not plant.drives:
             raise ValueError(f"the model {model!r} has no drives: there are no PD gains to tune")
         return plant
-    if model == "reduced":
-        if given:
-            raise ValueError("--damping applies to the Exudyn and model-file models, not to --model reduced")
-        from mbs_models.reduced import ReducedModel
-
-        return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
-    from linearize.link_floquet import exudyn_plant  # the Exudyn linearisation
-
-    extra = {}
     if given:
-        from mbs_models.damping import material_damping_values
+        raise ValueError("--damping applies to the Exudyn and model-file models, not to --model reduced")
+    from mbs_models.reduced import ReducedModel
 
-        p = cfg.manipulator
-        b, a = material_damping_values(damping.material, p.bending_stiffness, p.axial_stiffness, damping.bending,
-                                       damping.axial)
-        extra = {"bending_damping": b, "axial_damping": a}
-    # prepared: the linearisation is interpolated, solved and balanced once, not per gain pair
-    return exudyn_plant(cfg.manipulator, omega=omega, elements=elements or cfg.elements, prepared=True, **extra)
+    return ReducedModel(omega=omega, params=cfg.manipulator, constants=constants)
 
 
 class _Recorded:
@@ -374,7 +361,7 @@ def tune_gains(opts: TuneOptions, cfg: Any, *, notify: Optional[Callable[[str], 
     kp_range = tuple(opts.kp_range) if opts.kp_range else cfg.kp_range
     kd_range = tuple(opts.kd_range) if opts.kd_range else cfg.kd_range
     specs = opts.factor_range or None
-    model_file = opts.model not in ("reduced", "exudyn")
+    model_file = opts.model != "reduced"
 
     def tuning_config(n_drives: int, specs) -> TuningConfig:
         names, ranges = factor_ranges(n_drives, kp_range, kd_range, specs)
@@ -416,9 +403,8 @@ def tune_gains(opts: TuneOptions, cfg: Any, *, notify: Optional[Callable[[str], 
         unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = GainObjective(plant)
-    # Exudyn evaluations take ~0.3 s each: worth a process pool even for one L9 array
-    kind = "dask" if opts.scheduler else ("process" if opts.model == "exudyn" and opts.workers != 1 else "auto")
-    if opts.model not in ("reduced", "exudyn"):
+    kind = "dask" if opts.scheduler else "auto"
+    if model_file:
         if opts.scheduler:
             raise ValueError("--scheduler: model-file plants run in-process (serial) only")
         # the plant holds a model loaded from a file: not picklable -- except the built-in ones
@@ -513,29 +499,19 @@ def whole_loop_fields(opts: TuneOptions, cfg: Any, out: dict, plant: Any, kp, kd
 
     tuned = float(out["spectral_radius"])  # TaguchiResult's spectral_radius: the tuned response
     fields: dict = {"tuned_response": tuned}
-    model_file = opts.model not in ("reduced", "exudyn")
+    model_file = opts.model != "reduced"
+    route = model_route(opts.model)
     mesh = None
     if model_file:
         fields["tuned_response_modes"] = MODEL_RESPONSE_MODES
         verdict = out.get("verdict_detail") or {}
-        if opts.model in ("single-link", "two-link"):
+        if route in ("single-link", "two-link"):
             from flexstab.options import resolve_model_definition
 
             elements = out.get("elements") or (opts.elements or cfg.elements)
-            mesh = mesh_dependence(lambda e: resolve_model_definition(opts.model, cfg, e, **damping.build_options()),
+            mesh = mesh_dependence(lambda e: resolve_model_definition(route, cfg, e, **damping.build_options()),
                                    out["omega"], list(kp) if isinstance(kp, list) else [kp],
                                    list(kd) if isinstance(kd, list) else [kd], int(elements))
-    elif opts.model == "exudyn":
-        from linearize.link_floquet import classify_multipliers
-        from stability.modal import modal_floquet
-
-        base = getattr(plant, "plant", plant)
-        lin = base.linearization.with_gains(kp, kd)
-        res = modal_floquet(lin, method="magnus2", n_steps=512, accuracy="moduli", extrapolate=True)
-        modes = classify_multipliers(lin, res)
-        verdict = judge_floquet(res, labels=[m["mode"] for m in modes],
-                                frequencies=[m["frequency_hz"] for m in modes]).to_dict()
-        fields["tuned_response_modes"] = "hub and bending 1 (the paper's modes)"
     else:
         from stability.engines import floquet
 

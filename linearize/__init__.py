@@ -1,5 +1,4 @@
-"""Periodic orbits and linearisations: model files (generic path) and the hand-derived single link."""
-from linearize.along_orbit import coordinate_names, linearize_along_orbit
+"""Periodic orbits and linearisations of model files."""
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, central_difference_jacobians
 from linearize.fourier import differentiation_matrices, sample_times, trig_interpolate
 from linearize.system import LinearizedPeriodicSystem
@@ -27,8 +26,6 @@ def __getattr__(name: str):
 
 __all__ = [
     "LinearizedPeriodicSystem",
-    "linearize_along_orbit",
-    "coordinate_names",
     "CENTRAL_DIFFERENCE_STEP",
     "central_difference_jacobians",
     "differentiation_matrices",

@@ -186,6 +186,18 @@ class ModelFloquetResult:
         return judge_floquet(self.floquet, labels=[m.mode for m in self.modes],
                              frequencies=[m.frequency_hz for m in self.modes])
 
+    @property
+    def dominant_mode(self) -> str:
+        """Mode label of :attr:`dominant_multiplier` (``"hub"``, ``"bending 1"``, ...)."""
+        mu = np.asarray(self.floquet.multipliers)
+        return str(self.modes[int(np.argmin(np.abs(mu - self.dominant_multiplier)))].mode)
+
+    @property
+    def undamped_count(self) -> int:
+        """Number of practically undamped multipliers: the count of the verdict rule
+        (:mod:`stability.verdict`: ``|rho| + error > exp(-1/1000)``, not growing)."""
+        return len(self.verdict.undamped)
+
     def summary(self) -> dict:
         d = self.dominant_multiplier
         return {

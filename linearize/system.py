@@ -55,7 +55,7 @@ class LinearizedPeriodicSystem:
         ``"rigid"`` (about the undeformed rigid motion).
     orbit_residual : float
         Relative residual of the reference motion (see
-        :class:`~linearize.link_orbit.PeriodicOrbit`).
+        :class:`~linearize.periodic_orbit.PeriodicOrbit`).
     elements : int
         ANCF elements of the model.
     fd_step : float

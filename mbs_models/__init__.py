@@ -1,5 +1,5 @@
 """Models of the single-link flexible manipulator: parameters, the paper's
-reduced one-mode model and the Exudyn ANCF model."""
+reduced one-mode model, model files (the Exudyn ANCF link is the built-in ``single-link``)."""
 
 #: Every name is imported on first use: ``import mbs_models.parameters`` (the command line's
 #: configuration) then imports neither scipy (the reduced model) nor Exudyn.
@@ -11,10 +11,7 @@ _LAZY = {
     "ReducedModel": "mbs_models.reduced",
     "derived_mode_constants": "mbs_models.reduced",
     "mode_constants": "mbs_models.reduced",
-    "ExudynLinkConfig": "mbs_models.exudyn_link",
-    "ExudynLinkModel": "mbs_models.exudyn_link",
-    "ExudynSolverError": "mbs_models.exudyn_link",
-    "build_link_model": "mbs_models.exudyn_link",
+    "exudyn_console": "mbs_models.console",
     "exudyn_frequencies": "mbs_models.modes",
     "analytic_frequencies": "mbs_models.modes",
     "ModesResult": "mbs_models.modes",

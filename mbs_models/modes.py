@@ -9,9 +9,9 @@ Two boundary conditions at the hub, gravity off, link straight:
     hub): one rigid-body mode at 0 Hz, then the flexible modes.
 
 :func:`exudyn_frequencies` projects Exudyn's mass matrix and its own
-stiffness Jacobian ``K = -df/dq`` (at the undeformed, unloaded reference)
-onto the independent coordinates of :class:`~mbs_models.exudyn_link.ExudynLinkModel`
-and solves the symmetric generalised eigenproblem.  :func:`analytic_frequencies`
+stiffness Jacobian ``K = -df/dq`` (at the undeformed, unloaded reference) of the
+built-in model file ``single-link`` onto the null space of its constraints and
+solves the generalised eigenproblem.  :func:`analytic_frequencies`
 solves the Euler-Bernoulli frequency equation with tip mass (and hub
 inertia) by bracketing and Brent's method.
 
@@ -43,7 +43,6 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
-import scipy.linalg
 import scipy.optimize
 
 from mbs_models.parameters import ManipulatorParameters
@@ -228,26 +227,31 @@ def exudyn_frequencies(
 
     Notes
     -----
-    ``M`` is Exudyn's ODE2 mass matrix and ``K`` Exudyn's analytic stiffness
-    Jacobian ``-df/dq``, both projected with the explicit parametrisation
-    ``J`` of the clamp: ``K_r = J^T K J``, ``M_r = J^T M J`` (exact at the
-    unloaded reference, where ``f = 0``).  Frequencies ``sqrt(lambda)/(2 pi)``.
+    The built-in model file ``single-link`` (:mod:`mbs_models.builtin.single_link`) at rest along
+    the x-axis (hub angle 0, no motion, gravity off), the hub angle held by one more
+    ``CoordinateConstraint`` when clamped; eigenvalues of Exudyn's ODE2 mass matrix and stiffness
+    Jacobian ``-df/dq`` projected onto the null space of the constraint Jacobian
+    (``ComputeODE2Eigenvalues``: exact at the unloaded reference, where ``f = 0`` and the
+    constraint reactions vanish).  Frequencies ``sqrt(lambda)/(2 pi)``.
     """
-    from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
+    import exudyn as exu
+    from exudyn.itemInterface import CoordinateConstraint
+
+    from mbs_models.builtin.single_link import build
+    from mbs_models.console import exudyn_console
 
     _check_hub(hub)
     count = _check_count(count)
     params = ManipulatorParameters() if params is None else params
-    cfg = ExudynLinkConfig(elements=elements, drive="free", gravity=False)
-    model = build_link_model(params, cfg)
-    p0, _ = model.rigid_configuration(0.0)
-    J = model.jacobian(p0)
-    if hub == "clamped":
-        J = J[:, 1:]
-    K = J.T @ model.stiffness_matrix(model.coordinates(p0)) @ J
-    M = J.T @ model.mass_matrix() @ J
-    K = 0.5 * (K + K.T)
-    lam = scipy.linalg.eigh(K, M, eigvals_only=True)
+    with exudyn_console(True):
+        sc = exu.SystemContainer()
+        mbs = sc.AddSystem()
+        drives = build(mbs, 1.0, elements=elements, params=params, mean_angle=0.0, amplitude=0.0, gravity=False)
+        if hub == "clamped":
+            mbs.AddObject(CoordinateConstraint(markerNumbers=list(drives[0]["markers"])))
+        mbs.Assemble()
+        lam, _ = mbs.ComputeODE2Eigenvalues(useAbsoluteValues=False)
+    lam = np.sort(np.asarray(lam, dtype=float))
     # the clamped beam has no rigid-body mode; the pinned one has exactly one (rotation about O,
     # gravity off). A relative threshold alone misfires at fine meshes, where the highest axial
     # eigenvalue is ~1e10 times the first bending one.
@@ -263,7 +267,7 @@ def exudyn_frequencies(
         frequencies_hz=freqs[:count],
         analytic_hz=analytic,
         hub=hub,
-        elements=model.config.elements,
+        elements=int(elements),
         rigid_modes=n_rigid,
         params=params,
     )

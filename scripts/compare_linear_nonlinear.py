@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Floquet multipliers measured from nonlinear Exudyn runs against the predictions.
 
-Cases (:data:`validation.study.MULTIPLIER_CASES`): the complex pair at
+Cases (:data:`_link_oracle.decay_study.MULTIPLIER_CASES`): the complex pair at
 Omega = 2pi (kp = 10, kd = 2), the paper's Table 3 gains at the four Omegas,
 two deliberately wrong predictions at 8pi (gains +5 %, rigid reference) that
 must fail, and the uncontrolled loop at 2pi with its growth run.  Writes
@@ -29,10 +29,13 @@ import argparse
 import json
 import math
 import os
+import sys
 import time
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# the hand-derived link is the test suite's independent oracle (tests/_link_oracle)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 
 #: Tuned two-link gains (four-gain Taguchi tuning to rho_d = 0.3): Omega/pi -> ((kp1, kp2), (kd1, kd2)).
@@ -94,7 +97,7 @@ def main(argv=None) -> int:
 
     from validation.multipliers import MultiplierCheckConfig
     from validation.plots import plot_multiplier_plane
-    from validation.study import MULTIPLIER_CASES, multiplier_markdown, multiplier_study
+    from _link_oracle.decay_study import MULTIPLIER_CASES, multiplier_markdown, multiplier_study
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="results", help="output folder (default results/)")
@@ -161,8 +164,8 @@ def main(argv=None) -> int:
 
 def _transients(out: Path, *, elements: int, quick: bool) -> None:
     """The time-series comparison (nonlinear hub-angle error vs the linear response)."""
-    from validation.plots import plot_validation_figure
-    from validation.study import CASES, compare_linear_nonlinear, comparison_markdown
+    from _link_oracle.decay_plots import plot_validation_figure
+    from _link_oracle.decay_study import CASES, compare_linear_nonlinear, comparison_markdown
 
     kwargs = dict(elements=elements, periods=5, omegas=(2, 4, 6, 8))
     if quick:

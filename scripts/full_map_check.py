@@ -46,7 +46,7 @@ def main(argv=None) -> int:
 
     from flexstab.executor import make_executor
     from linearize.analysis import analyze
-    from validation.closed_loop import exudyn_console
+    from mbs_models.console import exudyn_console
     from validation.full_map import FullMapConfig, full_map_from_maps, full_map_report, measure_model_full_map
     from validation.multipliers import MODEL_AMPLITUDE, MODEL_SAMPLES
 

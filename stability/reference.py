@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 __all__ = ["ReferenceOptions", "paper_monodromy", "choose_integrator", "STIFFNESS_RATIO"]
 
@@ -79,6 +78,8 @@ def paper_monodromy(P, period: float, options: ReferenceOptions = ReferenceOptio
     RuntimeError
         If an integration fails.
     """
+    from scipy.integrate import solve_ivp
+
     n = P(0.0).shape[0]
     Phi = np.empty((n, n))
     nfev = 0

@@ -48,7 +48,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from stability.periodic import check_period
 
@@ -376,6 +375,8 @@ def linear_response(
     grid = grid[grid <= t_end]
     if grid[-1] < t_end:
         grid = np.append(grid, t_end)
+
+    from scipy.integrate import solve_ivp  # on first use: scipy.integrate costs ~0.3 s of imports
 
     kwargs = {"jac": lambda t, x: P(t)} if method in _IMPLICIT else {}
     sol = solve_ivp(

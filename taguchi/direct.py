@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
-from scipy.optimize import differential_evolution, minimize
 
 from taguchi.tuning import STATUS_BUDGET, STATUS_CONVERGED, NamedGains, TuningConfig
 
@@ -91,6 +90,8 @@ def direct_tune(
         if abs(y - target) <= tol:
             raise _Reached
         return (y - target) ** 2
+
+    from scipy.optimize import differential_evolution, minimize  # on use: ~0.25 s of imports
 
     try:
         if method == "nelder-mead":

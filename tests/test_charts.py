@@ -76,7 +76,7 @@ def test_cli_chart_unwritable_out(tmp_path, capsys):
 def test_exudyn_gain_chart_points_equal_exudyn_floquet(tmp_path):
     """Chart points of the Exudyn plant equal an independent exudyn_floquet call (own orbit, own steps)."""
     from flexstab.charts import PlantRadius
-    from linearize.link_floquet import exudyn_floquet, exudyn_plant
+    from _link_oracle.link_floquet import exudyn_floquet, exudyn_plant
 
     plant = exudyn_plant(omega=2 * math.pi, elements=2, samples=16)
     chart = gain_chart(PlantRadius(plant, 2 * math.pi), 2 * math.pi, np.array([10.0, 37.1617]),

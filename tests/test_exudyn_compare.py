@@ -15,8 +15,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest
 
-from mbs_models.exudyn_link import ExudynLinkConfig
-from linearize.link_orbit import find_periodic_orbit
+from _link_oracle.exudyn_link import ExudynLinkConfig
+from _link_oracle.link_orbit import find_periodic_orbit
 
 from _model_bounds import model_difference_bound  # tests/ helper
 
@@ -61,7 +61,7 @@ def test_compare_models_fast_reduced_vs_table3_and_exudyn_vs_direct(tmp_path):
     # second order: the finer value is |d_h - d_h/2| / 3 off, the coarser one 4/3 |d_h - d_h/2|; GCI safety
     # 1.25), plus its finite-difference / Newton floor (scatter measured at h/4: 6.7e-6, where the Newton
     # error over epsilon overtakes the step error -- which is why the claim has five digits, not six).
-    from linearize.link_floquet import direct_monodromy
+    from _link_oracle.link_floquet import direct_monodromy
 
     half = abs(direct_monodromy(orbit, kp=ctrl["kp"], kd=ctrl["kd"], step_size=0.5e-3).dominant_multiplier)
     bound = 1.25 * 4.0 / 3.0 * abs(ctrl["direct"] - half)

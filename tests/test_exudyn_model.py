@@ -12,8 +12,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from mbs_models.exudyn_link import ExudynLinkConfig, ExudynSolverError, build_link_model
-from linearize.link_orbit import OrbitConvergenceError, find_periodic_orbit, rigid_reference
+from _link_oracle.exudyn_link import ExudynLinkConfig, ExudynSolverError, build_link_model
+from _link_oracle.link_orbit import OrbitConvergenceError, find_periodic_orbit, rigid_reference
 from mbs_models.parameters import ManipulatorParameters
 
 
@@ -74,7 +74,7 @@ def test_orbit_converges_and_is_periodic(orbit2):
 
 def test_exudyn_integration_converges_to_orbit(orbit2):
     """Shooting with Exudyn from the orbit state: defect falls as h^2 (generalised-alpha)."""
-    from linearize.link_orbit import _shooting_defect
+    from _link_oracle.link_orbit import _shooting_defect
 
     cfg = orbit2.config
     model = build_link_model(orbit2.params, cfg)

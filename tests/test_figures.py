@@ -190,7 +190,7 @@ def test_two_link_gain_slices_keep_the_colour_bar_label_clear_of_the_title(tmp_p
 def test_nonlinear_validation_figure_labels_every_time_axis_it_numbers(tmp_path):
     """The three rows of the linear-vs-nonlinear figure each numbered their time axis but only the bottom one was
     labelled (and its legends were 7 pt)."""
-    from validation.plots import plot_validation_figure
+    from _link_oracle.decay_plots import plot_validation_figure
 
     def run(rho, T=1.0, periods=6):
         t = np.linspace(0, periods * T, 600)

@@ -15,8 +15,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from linearize import LinearizedPeriodicSystem, central_difference_jacobians, linearize_along_orbit
-from linearize.link_floquet import (
+from _link_oracle.along_orbit import linearize_along_orbit
+from linearize import LinearizedPeriodicSystem, central_difference_jacobians
+from _link_oracle.link_floquet import (
     UNDAMPED_TOLERANCE,
     classify_multipliers,
     direct_monodromy,
@@ -24,8 +25,8 @@ from linearize.link_floquet import (
     exudyn_floquet,
 )
 from mbs_models.reduced import ReducedModel
-from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-from linearize.link_orbit import find_periodic_orbit
+from _link_oracle.exudyn_link import ExudynLinkConfig, build_link_model
+from _link_oracle.link_orbit import find_periodic_orbit
 from stability import floquet
 
 from _model_bounds import model_difference_bound  # tests/ helper

@@ -1,7 +1,7 @@
 """The frozen-modal Floquet frame (stability/modal.py) on the generic path, against the hand route.
 
 Oracle: the hand-derived hub-frame linearisation of the same single link
-(``linearize.link_orbit`` + ``linearize_along_orbit``, independent of the generic
+(``_link_oracle.link_orbit`` + ``linearize_along_orbit``, independent of the generic
 orbit, basis and of ``stability.modal``), propagated in its own coordinates by
 the plain exponential midpoint with 8192 steps (changes by 6e-10 relative from
 8192 to 16384 steps at 2 elements, 4 pi: converged far below the 1e-6 asked).
@@ -21,10 +21,10 @@ ELEMENTS, SAMPLES = 2, 16
 
 @pytest.fixture(scope="module")
 def case():
-    from linearize import linearize_along_orbit
+    from _link_oracle.along_orbit import linearize_along_orbit
     from linearize.analysis import analyze
-    from linearize.link_orbit import find_periodic_orbit
-    from mbs_models.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_orbit import find_periodic_orbit
+    from _link_oracle.exudyn_link import ExudynLinkConfig
     from stability import floquet
 
     with warnings.catch_warnings():

@@ -21,7 +21,7 @@ from linearize.constrained import linearize_orbit
 from linearize.periodic_orbit import find_orbit
 from mbs_models.modes import analytic_frequencies
 from mbs_models.parameters import ManipulatorParameters
-from validation.closed_loop import exudyn_console
+from mbs_models.console import exudyn_console
 
 #: Relative tolerance on the frozen-time bending frequencies: the 4-element mesh error of the pinned-hub
 #: frequencies (3.6e-4 and 4.0e-3 for f1, f2, docs/exudyn_notes.md) plus the stiffening of the frozen

@@ -183,9 +183,9 @@ TABLE3 = [(2, 37.1617, 29.2410), (4, 28.7617, 11.7501), (6, 22.2666, 6.7208), (8
 
 def _hand_route(omega, elements, samples):
     """The hand-derived hub-frame route (kept only as this independent check)."""
-    from linearize import linearize_along_orbit
-    from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-    from linearize.link_orbit import find_periodic_orbit
+    from _link_oracle.along_orbit import linearize_along_orbit
+    from _link_oracle.exudyn_link import ExudynLinkConfig, build_link_model
+    from _link_oracle.link_orbit import find_periodic_orbit
 
     cfg = ExudynLinkConfig(elements=elements, drive="free", omega=omega)
     orbit = find_periodic_orbit(None, cfg, samples=samples, verify=False)
@@ -206,7 +206,7 @@ def test_single_link_linearisation_equals_hand_derived_route(k, kp, kd):
     entries up to 4e7, i.e. 1e-9 of the largest entry; 1e-8 leaves a factor 10
     (measured: 1.5e-10 for K, 4e-10 for C, M exact, torques 2e-10).
     """
-    from linearize import linearize_along_orbit
+    from _link_oracle.along_orbit import linearize_along_orbit
     from linearize.fourier import differentiation_matrices
     from linearize.periodic_orbit import find_orbit
 
@@ -242,7 +242,7 @@ def test_single_link_multipliers_equal_hand_derived_route():
     Both with the exponential-midpoint product at 4096 steps (step-doubling
     estimate < 1e-7 relative for both at 2 elements); the agreement required is 1e-6.
     """
-    from linearize import linearize_along_orbit
+    from _link_oracle.along_orbit import linearize_along_orbit
     from linearize.analysis import analyze
     from stability import floquet
 

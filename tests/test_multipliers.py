@@ -34,9 +34,10 @@ from validation.multipliers import (
     measure_growth,
     measure_multipliers,
     prediction_from_monodromy,
-    validate_link_multipliers,
+    prediction_from_multipliers,
     validate_model_multipliers,
 )
+from _link_oracle.link_multipliers import validate_link_multipliers
 
 ELEMENTS = 2
 SAMPLES = 16
@@ -173,8 +174,8 @@ def test_config_rejects_bad_values(kwargs):
 # --------------------------------------------------------------------------- Exudyn single link
 @pytest.fixture(scope="module")
 def orbit8():
-    from mbs_models.exudyn_link import ExudynLinkConfig
-    from linearize.link_orbit import find_periodic_orbit
+    from _link_oracle.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_orbit import find_periodic_orbit
     from mbs_models.parameters import ManipulatorParameters
 
     return find_periodic_orbit(ManipulatorParameters(), ExudynLinkConfig(elements=ELEMENTS, drive="free", omega=EIGHT_PI),
@@ -213,7 +214,7 @@ def test_complex_pair_agrees_in_modulus_and_phase():
 
 @pytest.mark.slow
 def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gains(orbit8, tmp_path):
-    from linearize.link_floquet import exudyn_floquet
+    from _link_oracle.link_floquet import exudyn_floquet
 
     ok = validate_link_multipliers(omega=EIGHT_PI, kp=KP8, kd=KD8, elements=ELEMENTS, samples=SAMPLES, config=CFG,
                                    orbit=orbit8)
@@ -243,8 +244,8 @@ def test_eight_pi_confirms_true_orbit_and_rejects_rigid_reference_and_wrong_gain
 
 @pytest.mark.slow
 def test_uncontrolled_growth_until_linear_range_left(orbit8):
-    from linearize.link_floquet import exudyn_floquet
-    from mbs_models.exudyn_link import build_link_model
+    from _link_oracle.link_floquet import exudyn_floquet
+    from _link_oracle.exudyn_link import build_link_model
 
     ex = exudyn_floquet(omega=EIGHT_PI, elements=ELEMENTS, samples=SAMPLES, orbit=orbit8)
     rho = abs(ex.dominant_multiplier)
@@ -274,7 +275,7 @@ def test_uncontrolled_growth_until_linear_range_left(orbit8):
 def test_cli_json_and_figure(tmp_path, capsys):
     from flexstab.cli import main
 
-    rc = main(["validate", "--omega", "2pi", "--elements", "2", "--samples", "8", "--step", "0.02",
+    rc = main(["validate", "--omega", "2pi", "--elements", "2", "--samples", "16", "--step", "0.02",
                "--refinements", "1", "--compare", "1", "--json", "--out", str(tmp_path)])
     cap = capsys.readouterr()
     # one refinement gives an error bar but no verdict: not a passed check, so exit code 1 with the reason
@@ -421,9 +422,9 @@ def test_model_file_single_link_measured_equals_predicted(link_file_8pi):
     # null-space basis, drives released with feed-forward + PD inside Exudyn).  Oracles: the
     # generic linearisation's own Floquet multipliers (exponential midpoint, no time simulation)
     # and, independently of the generic path, the hand-derived hub-frame linearisation of the
-    # same link (linearize.link_floquet, 4096 steps: 2 elements, 8 pi -> 0.3946463, converged to
+    # same link (_link_oracle.link_floquet, 4096 steps: 2 elements, 8 pi -> 0.3946463, converged to
     # 5e-7 by step doubling, see validation.multipliers._refined_prediction)
-    from linearize.link_floquet import exudyn_floquet
+    from _link_oracle.link_floquet import exudyn_floquet
 
     r = link_file_8pi
     assert not r.diverged and r.step_converged and r.agrees, r.reason

@@ -2,7 +2,7 @@
 
 Oracles: the orbit's own checked residual (never loosened), the one-period
 shooting check in Exudyn's integrator (independent of the collocation) and the
-hand-derived hub-frame route (``linearize.link_orbit``, independent code and
+hand-derived hub-frame route (``_link_oracle.link_orbit``, independent code and
 coordinates).  Each strategy is also shown to matter: with it switched off the
 same call ends in :class:`OrbitConvergenceError`, so the tests reject the old
 behaviour (damped Newton alone from the simulated period, which needed a long
@@ -60,8 +60,8 @@ def test_quasi_static_guess_rescues_where_the_simulated_period_fails(monkeypatch
     own 32-sample orbit (which equals the hand route to 1e-6 in test_model_file), the hand
     one 1.4e-7.  A different periodic orbit differs at O(1); 1e-3 leaves a factor 40.
     """
-    from linearize.link_orbit import find_periodic_orbit
-    from mbs_models.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_orbit import find_periodic_orbit
+    from _link_oracle.exudyn_link import ExudynLinkConfig
 
     omega = 6 * math.pi
     opts = dict(samples=16, elements=ELEMENTS, continuation=False, solver="dense")

@@ -12,10 +12,10 @@ import pickle
 
 import pytest
 
-from linearize import linearize_along_orbit
-from linearize.link_floquet import ExudynPlant, PreparedExudynPlant
-from mbs_models.exudyn_link import ExudynLinkConfig
-from linearize.link_orbit import find_periodic_orbit
+from _link_oracle.along_orbit import linearize_along_orbit
+from _link_oracle.link_floquet import ExudynPlant, PreparedExudynPlant
+from _link_oracle.exudyn_link import ExudynLinkConfig
+from _link_oracle.link_orbit import find_periodic_orbit
 
 
 @pytest.fixture(scope="module")
@@ -63,25 +63,35 @@ def test_tuning_on_the_prepared_plant_equals_the_plant(plant2):
     assert abs(wrong - plain.spectral_radius) > est
 
 
-def test_cli_builds_prepared_exudyn_plants(monkeypatch):
-    """``tune --model exudyn`` and ``chart --model exudyn`` get a prepared plant from ``exudyn_plant``."""
-    import linearize.link_floquet as ef
+def test_cli_exudyn_plant_is_the_single_link_model_file(monkeypatch):
+    """``tune --model exudyn`` builds the model-file plant of ``single-link`` with the configured manipulator
+    and elements (the generic path), never the hand-derived link's plant."""
+    import linearize.analysis as analysis
     from flexstab import tuning as tune
+    from mbs_models.parameters import ManipulatorParameters
 
     seen = {}
 
-    def fake(params=None, *, omega, elements, prepared=False, **kw):
-        seen["prepared"] = prepared
-        return "plant"
+    class FakePlant:
+        drives = ("hub",)
 
-    monkeypatch.setattr(ef, "exudyn_plant", fake)
+    def fake(definition, omega, **options):
+        seen.update(name=definition.name, omega=omega, **options)
+        return FakePlant()
+
+    monkeypatch.setattr(analysis, "model_plant", fake)
+    p = ManipulatorParameters(tip_mass=0.2)
 
     class Cfg:
-        manipulator = None
+        manipulator = p
         elements = 2
+        damping = None
 
-    assert tune.build_plant("exudyn", Cfg(), 1.0, "auto") == "plant"
-    assert seen["prepared"] is True
+    assert isinstance(tune.build_plant("exudyn", Cfg(), 1.0, "auto"), FakePlant)
+    assert seen["name"] == "single-link" and seen["elements"] == 2 and seen["params"] is p and seen["omega"] == 1.0
+    # rejects a wrong route: the reduced model's name does not reach the model-file plant
+    seen.clear()
+    assert not isinstance(tune.build_plant("reduced", Cfg(), 1.0, "auto"), FakePlant) and not seen
 
 
 def test_workspace_built_once_per_process(plant2):

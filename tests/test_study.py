@@ -11,8 +11,8 @@ import pytest
 from flexstab.cli import main as cli_main
 from flexstab.config import StudyConfig
 from flexstab.study import StudyOptions, render_report, run_study
-from mbs_models.exudyn_link import ExudynLinkConfig
-from linearize.link_orbit import find_periodic_orbit
+from _link_oracle.exudyn_link import ExudynLinkConfig
+from _link_oracle.link_orbit import find_periodic_orbit
 
 from mbs_models.parameters import ManipulatorParameters
 

@@ -1,4 +1,4 @@
-"""Nonlinear closed-loop time series: validation.closed_loop.
+"""Nonlinear closed-loop time series: _link_oracle.closed_loop (the oracle's decay fit).
 
 The CLI ``flexstab validate`` and the study script measure multipliers
 (tests/test_multipliers.py); this module keeps the transient tool.
@@ -22,9 +22,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import pytest
 
-from mbs_models import exudyn_link
-from linearize.link_floquet import exudyn_floquet
-from validation.closed_loop import (
+from _link_oracle import exudyn_link
+from _link_oracle.link_floquet import exudyn_floquet
+from _link_oracle.closed_loop import (
     AGREEMENT_TOLERANCE,
     PAPER_PERTURBATION,
     linear_prediction,

@@ -1,7 +1,8 @@
 """One physical model, one verdict: the single link with the paper's Table 3 gains through every route.
 
-Routes: ``--model exudyn`` (:func:`linearize.link_floquet.exudyn_floquet`: hand-derived hub-frame
-coordinates, its own orbit and finite-difference linearisation) and ``--model single-link``
+Routes: the test suite's oracle (:func:`_link_oracle.link_floquet.exudyn_floquet`: hand-derived hub-frame
+coordinates, its own orbit and finite-difference linearisation) and ``--model single-link`` (which
+``--model exudyn`` is)
 (:func:`linearize.analysis.analyze` on the built-in model file: generic constrained linearisation).
 They share no orbit, no linearisation and no coordinates, so their agreement is a cross-check of
 two independent linearisations of the same Exudyn link.  Bound on the spectral radii: the hand
@@ -18,7 +19,7 @@ import math
 import pytest
 
 from linearize.analysis import analyze
-from linearize.link_floquet import exudyn_floquet
+from _link_oracle.link_floquet import exudyn_floquet
 from mbs_models.paper_data import TABLE3_GAINS
 from mbs_models.parameters import ManipulatorParameters
 from stability.verdict import VERDICT_CRITICAL, VERDICT_STABLE

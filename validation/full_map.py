@@ -682,7 +682,7 @@ class ClosedLoopRunner:
 
 def _images_chunk(spec: ClosedLoopSpec, h: float, D: np.ndarray, quiet: bool = True) -> np.ndarray:
     """Worker: rebuild the closed loop from ``spec`` and return the images of ``D`` (module level: picklable)."""
-    from validation.closed_loop import exudyn_console
+    from mbs_models.console import exudyn_console
 
     with exudyn_console(quiet):
         return ClosedLoopRunner(spec).images(h, D)
@@ -741,7 +741,7 @@ def measure_model_full_map(
     """
     from dataclasses import replace
 
-    from validation.closed_loop import exudyn_console
+    from mbs_models.console import exudyn_console
     from validation.multipliers import MODEL_AMPLITUDE, MODEL_SAMPLES, suggested_step
 
     omega = float(omega)

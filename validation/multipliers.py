@@ -120,7 +120,7 @@ __all__ = [
     "measure_growth",
     "measure_multipliers",
     "prediction_from_monodromy",
-    "validate_link_multipliers",
+    "prediction_from_multipliers",
     "validate_model_multipliers",
 ]
 
@@ -139,12 +139,6 @@ DEFAULT_AMPLITUDE = 1e-3
 #: link (2 pi, Table 3 gains) the quadratic term left by the central difference is 7e-8 at 3e-2
 #: against 1e-2, i.e. ~8e-9 at 1e-2.
 MODEL_AMPLITUDE = 1e-2
-#: Largest coarsest step of the built-in link when ``config.step`` is None (then
-#: ``min(LINK_STEP, suggested_step(...))``).  Why not 1e-3 at every Omega: at 6 pi (Table 3 gains,
-#: 4 elements) the levels at 1e-3, 5e-4, 2.5e-4 s are 0.2968458, 0.2968774, 0.2968790 (observed
-#: ratio 19: the coarse level outside the asymptotic range), 2.1e-6 below the prediction
-#: 0.2968817 with a GCI bar of 1.0e-6, and the second multiplier 0.0042 does not converge.
-LINK_STEP = 1e-3
 #: Multipliers below this modulus are not compared: one-period differences
 #: of amplitude ~1e-3 resolve ~1e-8 absolute, and a multiplier of 1e-6 has
 #: no digit left to compare (e.g. the hub-rate mode, rho ~ exp(-kd T / J1)).
@@ -170,7 +164,7 @@ class MultiplierCheckConfig:
         and is never split: ``k`` is raised by one if needed).
     step : float or None
         Coarsest generalised-alpha step (s).  ``None``: chosen by the path --
-        1e-3 s for the built-in link, :func:`suggested_step` for model files.
+        :func:`suggested_step` of the linearisation.
     refinements : int
         Step halvings (0: ``h`` only, no error bar; 1: ``h, h/2``, a bar but no verdict: two levels
         show no convergence order; 2: ``h, h/2, h/4``, the least for a verdict).
@@ -327,6 +321,17 @@ def _select(multipliers: np.ndarray, labels: Sequence[str], allowed: Optional[Se
             if j is not None and abs(mu[j] - np.conj(mu[i])) <= 1e-8 * abs(mu[i]):
                 chosen.append(j)
     return chosen
+
+
+def prediction_from_multipliers(name: str, multipliers: Sequence[complex]) -> Prediction:
+    """An alternative prediction given by its multipliers alone (e.g. a reduced model's), sorted by modulus.
+
+    It carries no Floquet vectors: :func:`measure_multipliers` reports its distance to the
+    measurement (:class:`Alternative`), it is never the prediction under test.
+    """
+    mu = np.asarray(multipliers, dtype=complex)
+    mu = mu[np.argsort(-np.abs(mu), kind="stable")]
+    return Prediction(name, mu, ("",) * mu.size, np.empty((0, 0)), np.empty((0, 0)), np.zeros(mu.size), mu.copy())
 
 
 def prediction_from_monodromy(
@@ -924,11 +929,7 @@ def measure_growth(
                         diverged=diverged, diverged_at=at, reason=reason)
 
 
-# --------------------------------------------------------------------------- the built-in link
-#: Modes of the built-in link that are compared: those the paper's reduced model has (hub angle,
-#: first bending mode), as ``linearize.link_floquet.PAPER_MODES``.
-LINK_COMPARED_MODES = ("hub", "bending 1")
-
+# --------------------------------------------------------------------------- the refined prediction
 #: A mode is compared only if generalised-alpha (trapezoidal, rho_inf = 1) resolves it at the finest
 #: step: its phase error over one period, ``(omega h)^2 omega T / 12`` (relative frequency error
 #: ``(omega h)^2 / 12`` of the trapezoidal rule), below this (rad).  E.g. the first bending mode
@@ -1025,181 +1026,6 @@ def _refined_prediction(name: str, res: Any, lin: Any, labels_sorted: Sequence[s
         previous = np.asarray(fine.monodromy)
     logger.info("%s: propagator refined to %d steps, error estimate %s", name, n, pred.errors)
     return replace(pred, name=name, info={"propagator_steps": n})
-
-
-def _link_prediction(ex: Any, name: str, k: int, allowed: Optional[Sequence[str]], h_min: float = 0.0) -> Prediction:
-    """Prediction of an :class:`~linearize.link_floquet.ExudynFloquetResult` (see :func:`_refined_prediction`).
-
-    In the frozen-modal frame: measured at 6 pi (Table 3 gains, 4 elements) the hub-frame
-    product stopped at 2048 steps with 0.29688166 +- 1.7e-7 (GCI), the modal one at 1024 steps
-    with 0.29688106 +- 1.9e-7; the nonlinear measurement at the suggested step gives 0.29688087.
-    """
-    return _refined_prediction(name, ex.floquet, ex.linearization, [m["mode"] for m in ex.modes], k, allowed,
-                               [m["frequency_hz"] for m in ex.modes], h_min, frame="modal",
-                               start_steps=MODAL_START_STEPS)
-
-
-def validate_link_multipliers(
-    params: Any = None,
-    omega: float = 2 * math.pi,
-    kp: float = 0.0,
-    kd: float = 0.0,
-    *,
-    elements: int = 4,
-    samples: int = 16,
-    config: MultiplierCheckConfig = MultiplierCheckConfig(),
-    alternatives: Sequence[str] = ("reduced", "rigid"),
-    predicted_gains: Optional[tuple] = None,
-    predict_reference: str = "periodic",
-    orbit: Any = None,
-    quiet: bool = True,
-) -> MultiplierValidation:
-    """Measure the multipliers of the built-in single link's nonlinear closed loop.
-
-    Parameters
-    ----------
-    params : ManipulatorParameters, optional
-    omega, kp, kd : float
-        Fundamental motion and the PD gains of the simulated closed loop.
-    elements, samples : int
-        ANCF elements (of both the prediction and the runs) and orbit samples.
-    config : MultiplierCheckConfig
-    alternatives : sequence of {"reduced", "rigid", "periodic"}
-        Other predictions to report distances to.
-    predicted_gains : (kp, kd), optional
-        Gains of the prediction under test (default: the simulated ones); a
-        deliberately wrong prediction (e.g. gains off by 5 %) must fail.
-    predict_reference : {"periodic", "rigid"}
-        Reference motion of the prediction under test.
-    orbit : PeriodicOrbit, optional
-        Reuse the periodic orbit.
-    quiet : bool
-        Silence Exudyn's console.
-
-    Returns
-    -------
-    MultiplierValidation
-
-    Raises
-    ------
-    ValueError
-        On invalid arguments.
-    """
-    from linearize.link_floquet import exudyn_floquet
-    from mbs_models.exudyn_link import build_link_model
-    from mbs_models.parameters import ManipulatorParameters
-    from mbs_models.reduced import ReducedModel
-    from stability import floquet
-    from validation.closed_loop import exudyn_console
-
-    tic = time.perf_counter()
-    omega = float(omega)
-    if not (math.isfinite(omega) and omega > 0):
-        raise ValueError(f"omega must be finite and > 0, got {omega!r}")
-    for nm, v in (("kp", kp), ("kd", kd)):
-        if not (math.isfinite(float(v)) and float(v) >= 0):
-            raise ValueError(f"{nm} must be finite and >= 0, got {v!r}")
-    T = 2 * math.pi / omega
-    config = replace(config, amplitude=DEFAULT_AMPLITUDE if config.amplitude is None else config.amplitude)
-    if config.step is not None and config.step >= T:
-        raise ValueError(f"step must be smaller than the period T = {T:.6g} s, got {config.step!r}")
-    bad = [a for a in alternatives if a not in ("reduced", "rigid", "periodic")]
-    if bad:
-        raise ValueError(f"unknown alternatives {bad}; use 'reduced', 'rigid' or 'periodic'")
-    params = ManipulatorParameters() if params is None else params
-    kp, kd = float(kp), float(kd)
-    pkp, pkd = (kp, kd) if predicted_gains is None else (float(predicted_gains[0]), float(predicted_gains[1]))
-    timings: dict = {}
-    with exudyn_console(quiet):
-        t1 = time.perf_counter()
-        ex = exudyn_floquet(params, omega=omega, kp=kp, kd=kd, elements=elements, samples=samples, orbit=orbit)
-        orbit = ex.orbit
-        timings["prediction"] = time.perf_counter() - t1
-        logger.info("prediction (orbit, linearisation, multipliers) in %.1f s", timings["prediction"])
-        tested = ex
-        if (pkp, pkd) != (kp, kd) or predict_reference != "periodic":
-            ref_orbit = orbit if predict_reference == "periodic" else None
-            tested = exudyn_floquet(params, omega=omega, kp=pkp, kd=pkd, elements=elements, samples=samples,
-                                    orbit=ref_orbit, reference=predict_reference)
-        tested_name = f"exudyn linearisation about the {'periodic orbit' if predict_reference == 'periodic' else 'rigid reference'}"
-        if (pkp, pkd) != (kp, kd):
-            tested_name += f" with kp = {pkp:g}, kd = {pkd:g}"
-        if config.step is None:
-            # the same rule as for model files (spurious multipliers of strongly damped modes)
-            config = replace(config, step=min(LINK_STEP, suggested_step(ex.linearization, T, config.spectral_radius)))
-        h_min = config.steps[-1]
-        prediction = _link_prediction(tested, tested_name, config.compare, LINK_COMPARED_MODES, h_min)
-        k_eff = prediction.multipliers.size
-        alts: list = []
-        for a in alternatives:
-            if a == "reduced":
-                red = floquet(ReducedModel(omega=omega, kp=kp, kd=kd, params=params))
-                mu = np.asarray(red.multipliers)
-                mu = mu[np.argsort(-np.abs(mu))][:k_eff]
-                alts.append(Prediction("reduced model", mu, ("",) * mu.size, np.empty((0, 0)), np.empty((0, 0)),
-                                       np.zeros(mu.size), np.asarray(red.multipliers)))
-            else:
-                if a == predict_reference and (pkp, pkd) == (kp, kd):
-                    continue
-                other = ex if a == "periodic" else exudyn_floquet(
-                    params, omega=omega, kp=kp, kd=kd, elements=elements, samples=samples, reference="rigid")
-                p = _link_prediction(other, f"exudyn linearisation about the {'periodic orbit' if a == 'periodic' else 'rigid reference'}",
-                                     k_eff, LINK_COMPARED_MODES, h_min)
-                alts.append(p)
-        timings["alternatives"] = time.perf_counter() - t1 - timings["prediction"]
-        logger.info("alternative predictions in %.1f s; measuring at %d steps", timings["alternatives"],
-                    len(config.steps))
-        lin = ex.linearization
-        norm = energy_norm(lin.M[0], lin.K[0])
-        n = lin.size
-        p0, v0 = orbit.positions[0].copy(), orbit.velocities[0].copy()
-        x0 = np.concatenate([p0, v0])
-        models: dict = {}
-
-        def model_for(h: float):
-            if h not in models:
-                cfg = replace(orbit.config, drive="free", kp=kp, kd=kd, step_size=h, spectral_radius=config.spectral_radius)
-                models[h] = build_link_model(params, cfg, feedforward=orbit.hub_torque)
-            return models[h]
-
-        def factory(h: float):
-            m = model_for(h)
-            return lambda x, hh: m.simulate(x[:n], x[n:], T).final_state
-
-        info = {
-            "model": "exudyn",
-            "omega": omega,
-            "omega_over_pi": omega / math.pi,
-            "period": T,
-            "kp": kp,
-            "kd": kd,
-            "drives": [{"name": "hub", "kp": kp, "kd": kd}],
-            "elements": elements,
-            "samples": samples,
-            "compare": k_eff,
-            "amplitude": config.amplitude,
-            "predicted_gains": [pkp, pkd],
-            "orbit_residual": float(orbit.residual),
-            "timings": timings,
-        }
-        result = measure_multipliers(factory, x0, prediction, norm, config, alternatives=alts, info=info, period=T)
-        result = replace(result, orbit=orbit)
-        if config.growth_periods > 0:
-            t1 = time.perf_counter()
-            m = model_for(config.step)
-
-            def pm(x, t0, h):
-                return m.simulate(x[:n], x[n:], t0 + T, t_start=t0).final_state
-
-            growth = measure_growth(pm, x0, prediction.right[:, 0], norm, periods=config.growth_periods, period=T,
-                                    step=config.step, amplitude=config.amplitude,
-                                    predicted=float(abs(prediction.multipliers[0])))
-            result.info["timings"]["growth"] = time.perf_counter() - t1
-            result = replace(result, growth=growth)
-    result.info["timings"]["total"] = time.perf_counter() - tic
-    logger.info("multiplier validation (Omega=%.4g, kp=%g, kd=%g, %d el.): measured %s, predicted %s, agrees %s",
-                omega, kp, kd, elements, result.measured, prediction.multipliers, result.agrees)
-    return result
 
 
 # --------------------------------------------------------------------------- model files (generic path)
@@ -1390,6 +1216,7 @@ def validate_model_multipliers(
     samples: int = MODEL_SAMPLES,
     config: MultiplierCheckConfig = MultiplierCheckConfig(step=None, amplitude=None),
     predicted_gains: Optional[tuple] = None,
+    alternatives: Sequence[Prediction] = (),
     quiet: bool = True,
     **options: Any,
 ) -> MultiplierValidation:
@@ -1418,6 +1245,9 @@ def validate_model_multipliers(
     config : MultiplierCheckConfig
     predicted_gains : (kp, kd), optional
         Gains of the prediction under test (default: the simulated ones).
+    alternatives : sequence of Prediction
+        Other predictions to report distances to (e.g. :func:`prediction_from_multipliers` of a
+        reduced model); each is cut to the number of compared multipliers.
     quiet : bool
     **options
         Keyword options of the model's ``build``.
@@ -1431,7 +1261,7 @@ def validate_model_multipliers(
     from linearize.analysis import analyze
     from linearize.exudyn_system import ExudynSystem
     from mbs_models.model_file import build_model, resolve_model
-    from validation.closed_loop import exudyn_console
+    from mbs_models.console import exudyn_console
 
     tic = time.perf_counter()
     omega = float(omega)
@@ -1521,7 +1351,11 @@ def validate_model_multipliers(
             "orbit_residual": float(orbit.residual),
             "timings": timings,
         }
-        result = measure_multipliers(factory, np.zeros(2 * r), prediction, norm, config, info=info, period=T)
+        k_eff = int(prediction.multipliers.size)
+        alts = [replace(a, multipliers=a.multipliers[:k_eff], labels=a.labels[:k_eff], errors=a.errors[:k_eff])
+                for a in alternatives]
+        result = measure_multipliers(factory, np.zeros(2 * r), prediction, norm, config, alternatives=alts,
+                                     info=info, period=T)
         if config.growth_periods > 0:
             t1 = time.perf_counter()
 

@@ -56,7 +56,7 @@ def modes_report(args: argparse.Namespace) -> dict:
     # analytic values exist for the bending modes; give as many as asked for
     # Exudyn prints its warnings (e.g. "more than 1000 coordinates, consider a sparse solver") through
     # Python's stdout: send them to stderr so that stdout holds only the table or the JSON object
-    from validation.closed_loop import exudyn_console  # Exudyn is imported only by the commands that use it
+    from mbs_models.console import exudyn_console  # Exudyn is imported only by the commands that use it
 
     with contextlib.redirect_stdout(sys.stderr), exudyn_console(quiet=bool(getattr(args, "json", False))):
         res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,

@@ -47,7 +47,8 @@ def register(sub) -> None:
         ),
     )
     p.add_argument("--model", default="exudyn",
-                   help="'exudyn' (built-in single link, default), a model file PATH.py or a built-in model name")
+                   help="'exudyn' (default: the paper's link, the built-in model file single-link with --config's "
+                        "manipulator and the paper's gains), a model file PATH.py or a built-in model name")
     p.add_argument("--config", metavar="FILE", help="TOML file describing the manipulator (see README)")
     p.add_argument("--omega", default=None, metavar="W",
                    help="frequency of the fundamental motion, rad/s or like '2pi' (default: config, else 2pi)")
@@ -57,23 +58,23 @@ def register(sub) -> None:
                    help="ANCF elements (default 4 for the built-in link; built-in model files: passed to their "
                         "build, per link for two-link; default: the model's own)")
     p.add_argument("--samples", default=None,
-                   help="orbit / linearisation samples per period (default 16 for the built-in link, 32 for model "
-                        "files: their feed-forward is interpolated from the samples)")
+                   help="orbit / linearisation samples per period (default 32: the runs' feed-forward is "
+                        "interpolated from the samples)")
     p.add_argument("--step", default=None,
                    help="coarsest generalised-alpha step in s (default: T/n chosen so that strongly damped modes "
-                        "get no spurious multiplier, see validation.multipliers.suggested_step; at most 1e-3 for the "
-                        "built-in link)")
+                        "get no spurious multiplier, see validation.multipliers.suggested_step)")
     p.add_argument("--spectral-radius", default="1",
                    help="generalised-alpha rho_inf (default 1: no numerical damping; see validation.multipliers)")
     p.add_argument("--refinements", default="2", help="step halvings for the error bar (default 2: h, h/2, h/4; 1 gives a bar but no verdict, "
                         "two levels show no convergence order)")
     p.add_argument("--amplitude", default=None,
-                   help="perturbation energy as a hub-velocity kick in rad/s (default 1e-3; 1e-2 for model files)")
+                   help="perturbation energy as a hub-velocity kick in rad/s (default 1e-2)")
     p.add_argument("--compare", default="2", help="number of multipliers compared (default 2; pairs kept whole)")
     p.add_argument("--growth-periods", default=None,
                    help="periods of the multi-period growth run (default: 3 if the prediction is unstable, else 0)")
     p.add_argument("--predict-reference", choices=("periodic", "rigid"), default="periodic",
-                   help="reference motion of the prediction under test (default: the periodic orbit)")
+                   help="reference motion of the prediction under test: the periodic orbit (rigid: no longer "
+                        "available, exit 2)")
     p.add_argument("--full-map", action="store_true",
                    help="also measure the whole one-period map from random constraint-consistent perturbations "
                         "(model files; Newmark/trapezoidal, index-2 constraints; see docs/validation.md) and reject "
@@ -148,7 +149,7 @@ def validation_report(args: argparse.Namespace):
     if args.model != "exudyn":
         return _model_file_report(args)
     if getattr(args, "full_map", False):
-        raise ValueError("--full-map applies to model files (e.g. --model single-link), not to the built-in 'exudyn' link")
+        raise ValueError("--full-map applies to model files (e.g. --model single-link), not to --model exudyn")
     # every argument is checked before the numerical imports and the configuration
     omega = parse_omega(args.omega) if args.omega is not None else None
     kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
@@ -159,15 +160,14 @@ def validation_report(args: argparse.Namespace):
     kd = kds[0] if kds else None
     elements = _number("elements", args.elements, minimum=1, integer=True)
     elements = 4 if elements is None else elements
-    samples = _number("samples", args.samples if args.samples is not None else "16", minimum=4, integer=True)
-    if samples % 2:
+    samples = _number("samples", args.samples, minimum=4, integer=True) if args.samples is not None else None
+    if samples is not None and samples % 2:
         raise ValueError(f"--samples must be even, got {args.samples!r}")
     step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
     refinements = _number("refinements", args.refinements, minimum=0, integer=True)
     if refinements > 4:
         raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
-    amplitude = _number("amplitude", args.amplitude if args.amplitude is not None else "1e-3", minimum=0.0,
-                        strict=True)
+    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True) if args.amplitude is not None else None
     compare = _number("compare", args.compare, minimum=1, integer=True)
     growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
     spectral_radius = _spectral_radius(args)
@@ -177,18 +177,32 @@ def validation_report(args: argparse.Namespace):
     omega = cfg.omega if omega is None else omega
     if step is not None and step >= 2 * math.pi / omega:
         raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
+    if args.predict_reference != "periodic":
+        raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
+                         "about the periodic orbit (the rigid reference's distance is in docs/validation.md)")
     if args.out is not None:
         ensure_out_dir(args.out)
-    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+    from flexstab.options import resolve_model_definition
+    from mbs_models.reduced import ReducedModel
+    from stability import floquet
+    from validation.multipliers import (MODEL_SAMPLES, MultiplierCheckConfig, prediction_from_multipliers,
+                                        validate_model_multipliers)
 
     kp, kd, source = resolve_gains(omega, kp, kd, cfg)
     if growth is None:
         growth = 3 if (kp == 0.0 and kd == 0.0) else 0
     config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
                                    growth_periods=growth, spectral_radius=spectral_radius)
-    res = validate_link_multipliers(cfg.manipulator, omega, kp, kd, elements=elements, samples=samples,
-                                    config=config, predict_reference=args.predict_reference)
+    # the paper's link is the built-in model file single-link with the configured manipulator
+    definition, options = resolve_model_definition(args.model, cfg, elements)
+    reduced = floquet(ReducedModel(omega=omega, kp=kp, kd=kd, params=cfg.manipulator))
+    res = validate_model_multipliers(definition, omega, kp=kp, kd=kd,
+                                     samples=MODEL_SAMPLES if samples is None else samples, config=config,
+                                     alternatives=[prediction_from_multipliers("reduced model", reduced.multipliers)],
+                                     **options)
     d = res.to_dict()
+    d["model"] = args.model
+    d["elements"] = elements
     d["gains_source"] = source
     return d, res
 
@@ -205,7 +219,8 @@ def _model_file_report(args: argparse.Namespace):
     if args.config is not None:
         raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
     if args.predict_reference != "periodic":
-        raise ValueError("--predict-reference rigid applies to the built-in single link only")
+        raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
+                         "about the periodic orbit")
     # every argument is checked before the numerical imports and the model file
     from flexstab.options import check_model_arg, is_model_file
 
@@ -261,7 +276,7 @@ def _full_map(model, options, omega, kps, kds, samples, step, refinements, ampli
     """The ``full_map`` block: :func:`validation.full_map.measure_model_full_map` against the linearisation."""
     from flexstab.executor import make_executor
     from linearize.analysis import analyze
-    from validation.closed_loop import exudyn_console
+    from mbs_models.console import exudyn_console
     from validation.full_map import FullMapConfig, full_map_report, measure_model_full_map
 
     cfg = FullMapConfig(step=step, refinements=max(refinements, 2), amplitude=amplitude)

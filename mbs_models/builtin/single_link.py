@@ -15,9 +15,10 @@ fundamental motion ``q_a^R(t) = mean_angle + amplitude sin(omega t)``
 (paper: pi/2 + pi/2 sin(omega t); ``q_a = pi/2`` is the link pointing up).
 The initial state is the undeformed link on the rigid motion at ``t = 0``.
 
-The same model is built by hand in :mod:`mbs_models.exudyn_link`, whose
-hand-derived hub-frame coordinates are kept only as an independent check of
-this generic path (``tests/test_model_file.py``).
+``--model exudyn`` is this model with the configured manipulator.  The same model
+is built by hand in hub-frame coordinates in the test suite's oracle
+(``tests/_link_oracle``), an independent check of this generic path
+(``tests/test_model_file.py``).
 """
 from __future__ import annotations
 

@@ -1,11 +1,11 @@
 """Nonlinear closed-loop validation of the predicted Floquet multipliers.
 
 :func:`validate_closed_loop` simulates the free-hub Exudyn model under
-feed-forward + PD (:func:`~mbs_models.exudyn_link.build_link_model`, drive
+feed-forward + PD (:func:`~_link_oracle.exudyn_link.build_link_model`, drive
 ``"free"``) twice with the same integrator and the same steps:
 
 * the **reference** run from the periodic orbit's state at ``t = 0`` (the
-  orbit of :func:`~linearize.link_orbit.find_periodic_orbit`, whose feed-forward
+  orbit of :func:`~_link_oracle.link_orbit.find_periodic_orbit`, whose feed-forward
   torque makes it the closed-loop orbit for any gains);
 * the **perturbed** run from the same state with the hub velocity raised by
   ``perturbation`` (paper Eqs. 26/35: ``y_1' (0) = 0.25 pi`` rad/s; in the
@@ -23,7 +23,7 @@ and the per-period ratio is fitted by least squares on ``ln s_k`` against
 out, is left out).  It is compared with the dominant multiplier predicted by
 (a) the paper's reduced model (:class:`~mbs_models.reduced.ReducedModel`) and
 (b) the Exudyn linearisation along the orbit
-(:func:`~linearize.link_floquet.exudyn_floquet`).
+(:func:`~_link_oracle.link_floquet.exudyn_floquet`).
 
 Maths
 -----
@@ -43,7 +43,7 @@ the perturbation ``|Delta q_a|`` or the reference drift
 ``|q_a - q_a^R|`` exceeds :data:`LINEAR_RANGE_ANGLE`; only complete periods
 before that enter the fit, and :attr:`ValidationResult.linear_range_left_at`
 says when it happened.  A run is *diverged* when Exudyn's solver fails
-(:class:`~mbs_models.exudyn_link.ExudynSolverError`), a state is not finite,
+(:class:`~_link_oracle.exudyn_link.ExudynSolverError`), a state is not finite,
 the hub error exceeds :data:`DIVERGENCE_ANGLE` or a beam node leaves the
 disc of radius :data:`DIVERGENCE_STRETCH` ``* l`` (an absurd axial strain):
 the result then says ``diverged=True`` with the time and the reason; the
@@ -79,7 +79,8 @@ from typing import Any, Iterator, Optional
 
 import numpy as np
 
-from mbs_models.exudyn_link import ExudynSolverError, build_link_model, fundamental_motion
+from _link_oracle.exudyn_link import ExudynSolverError, build_link_model, fundamental_motion
+from mbs_models.console import exudyn_console
 from mbs_models.parameters import ManipulatorParameters
 from stability.serialization import json_ready
 
@@ -123,25 +124,6 @@ AGREEMENT_TOLERANCE = 0.10
 DEFAULT_PREDICTION_STEPS = 256
 
 
-@contextlib.contextmanager
-def exudyn_console(quiet: bool) -> Iterator[None]:
-    """Silence Exudyn's console output (solver banners) while the block runs.
-
-    Uses ``exudyn.config.printToConsole`` and restores the caller's value.
-    """
-    if not quiet:
-        yield
-        return
-    import exudyn as exu
-
-    previous = bool(exu.config.printToConsole)
-    exu.config.printToConsole = False
-    try:
-        yield
-    finally:
-        exu.config.printToConsole = previous
-
-
 # --------------------------------------------------------------------------- results
 @dataclass(frozen=True)
 class ValidationResult:
@@ -167,7 +149,7 @@ class ValidationResult:
         Spectral radius of the reduced model (paper constants).
     predicted_multiplier_exudyn : float
         ``|rho|`` of the dominant multiplier of the Exudyn linearisation
-        (paper's modes, see :class:`~linearize.link_floquet.ExudynFloquetResult`).
+        (paper's modes, see :class:`~_link_oracle.link_floquet.ExudynFloquetResult`).
     predicted_mode_exudyn : str
         Its mode label (``"hub"``, ...).
     spectral_radius_exudyn : float
@@ -454,7 +436,7 @@ def validate_closed_loop(
     ValueError
         On invalid arguments (non-positive periods or elements, non-finite
         omega, negative gains, ...).
-    linearize.link_orbit.OrbitConvergenceError
+    _link_oracle.link_orbit.OrbitConvergenceError
         If the periodic orbit cannot be found (there is nothing to validate).
 
     Examples
@@ -482,7 +464,7 @@ def validate_closed_loop(
     if not isinstance(params, ManipulatorParameters):
         raise ValueError(f"params must be ManipulatorParameters, got {type(params).__name__}")
 
-    from linearize.link_floquet import exudyn_floquet
+    from _link_oracle.link_floquet import exudyn_floquet
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

@@ -76,9 +76,9 @@ def compare_models(
     progress : callable, optional
         Called with a short text before each case.
     """
-    from linearize.link_floquet import direct_monodromy, exudyn_floquet
-    from linearize.link_orbit import find_periodic_orbit, rigid_reference
-    from mbs_models.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_floquet import direct_monodromy, exudyn_floquet
+    from _link_oracle.link_orbit import find_periodic_orbit, rigid_reference
+    from _link_oracle.exudyn_link import ExudynLinkConfig
     from mbs_models.reduced import ReducedModel
     from stability import floquet
 

@@ -1,11 +1,11 @@
 """Floquet analysis of the Exudyn link: linearisation route and direct Exudyn monodromy.
 
-Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+Hand-derived route (hub-frame coordinates of :mod:`_link_oracle.exudyn_link`): kept as the
 independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
 ``tests/test_model_file.py``), which is the package's route for any model.
 
 Pipeline (:func:`exudyn_floquet`): periodic orbit
-(:func:`~linearize.link_orbit.find_periodic_orbit`) -> finite-difference
+(:func:`~_link_oracle.link_orbit.find_periodic_orbit`) -> finite-difference
 linearisation in independent coordinates
 (:func:`~linearize.linearize_along_orbit`) -> monodromy of
 ``x' = P(t) x`` -> multipliers, each classified by the structural mode its
@@ -57,9 +57,10 @@ from typing import Any, Optional
 import numpy as np
 import scipy.linalg
 
-from linearize import LinearizedPeriodicSystem, linearize_along_orbit
-from mbs_models.exudyn_link import ExudynLinkConfig, build_link_model
-from linearize.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
+from linearize.system import LinearizedPeriodicSystem
+from _link_oracle.along_orbit import linearize_along_orbit
+from _link_oracle.exudyn_link import ExudynLinkConfig, build_link_model
+from _link_oracle.link_orbit import PeriodicOrbit, find_periodic_orbit, rigid_reference
 from mbs_models.parameters import ManipulatorParameters
 from stability.frozen import frozen_result
 
@@ -339,7 +340,7 @@ def exudyn_floquet(
     ------
     ValueError
         On invalid arguments.
-    linearize.link_orbit.OrbitConvergenceError
+    _link_oracle.link_orbit.OrbitConvergenceError
         If the periodic orbit is not found.
     """
     if reference not in ("periodic", "rigid"):

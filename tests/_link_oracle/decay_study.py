@@ -1,6 +1,6 @@
 """Linear against nonlinear: the four Omega cases, uncontrolled and controlled.
 
-:func:`compare_linear_nonlinear` runs :func:`~validation.closed_loop.validate_closed_loop`
+:func:`compare_linear_nonlinear` runs :func:`~_link_oracle.closed_loop.validate_closed_loop`
 for every Omega of the paper (Table 3: rho_d = 0.3, 0.3, 0.3, 0.4) and four
 cases each:
 
@@ -19,7 +19,7 @@ cases each:
 The periodic orbit is computed once per Omega and shared (it does not depend
 on the gains).  :func:`comparison_markdown` renders the table of
 ``results/linear_vs_nonlinear.md``; the figures come from
-:func:`validation.plots.plot_validation_figure`.
+:func:`_link_oracle.decay_plots.plot_validation_figure`.
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 from mbs_models.parameters import ManipulatorParameters
-from validation.closed_loop import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
+from _link_oracle.closed_loop import AGREEMENT_TOLERANCE, PAPER_PERTURBATION, ValidationResult, validate_closed_loop
 
 __all__ = [
     "MULTIPLIER_CASES",
@@ -50,7 +50,7 @@ logger = logging.getLogger(__name__)
 
 #: Hub-velocity perturbation (rad/s) of the uncontrolled linear-range run:
 #: after one period at Omega = 2 pi (rho_1 = 13.6) the hub error is 2.4e-4 rad,
-#: well inside :data:`~validation.closed_loop.LINEAR_RANGE_ANGLE`.
+#: well inside :data:`~_link_oracle.closed_loop.LINEAR_RANGE_ANGLE`.
 SMALL_PERTURBATION = 1e-4
 #: Case names in table order.
 CASES = ("uncontrolled", "uncontrolled, small", "Table 3", "Taguchi")
@@ -108,7 +108,7 @@ def compare_linear_nonlinear(
     cases : sequence of str
         Subset of :data:`CASES`.
     elements, periods, samples, step :
-        Passed to :func:`~validation.closed_loop.validate_closed_loop`.
+        Passed to :func:`~_link_oracle.closed_loop.validate_closed_loop`.
     params : ManipulatorParameters, optional
     progress : callable, optional
         Called with a short label before each run.
@@ -266,7 +266,8 @@ def multiplier_study(
     from dataclasses import replace
 
     from mbs_models.paper_data import TABLE3_GAINS
-    from validation.multipliers import MultiplierCheckConfig, validate_link_multipliers
+    from _link_oracle.link_multipliers import validate_link_multipliers
+    from validation.multipliers import MultiplierCheckConfig
 
     config = config or MultiplierCheckConfig(step=None)  # min(1e-3 s, suggested_step) per case
     orbits: dict = {}

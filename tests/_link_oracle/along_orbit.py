@@ -12,10 +12,10 @@ import numpy as np
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, central_difference_jacobians
 from linearize.fourier import sample_times
 from linearize.system import LinearizedPeriodicSystem
-from mbs_models.exudyn_link import ExudynLinkModel, build_link_model
+from _link_oracle.exudyn_link import ExudynLinkModel, build_link_model
 
-if TYPE_CHECKING:  # linearize.link_orbit imports linearize helpers: avoid the cycle
-    from linearize.link_orbit import PeriodicOrbit
+if TYPE_CHECKING:  # _link_oracle.link_orbit imports linearize helpers: avoid the cycle
+    from _link_oracle.link_orbit import PeriodicOrbit
 
 __all__ = ["linearize_along_orbit", "coordinate_names"]
 
@@ -45,8 +45,8 @@ def linearize_along_orbit(
     Parameters
     ----------
     orbit : PeriodicOrbit
-        Reference motion (:func:`~linearize.link_orbit.find_periodic_orbit`, or
-        :func:`~linearize.link_orbit.rigid_reference` for the undeformed motion).
+        Reference motion (:func:`~_link_oracle.link_orbit.find_periodic_orbit`, or
+        :func:`~_link_oracle.link_orbit.rigid_reference` for the undeformed motion).
     hub : {"free", "prescribed"}
         ``"free"``: the hub angle is coordinate 0 and the PD gains act on it;
         ``"prescribed"``: the hub follows ``q_a^R(t)`` exactly, only the beam
@@ -71,7 +71,7 @@ def linearize_along_orbit(
     Notes
     -----
     At each sample ``t_k`` the residual ``r(p, p', p'', t) = J^T (M q'' - f)``
-    of :class:`~mbs_models.exudyn_link.ExudynLinkModel` is differentiated by
+    of :class:`~_link_oracle.exudyn_link.ExudynLinkModel` is differentiated by
     central differences: ``K = dr/dp``, ``C = dr/dp'``; ``M = J^T M J`` is
     exact.  The feed-forward torque depends on time only and drops out.
     """

@@ -1,6 +1,6 @@
 """The T-periodic motion of the Exudyn link with the hub on its fundamental motion.
 
-Hand-derived route (hub-frame coordinates of :mod:`mbs_models.exudyn_link`): kept as the
+Hand-derived route (hub-frame coordinates of :mod:`_link_oracle.exudyn_link`): kept as the
 independent check of the generic model-file path (``linearize.analyze("single-link", ...)``,
 ``tests/test_model_file.py``), which is the package's route for any model.
 
@@ -41,7 +41,7 @@ import scipy.linalg
 
 from linearize.finite_difference import central_difference_jacobians
 from linearize.fourier import TrigInterpolant, differentiation_matrices, sample_times, trig_interpolate
-from mbs_models.exudyn_link import ExudynLinkConfig, ExudynLinkModel, build_link_model
+from _link_oracle.exudyn_link import ExudynLinkConfig, ExudynLinkModel, build_link_model
 from mbs_models.parameters import ManipulatorParameters
 
 __all__ = [
@@ -100,7 +100,7 @@ class PeriodicOrbit:
     times : ndarray, shape (N,)
         Sample times ``k T / N``.
     positions, velocities, accelerations : ndarray, shape (N, n)
-        Independent coordinates (see :class:`~mbs_models.exudyn_link.ExudynLinkModel`)
+        Independent coordinates (see :class:`~_link_oracle.exudyn_link.ExudynLinkModel`)
         and their first and second time derivatives at ``times``.
     hub_torques : ndarray, shape (N,)
         Hub torque the motion needs (N m) at ``times``, joint damping included.
@@ -190,7 +190,7 @@ def _evaluation_model(params: ManipulatorParameters, config: ExudynLinkConfig) -
 
 
 def _hub_motion(config: ExudynLinkConfig, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    from mbs_models.exudyn_link import fundamental_motion
+    from _link_oracle.exudyn_link import fundamental_motion
 
     return fundamental_motion(config)(times)
 

@@ -724,7 +724,7 @@ def build_link_model(
         Omega = 2 pi).
     feedforward : callable, optional
         ``t -> tau_ff(t)`` hub torque for the ``"free"`` drive (N m), e.g.
-        :attr:`linearize.link_orbit.PeriodicOrbit.hub_torque`.  Ignored by the
+        :attr:`_link_oracle.link_orbit.PeriodicOrbit.hub_torque`.  Ignored by the
         prescribed drive.
 
     Returns
