@@ -156,7 +156,7 @@ def test_bad_accuracy_is_one_clear_error():
 
 
 def test_modal_adaptive_dominant_raises_when_the_estimate_cannot_reach_rtol():
-    from tests.test_modal_clusters import CLOSE
+    from test_modal_clusters import CLOSE
     from stability.modal import modal_floquet
 
     # rtol below what any solve can certify (rounding ~1e-16 n): the adaptive extrapolated solve
