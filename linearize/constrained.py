@@ -325,6 +325,9 @@ def null_space_basis(Cq: np.ndarray, times: np.ndarray, period: float, frame: "n
         *S-periodic*, ``N(t + T) = S N(t)`` (rows with sign -1 antiperiodic, differentiated as such), so
         that the independent coordinates' matrices ``N^T M N``, ... are T-periodic (``M(t + T) = S M(t) S``)
         and their monodromy is the orbit map's ``S^-1 Phi(T)``.
+    grid : PiecewiseGrid, optional
+        The orbit's piecewise sampling (declared breakpoints, :attr:`PeriodicOrbit.grid`): the basis is
+        differentiated with its matrices instead of the trigonometric ones.  Not combined with ``signs``.
 
     Returns
     -------

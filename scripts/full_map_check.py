@@ -59,8 +59,7 @@ def main(argv=None) -> int:
     cpu, wall = time.process_time(), time.perf_counter()
     # level by level, each fitted map stored as soon as it is done (the perturbations are the same at every
     # level: fixed seed), so that an interrupted run leaves its finished levels
-    maps, steps, resid, runner = [], [], [], None
-    amplitude, n_pert, n_state = None, None, None
+    maps, steps, resid, runner, amplitude = [], [], [], None, None
 
     def stored(name: str, h: "float | None"):
         f = out / name
@@ -71,46 +70,40 @@ def main(argv=None) -> int:
             return None
         return z
 
-    def measure(h, amp=None):
+    def level_map(name: str, h: "float | None", amp: "float | None" = None):
+        """The stored level ``name`` (with ``--reuse``), else one measured at step ``h`` and stored."""
         nonlocal runner
+        z = stored(name, h)
+        if z is not None:
+            return z, "reused"
         level, runner = measure_model_full_map(
             args.model, args.omega, kp, kd,
             config=FullMapConfig(step=h, refinements=0, seed=cfg.seed, amplitude=amp, amplitude_check=False),
             executor=None if args.workers == 1 else ex, chunks=args.workers, **options)
         if level.diverged:
             raise SystemExit(f"full_map_check: error: {level.reason}")
-        return level
+        z = {"map": level.maps[0], "step": level.steps[0], "residual": level.fit_residual[0],
+             "amplitude": level.config.amplitude}
+        np.savez(out / name, **z)
+        return z, f"done, {time.perf_counter() - wall:.0f} s wall"
 
     with make_executor("process" if args.workers > 1 else "serial", max_workers=args.workers) as ex:
         for j in range(args.refinements + 1):
             h = None if (args.step is None and not steps) else (args.step or steps[0]) / 2**j
-            z = stored(f"level_{j}.npz", h)
-            if z is None:
-                level = measure(h)
-                z = {"map": level.maps[0], "step": level.steps[0], "residual": level.fit_residual[0],
-                     "amplitude": level.config.amplitude}
-                np.savez(out / f"level_{j}.npz", **z)
-                how = f"{time.perf_counter() - wall:.0f} s wall"
-            else:
-                how = "reused"
+            z, how = level_map(f"level_{j}.npz", h)
             maps.append(np.asarray(z["map"])), steps.append(float(z["step"])), resid.append(float(z["residual"]))
             amplitude = float(z["amplitude"]) if "amplitude" in z else MODEL_AMPLITUDE
             print(f"level {j} (h = {steps[-1]:g} s) {how}", flush=True)
         half = None
         if args.amplitude_level is not None:
-            k = args.amplitude_level
-            z = stored(f"half_level_{k % len(steps)}.npz", steps[k])
-            if z is None:
-                level = measure(steps[k], 0.5 * amplitude)
-                z = {"map": level.maps[0], "step": level.steps[0], "residual": level.fit_residual[0],
-                     "amplitude": 0.5 * amplitude}
-                np.savez(out / f"half_level_{k % len(steps)}.npz", **z)
+            k = args.amplitude_level % len(steps)
+            z, how = level_map(f"half_level_{k}.npz", steps[k], 0.5 * amplitude)
             half = np.asarray(z["map"])
-            print(f"half amplitude at level {k % len(steps)} done", flush=True)
+            print(f"half amplitude at level {k} {how}", flush=True)
     n_state = maps[0].shape[0]
     result = full_map_from_maps(maps, steps, replace(cfg, step=steps[0], amplitude=amplitude),
                                 n_state, n_state, resid, half_amplitude_map=half,
-                                half_amplitude_level=-1 if args.amplitude_level is None else args.amplitude_level)
+                                half_amplitude_level=-1 if half is None else k)
     if runner is None:
         with exudyn_console(True):
             from linearize.periodic_orbit import find_orbit

@@ -437,6 +437,17 @@ def measure_full_map(
                               info, half_amplitude_map=half, half_amplitude_level=config.amplitude_level)
 
 
+def _amplitude_error(levels: Sequence[complex], half: complex, level: int, value: float) -> float:
+    """Error of the extrapolated modulus ``value`` at the runs' amplitude ``a``, from the repeat ``half``
+    of step level ``level`` at ``a/2``.  The one-sided error ``c a`` shifts every level by about the same
+    ``delta``: the levels shifted by it and re-extrapolated move by the error's part at ``a`` (doubled:
+    ``a -> 0`` from ``a`` and ``a/2``), and by at least ``2 |delta|``, the multiplier's own shift."""
+    delta = abs(half) - abs(levels[level])
+    shifted = [z * (abs(z) + delta) / abs(z) if z != 0 else z for z in levels]
+    moved = extrapolate_modulus(shifted)[0]
+    return 2.0 * max(abs(delta), abs(moved - value) if math.isfinite(moved) else 0.0)
+
+
 def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], config: FullMapConfig,
                        n_perturbations: int, state_dimension: int, fit_residual: Sequence[float] = (),
                        diverged: bool = False, reason: str = "",
@@ -455,18 +466,11 @@ def full_map_from_maps(maps: Sequence[np.ndarray], steps: Sequence[float], confi
         tracks = _track(list(maps) + ([half_amplitude_map] if half_amplitude_map is not None else []), config.floor,
                         reference=len(maps) - 1)
         for lv in tracks:
-            amp_err = 0.0
+            half = None
             if half_amplitude_map is not None:
                 lv, half = lv[:-1], lv[-1]
-                delta = abs(half) - abs(lv[half_amplitude_level])
             value, bar, q, ok = extrapolate_modulus(lv)
-            if half_amplitude_map is not None:
-                # the amplitude's one-sided error c a, measured at one level, shifts every level by about
-                # the same amount: re-extrapolated, the change (doubled: a -> 0 from a and a/2) is the
-                # error at amplitude a, at least 2 |delta| (the shift of the multiplier itself)
-                shifted = [z * (abs(z) + delta) / abs(z) if z != 0 else z for z in lv]
-                moved = extrapolate_modulus(shifted)[0]
-                amp_err = 2.0 * max(abs(delta), abs(moved - value) if math.isfinite(moved) else 0.0)
+            amp_err = 0.0 if half is None else _amplitude_error(lv, half, half_amplitude_level, value)
             bar += amp_err
             ok = ok and bar <= MEASURED_FRACTION * max(value, 1e-300)
             mults.append(FullMapMultiplier(modulus=value, error_bar=bar, phase=float(np.angle(lv[-1])),
