@@ -254,8 +254,11 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
     order = np.argsort(-m, kind="stable")
     with np.errstate(invalid="ignore", over="ignore"):
         upper, lower = m + a, m - a
-    growing = tuple(int(i) for i in order if lower[i] > 1.0)
-    undamped = tuple(int(i) for i in order if upper[i] > r_star and lower[i] <= 1.0)
+    # an infinite modulus (overflow) grows whatever its error; a NaN lower bound (inf - inf) is not
+    # certified growing, so it counts as undamped, never as damped
+    grows = np.isposinf(m) | (lower > 1.0)
+    growing = tuple(int(i) for i in order if grows[i])
+    undamped = tuple(int(i) for i in order if not grows[i] and not upper[i] <= r_star)
     top = int(order[0])
     rho, err = float(m[top]), float(a[top])
     label = None if labels is None else str(labels[top])
@@ -335,8 +338,8 @@ def verdict_band(rho: float, tol: float, decay_periods: float = DECAY_PERIODS) -
     if math.isnan(tol) or tol < 0.0:
         tol = math.inf
     lower, upper = rho - tol, rho + tol  # judge's comparisons, NaN (inf - inf) included
-    if lower > 1.0:
+    if math.isinf(rho) or lower > 1.0:
         return VERDICT_UNSTABLE
-    if upper > r_star and lower <= 1.0:
+    if not upper <= r_star:
         return VERDICT_CRITICAL
     return VERDICT_STABLE

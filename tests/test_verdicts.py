@@ -130,3 +130,21 @@ def test_verdict_band_is_judge_on_one_modulus():
         verdict_band(math.nan, 0.0)
     with pytest.raises(ValueError):
         verdict_band(-1.0, 0.0)
+
+
+@pytest.mark.parametrize("err", [0.0, 1.0, math.inf, math.nan])
+def test_infinite_modulus_is_unstable_whatever_its_error(err):
+    """An overflowed multiplier (|rho| = inf) grows; with an unknown or infinite error the old
+    comparisons gave NaN lower bounds and judged it stable."""
+    v = judge([math.inf, 0.1], [err, 1e-9], stability_tol=0.0)
+    assert v.verdict == VERDICT_UNSTABLE and v.growing == (0,)
+    assert verdict_band(math.inf, err) == VERDICT_UNSTABLE
+
+
+def test_unknown_error_is_never_certified_damped():
+    """A modulus inside the unit circle with an unknown (inf / NaN) error is critical: neither
+    certified damped nor certified growing."""
+    for err in (math.inf, math.nan):
+        assert judge([0.2], [err]).verdict == VERDICT_CRITICAL
+        assert verdict_band(0.2, err) == VERDICT_CRITICAL
+    assert judge([0.2], [1e-9]).verdict == VERDICT_STABLE
