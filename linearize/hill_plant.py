@@ -144,6 +144,9 @@ def drive_gain_family(lin: LinearizedPeriodicSystem) -> "GainParametrisedSystem"
 
     if lin.B is None:
         raise ValueError("the linearisation has no drive input map B (not a model file's)")
+    if lin.breakpoints:
+        raise ValueError("the linearisation is sampled piece by piece (declared breakpoints): its matrices "
+                         "have no trigonometric interpolant, so Hill's method does not apply")
     base = lin.with_gains(0.0, 0.0)
     T = float(lin.period)
     d, n = lin.B.shape[2], lin.size
@@ -287,6 +290,9 @@ class HillModelPlant:
                  tolerance: Optional[float] = None, _token: Optional[str] = None) -> None:
         if linearization.B is None:
             raise ValueError("HillModelPlant needs a model file's linearisation (with drives)")
+        if linearization.breakpoints:
+            raise ValueError("HillModelPlant: the linearisation is sampled piece by piece (declared breakpoints), "
+                             "so Hill's method does not apply; use the time-stepping plant")
         if tolerance is not None and not (math.isfinite(tolerance) and tolerance > 0):
             raise ValueError(f"tolerance must be finite and > 0, got {tolerance!r}")
         self.tolerance = None if tolerance is None else float(tolerance)

@@ -171,3 +171,27 @@ def test_linearised_system_rejects_breakpoints_that_are_not_its_grid():
     lin = LinearizedPeriodicSystem(period=T, times=sample_times(T, N), M=eye, C=eye, K=eye, breakpoints=(0.0, 0.5))
     with pytest.raises(ValueError, match="piecewise grid"):
         lin.evaluate(np.array([0.1]))
+
+
+def test_hill_is_never_chosen_nor_run_on_a_piecewise_linearisation():
+    """Hill's method interpolates equispaced samples trigonometrically: on a piecewise-sampled
+    linearisation (Gauss nodes per piece, coefficients that jump) that interpolant is wrong, so the
+    engine rule must not offer it and the engine and the tuning plant refuse it by name."""
+    from linearize.hill_plant import HillModelPlant, drive_gain_family
+    from stability.engines.hill import HillEngine
+    from stability.engines.rule import system_properties
+
+    res, _ = _analyze(declare=True)
+    lin = res.linearization
+    assert lin.breakpoints
+    assert not system_properties(lin).trigonometric
+    with pytest.raises(ValueError, match="breakpoints"):
+        HillEngine().run(lin, None, 1e-6, targets=res.floquet.multipliers[:1])
+    with pytest.raises(ValueError, match="breakpoints"):
+        HillModelPlant(lin, res.orbit)
+    with pytest.raises(ValueError, match="breakpoints"):
+        drive_gain_family(lin)
+    # the same matrices without the declaration would be offered to Hill: the check can fail
+    bare = type("Bare", (), {"period": lin.period, "M": lin.M, "C": lin.C, "K": lin.K,
+                             "evaluate": staticmethod(lin.evaluate)})()
+    assert system_properties(bare).trigonometric

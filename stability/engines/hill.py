@@ -31,6 +31,9 @@ class HillEngine(Engine):
         mats = [getattr(system, k, None) for k in ("M", "C", "K")]
         if not all(isinstance(a, np.ndarray) and a.ndim == 3 for a in mats):
             raise ValueError("hill: the system must carry sampled M, C, K of shape (N, n, n)")
+        if getattr(system, "breakpoints", ()):
+            raise ValueError("hill: the system is sampled piece by piece (it declares breakpoints): its "
+                             "coefficients are not smooth, so harmonic balance does not apply; use magnus or modal")
         if "targets" not in options:
             raise ValueError("hill: targets (approximate multipliers to refine) are required")
         T = period if period is not None else system.period

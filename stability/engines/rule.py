@@ -24,7 +24,8 @@ The rule (:func:`choose_method`), with the step budgets of the engines:
    -- the exponential midpoint rule (order 2) in the frozen-modal frame makes a relative error of
    about ``(frozen_rotation / N)^2`` with ``N`` steps, so it needs ``N ~ frozen_rotation / sqrt(rtol)``
    steps for the requested accuracy ``rtol``, within its budget;
-3. else, when the system offers sampled trigonometric ``M, C, K`` (a smooth second-order system):
+3. else, when the system offers sampled trigonometric ``M, C, K`` (a smooth second-order system,
+   no declared breakpoints):
    ``"hill"`` -- harmonic balance has no step count, so no step-size resonance;
 4. else ``"modal"`` (the best a time-stepping engine can do; its estimate says how well).
 
@@ -69,8 +70,9 @@ class SystemProperties:
     frozen_rotation : float
         ``max_i T mean_t |w_i(t) - mean w_i|`` (radians per period).
     trigonometric : bool
-        The system offers sampled ``M, C, K`` (attributes ``M``, ``C``, ``K`` of shape ``(N, m, m)``):
-        Hill's method applies.
+        The system offers sampled ``M, C, K`` (attributes ``M``, ``C``, ``K`` of shape ``(N, m, m)``)
+        and declares no ``breakpoints`` (a piecewise-sampled system is neither equispaced nor smooth,
+        so its trigonometric interpolant is wrong): Hill's method applies.
     """
 
     size: int
@@ -109,7 +111,7 @@ def system_properties(system: Any, period: Optional[float] = None, *,
     stiffness = float(T * rates.max())
     rotation = float(T * np.max(np.mean(np.abs(rates - rates.mean(axis=0)), axis=0)))
     mats = [getattr(system, k, None) for k in ("M", "C", "K")]
-    trig = all(isinstance(a, np.ndarray) and a.ndim == 3 for a in mats)
+    trig = all(isinstance(a, np.ndarray) and a.ndim == 3 for a in mats) and not getattr(system, "breakpoints", ())
     return SystemProperties(size=int(P.shape[1]), period=T, stiffness=stiffness, frozen_rotation=rotation,
                             trigonometric=trig)
 
