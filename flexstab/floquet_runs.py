@@ -153,4 +153,6 @@ def _model_file_analysis(opts: FloquetOptions, cfg: Any, omega: float, method: s
                     "undamped_multipliers": res.undamped_count, "bending_damping": bending,
                     "axial_damping": axial})
     out.update(res.floquet.to_dict())
+    # the verdict of the labelled rule (the same rule; an autonomous orbit's structural multiplier left out)
+    out["verdict"] = out["verdict_detail"]["verdict"]
     return out

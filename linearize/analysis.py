@@ -180,11 +180,20 @@ class ModelFloquetResult:
     @property
     def verdict(self) -> Any:
         """The closed loop's verdict (:func:`stability.verdict.judge_floquet`: every multiplier with its own
-        error estimate, the practically undamped and growing ones counted with their mode labels)."""
+        error estimate, the practically undamped and growing ones counted with their mode labels; the
+        :attr:`structural` multiplier of an autonomous orbit left out)."""
         from stability.verdict import judge_floquet
 
         return judge_floquet(self.floquet, labels=[m.mode for m in self.modes],
-                             frequencies=[m.frequency_hz for m in self.modes])
+                             frequencies=[m.frequency_hz for m in self.modes], structural=self.structural)
+
+    @property
+    def structural(self) -> tuple:
+        """Indices of the structural multipliers: on an autonomous orbit (its phase free), the multiplier
+        nearest 1, which the verdict leaves out (the verdict is then one of orbital stability)."""
+        if not self.orbit.autonomous:
+            return ()
+        return (int(np.argmin(np.abs(np.asarray(self.floquet.multipliers) - 1.0))),)
 
     @property
     def dominant_mode(self) -> str:

@@ -810,7 +810,10 @@ class _Collocation:
                 out[k, self.n:self.n + self.m] = sys_.constraints(Q[k], t)
             out[k, :self.n] = r
             out[k, self.n + self.m:] = self.B.T @ Q[k] - self.R[k]
-            fscale = max(fscale, float(np.max(np.abs(f))), float(np.max(np.abs(Ma))))
+            # the forces on the orbit, and the force that changes the orbit's momentum by itself within a
+            # period: the scale stays meaningful when the orbit needs no force (a steady free spin)
+            fscale = max(fscale, float(np.max(np.abs(f))), float(np.max(np.abs(Ma))),
+                         float(np.max(np.abs(Mk) @ np.abs(V[k]))) / self.T)
         return out, fscale
 
     def relative(self, out: np.ndarray, fscale: float, qscale: float) -> float:

@@ -130,6 +130,9 @@ class Verdict:
         Their distinct labels, in order of decreasing modulus (empty without labels).
     message : str
         The verdict in words (one sentence, numbers included).
+    structural : tuple of int
+        Indices of the multipliers left out of the rule as structural (the multiplier 1 of an
+        autonomous orbit's free phase): the verdict is then one of *orbital* stability.
     """
 
     verdict: str
@@ -147,6 +150,7 @@ class Verdict:
     undamped_labels: tuple
     growing_labels: tuple
     message: str
+    structural: tuple = ()
 
     @property
     def stable(self) -> bool:
@@ -176,6 +180,7 @@ class Verdict:
             "undamped_modes": list(self.undamped_labels),
             "growing_count": len(self.growing),
             "growing_modes": list(self.growing_labels),
+            "structural_count": len(self.structural),
             "message": self.message,
         }
 
@@ -209,7 +214,7 @@ def _listing(labels: tuple, limit: int = 6) -> str:
 
 def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[Sequence[str]] = None,
           frequencies: Optional[Sequence[Optional[float]]] = None, decay_periods: float = DECAY_PERIODS,
-          stability_tol: float = STABILITY_FLOOR) -> Verdict:
+          stability_tol: float = STABILITY_FLOOR, structural: Sequence[int] = ()) -> Verdict:
     """The verdict rule (module notes) on moduli and their certified absolute errors.
 
     Parameters
@@ -225,6 +230,10 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
         ``N``: asymptotically stable only if every multiplier decays by ``e`` within ``N`` periods.
     stability_tol : float
         Floor of every ``a_i``.
+    structural : sequence of int
+        Indices of multipliers the rule leaves out: the multiplier 1 that an autonomous orbit has
+        by construction (its phase is free), which says nothing about the motion.  The verdict is
+        then one of orbital stability, and the message says so.
 
     Returns
     -------
@@ -251,7 +260,11 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
     r_star = threshold(decay_periods)
     a = np.where(np.isnan(a) | (a < 0), np.inf, a)
     a = np.maximum(a, stability_tol)
-    order = np.argsort(-m, kind="stable")
+    skip = {int(i) for i in structural}
+    if any(not 0 <= i < m.size for i in skip) or len(skip) >= m.size:
+        raise ValueError(f"judge: structural indices {sorted(skip)} out of range for {m.size} multipliers "
+                         "(or leaving none to judge)")
+    order = np.array([i for i in np.argsort(-m, kind="stable") if int(i) not in skip], dtype=int)
     with np.errstate(invalid="ignore", over="ignore"):
         upper, lower = m + a, m - a
     # an infinite modulus (overflow) grows whatever its error; a NaN lower bound (inf - inf) is not
@@ -265,8 +278,8 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
     freq = None
     if frequencies is not None and frequencies[top] is not None:
         freq = float(frequencies[top])
-    margin = r_star - float(np.max(upper))
-    n = int(m.size)
+    margin = r_star - float(np.max(upper[order]))
+    n = int(order.size)
     if growing:
         verdict = VERDICT_UNSTABLE
     elif not undamped:
@@ -290,10 +303,14 @@ def judge(moduli: Sequence[float], errors: Sequence[float], *, labels: Optional[
         message = (f"critical: {len(undamped)} of {n} multipliers are practically undamped{what}: |rho| + error "
                    f"> {r_star:.6g} (no certified decay by e within {decay_periods:g} periods); spectral radius "
                    f"{rho:.10g} +- {err:.1g}" + (f" ({name})" if name else "") + f" {slow}")
+    if skip:
+        message += (f" (orbital stability: {len(skip)} structural multiplier 1 of the orbit's free phase "
+                    f"not judged)")
     return Verdict(verdict=verdict, spectral_radius=rho, spectral_radius_error=err, spectral_radius_label=label,
                    spectral_radius_frequency_hz=freq, threshold=r_star, decay_periods=float(decay_periods),
                    periods_to_decay=_periods_to_decay(rho), margin=margin, n_multipliers=n, undamped=undamped,
-                   growing=growing, undamped_labels=u_labels, growing_labels=g_labels, message=message)
+                   growing=growing, undamped_labels=u_labels, growing_labels=g_labels, message=message,
+                   structural=tuple(sorted(skip)))
 
 
 def multiplier_errors(result: Any) -> np.ndarray:
@@ -316,11 +333,12 @@ def multiplier_errors(result: Any) -> np.ndarray:
 
 def judge_floquet(result: Any, *, labels: Optional[Sequence[str]] = None,
                   frequencies: Optional[Sequence[Optional[float]]] = None,
-                  decay_periods: float = DECAY_PERIODS) -> Verdict:
+                  decay_periods: float = DECAY_PERIODS, structural: Sequence[int] = ()) -> Verdict:
     """:func:`judge` on a :class:`~stability.floquet.FloquetResult` (its multipliers' own error estimates,
-    :func:`multiplier_errors`), with mode labels and frequencies per multiplier when given."""
+    :func:`multiplier_errors`), with mode labels and frequencies per multiplier when given, and the
+    indices of structural multipliers to leave out (:func:`judge`)."""
     return judge(np.asarray(result.moduli, dtype=float), multiplier_errors(result), labels=labels,
-                 frequencies=frequencies, decay_periods=decay_periods, stability_tol=0.0)
+                 frequencies=frequencies, decay_periods=decay_periods, stability_tol=0.0, structural=structural)
 
 
 def verdict_band(rho: float, tol: float, decay_periods: float = DECAY_PERIODS) -> str:

@@ -1,0 +1,59 @@
+"""The verdict on an autonomous orbit (its phase free): orbital stability, the structural multiplier 1 left out.
+
+Oracle: ``tests/models/motor_rotor.py``, a symmetric rigid rotor on symmetric bearings spun by a motor
+characteristic ``tau = c (Omega - theta')`` and nothing else depending on time.  The spin-rate
+perturbation obeys ``J_x d' = -c d`` exactly (decoupled by the symmetry), so one multiplier is
+``exp(-c T / J_x)``; one multiplier is 1 (a time shift of the spin is again an orbit).  The motor damps
+every physical mode, so the orbit is orbitally asymptotically stable -- and the rule must still call
+``critical`` what is undamped: the free spin of ``turning_rotor_ep.py`` (no motor) conserves its angular
+momentum, a second multiplier 1 that is a property of the motion.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from linearize.analysis import analyze
+from stability.verdict import VERDICT_CRITICAL, VERDICT_STABLE, judge, judge_floquet
+
+MODELS = Path(__file__).parent / "models"
+W = 30.0
+JX = 0.01
+
+
+@pytest.mark.parametrize("slope", [0.004, 0.008])
+def test_motor_rotor_spin_multiplier_and_orbital_verdict(slope):
+    res = analyze(str(MODELS / "motor_rotor.py"), W, n_steps=None, rtol=1e-10, motor=slope)
+    assert res.orbit.autonomous
+    mu = np.asarray(res.floquet.multipliers)
+    est = max(float(res.floquet.error_estimate), 1e-12)
+    exact = math.exp(-slope * (2 * math.pi / W) / JX)
+    assert np.min(np.abs(mu - exact)) <= 10 * est * max(1.0, exact)
+    # a wrong spin law (c / J_y instead of c / J_x) is rejected by the same check
+    assert np.min(np.abs(mu - math.exp(-slope * (2 * math.pi / W) / 0.05))) > 1e3 * est
+    (i,) = res.structural
+    assert abs(mu[i] - 1.0) <= 10 * est
+    v = res.verdict
+    assert v.verdict == VERDICT_STABLE and v.structural == (i,) and v.n_multipliers == mu.size - 1
+    assert "orbital" in v.message
+    # judged with the structural multiplier, the same orbit would be called critical
+    assert judge_floquet(res.floquet).verdict == VERDICT_CRITICAL
+
+
+def test_free_spin_stays_critical_its_momentum_multiplier_is_real():
+    res = analyze(str(MODELS / "turning_rotor_ep.py"), W, n_steps=None, node="EP", rtol=1e-10)
+    assert res.orbit.autonomous and len(res.structural) == 1
+    v = res.verdict
+    assert v.verdict == VERDICT_CRITICAL and len(v.undamped) == 1
+
+
+def test_judge_structural_indices():
+    v = judge([1.0, 0.5], [1e-9, 1e-9], structural=[0])
+    assert v.verdict == VERDICT_STABLE and v.spectral_radius == 0.5 and v.to_dict()["structural_count"] == 1
+    assert judge([1.0, 0.5], [1e-9, 1e-9]).verdict == VERDICT_CRITICAL
+    for bad in ([2], [0, 1], [-1]):
+        with pytest.raises(ValueError, match="structural"):
+            judge([1.0, 0.5], [1e-9, 1e-9], structural=bad)
