@@ -7,12 +7,12 @@ import math
 import re
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from _bar_model import TEMPLATE  # tests/ helper
 from mbs_models.model_file import (Drive, ModelFileError, build_model, builtin_model, load_model_file,
                                    model_from_build)
 
@@ -21,26 +21,8 @@ ROOT = HERE.parent
 PENDULUM = HERE / "models" / "vertical_pendulum.py"
 DOUBLE = HERE / "models" / "double_pendulum.py"
 
-HEADER = textwrap.dedent("""
-    import math
-    from exudyn.itemInterface import *
-""")
-
 #: A valid one-drive model: a rigid bar on a revolute joint at O, driven in angle.
-BAR = HEADER + textwrap.dedent("""
-    def build(mbs, omega):
-        g = mbs.AddNode(NodePointGround())
-        mg = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=g, coordinate=0))
-        n = mbs.AddNode(NodeRigidBody2D(referenceCoordinates=[0.5, 0, 0]))
-        b = mbs.AddObject(ObjectRigidBody2D(nodeNumber=n, mass=1.0, inertia=0.1, name="bar"))
-        ground = mbs.AddObject(ObjectGround())
-        mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[
-            mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[0, 0, 0])),
-            mbs.AddMarker(MarkerBodyPosition(bodyNumber=b, localPosition=[-0.5, 0, 0]))]))
-        ma = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n, coordinate=2))
-        MOTION
-        return DRIVES
-""")
+BAR = TEMPLATE.replace("EXTRA", "MOTION")
 
 
 def _write(tmp_path: Path, text: str, name: str = "model.py") -> Path:
@@ -183,7 +165,6 @@ TABLE3 = [(2, 37.1617, 29.2410), (4, 28.7617, 11.7501), (6, 22.2666, 6.7208), (8
 
 def _hand_route(omega, elements, samples):
     """The hand-derived hub-frame route (kept only as this independent check)."""
-    from _link_oracle.along_orbit import linearize_along_orbit
     from _link_oracle.exudyn_link import ExudynLinkConfig, build_link_model
     from _link_oracle.link_orbit import find_periodic_orbit
 

@@ -5,34 +5,16 @@ from __future__ import annotations
 
 import math
 import re
-import textwrap
 from pathlib import Path
 
 import pytest
 
+from _bar_model import HEADER, TEMPLATE  # tests/ helper
 from flexstab.cli import main as cli_main
 from mbs_models.model_file import Drive, ModelFileError, build_model, load_model_file
 
-HEADER = textwrap.dedent("""
-    import math
-    from exudyn.itemInterface import *
-""")
-
 #: A rigid bar on a revolute joint at O, driven in angle; MOTION is the drive's motion expression.
-BAR = HEADER + textwrap.dedent("""
-    def build(mbs, omega):
-        g = mbs.AddNode(NodePointGround())
-        mg = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=g, coordinate=0))
-        n = mbs.AddNode(NodeRigidBody2D(referenceCoordinates=[0.5, 0, 0]))
-        b = mbs.AddObject(ObjectRigidBody2D(nodeNumber=n, mass=1.0, inertia=0.1, name="bar"))
-        ground = mbs.AddObject(ObjectGround())
-        mbs.AddObject(ObjectJointRevolute2D(markerNumbers=[
-            mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[0, 0, 0])),
-            mbs.AddMarker(MarkerBodyPosition(bodyNumber=b, localPosition=[-0.5, 0, 0]))]))
-        ma = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=n, coordinate=2))
-        EXTRA
-        return [{"name": "joint", "markers": (mg, ma), "motion": lambda t: MOTION}]
-""")
+BAR = TEMPLATE.replace("DRIVES", '[{"name": "joint", "markers": (mg, ma), "motion": lambda t: MOTION}]')
 
 GOOD = "(0.5 * math.sin(omega * t), 0.5 * omega * math.cos(omega * t), -0.5 * omega**2 * math.sin(omega * t))"
 #: The issue's example: q is right, q_t and q_tt are arbitrary constants.
