@@ -99,3 +99,28 @@ def test_chart_with_two_workers_gives_the_serial_chart(tmp_path, capsys):
 def test_scheduler_address_is_checked_for_model_files(capsys):
     assert cli_main(TUNE + ["--scheduler", "tcp://nohost"]) == 2
     assert "has no port" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # starts a Dask cluster (~5 s)
+def test_a_model_file_plant_tunes_on_a_dask_cluster_as_here():
+    """A Dask worker is its own process (spawned by its nanny): the plant reaches it by value, the model file
+    by its path.  Bitwise equality is not owed (the worker's BLAS thread count is the nanny's), the same
+    experiments to rounding are."""
+    distributed = pytest.importorskip("distributed")
+    import numpy as np
+
+    from flexstab.executor import make_executor
+    from linearize.analysis import model_plant
+    from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
+
+    plant = model_plant(load_model_file(DOUBLE), 2 * math.pi)
+    cfg = TuningConfig(target=0.5, ranges=((0.0, 20.0), (0.0, 5.0)) * 2, max_evaluations=30)
+    serial = taguchi_tune(GainObjective(plant), cfg)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        with make_executor("dask", scheduler=cluster.scheduler_address) as ex:
+            remote = taguchi_tune(GainObjective(plant), cfg, executor=ex)
+    assert len(remote.iterations) == len(serial.iterations)
+    for r_it, s_it in zip(remote.iterations, serial.iterations):
+        np.testing.assert_allclose(r_it.responses, s_it.responses, rtol=1e-12, atol=0)
+    assert remote.gains == pytest.approx(serial.gains, rel=1e-12)
