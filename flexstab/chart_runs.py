@@ -15,7 +15,7 @@ from typing import Any, Optional, Union
 
 from flexstab.options import check_model_arg, check_range_arg, ensure_out_dir
 
-__all__ = ["ChartOptions", "make_charts", "model_charts", "check_chart_options"]
+__all__ = ["ChartOptions", "make_charts", "model_charts", "check_chart_options", "ChartedDriveObjective"]
 
 Gains = Union[None, float, tuple]
 
@@ -56,9 +56,9 @@ class ChartOptions:
     samples, steps : int, optional
         Model files: collocation samples per period and magnus2 sub-intervals per evaluation.
     scheduler : str, optional
-        Dask scheduler address of the sweeps.
+        Dask scheduler address of the sweeps (model files: of the gain chart and its Taguchi path).
     workers : int, optional
-        Local worker processes.
+        Local worker processes (model files: of the gain chart and its Taguchi path; default serial).
     """
 
     model: str = "reduced"
@@ -211,13 +211,26 @@ def _fixed_gains(values, n_drives: int, flag: str) -> tuple:
     return tuple(values)
 
 
+@dataclass(frozen=True)
+class ChartedDriveObjective:
+    """Picklable Taguchi objective of a model-file chart: ``(kp, kd)`` of the charted drive -> the response
+    at the chart's Omega (``task``: a :class:`flexstab.charts.ModelRadius`)."""
+
+    task: Any
+    omega: float
+
+    def __call__(self, gains) -> float:
+        return self.task({"omega": self.omega, "kp": float(gains[0]), "kd": float(gains[1])})
+
+
 def model_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     """Both charts of a model file (``--model PATH.py`` or a built-in model file).
 
     Gain chart: the dominant labelled multiplier over the (kp, kd) grid of one drive (``--drive``)
     with the other drives at ``--kp``/``--kd``, at the chart Omega.  Omega chart: uncontrolled and
     at the tuned (else the fixed) gains, each Omega's orbit continued from the nearest one computed.
-    Runs in this process (the model is loaded from a file).  Returns the JSON-ready summary.
+    The gain chart and its Taguchi path run through the executor of ``opts.workers``/``opts.scheduler``
+    (default serial), the Omega chart in this process.  Returns the JSON-ready summary.
     """
     import dataclasses
     import hashlib
@@ -231,9 +244,10 @@ def model_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
     from taguchi.tuning import TuningConfig, check_gain_range, taguchi_tune
 
     # every option is checked before the first orbit
-    if opts.scheduler or (opts.workers not in (None, 1)):
-        raise ValueError("--scheduler/--workers: model-file charts run in this process (the model is loaded "
-                         "from a file and the orbits are continued point to point)")
+    if opts.scheduler:
+        from flexstab.executor import validate_scheduler_address
+
+        validate_scheduler_address(opts.scheduler)
     omega = _omega(opts, cfg)
     kp_rng = check_gain_range(opts.kp_range if opts.kp_range else cfg.kp_range, "--kp-range")
     kd_rng = check_gain_range(opts.kd_range if opts.kd_range else cfg.kd_range, "--kd-range")
@@ -292,25 +306,27 @@ def model_charts(opts: ChartOptions, cfg: Any, progress: Any = True) -> dict:
 
     path = tuned = None
     gc = None
-    with make_executor("serial") as ex:
+    # the gain chart and its Taguchi path share the plant at the chart's Omega: its runs go to the executor
+    # (the task pickles the plants by value, the model as its file's path); the Omega chart continues each
+    # orbit from the nearest one computed, so it runs in this process
+    kind = "dask" if opts.scheduler else ("process" if (opts.workers or 1) > 1 else "serial")
+    with make_executor(kind, max_workers=opts.workers, scheduler=opts.scheduler) as ex:
         if nd:
             if not opts.no_taguchi:
-                def objective(g):  # (kp, kd) of the charted drive -> response at the chart Omega
-                    return task({"omega": float(omega), "kp": float(g[0]), "kd": float(g[1])})
-
-                tuned = taguchi_tune(objective, TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng),
-                             progress=progress)
+                tuned = taguchi_tune(ChartedDriveObjective(task, float(omega)),
+                                     TuningConfig(target=target, kp_range=kp_rng, kd_range=kd_rng), executor=ex,
+                                     progress=progress)
                 path = [it.incumbent_gains for it in tuned.iterations]
             ctag = f"{tag}_{'all' if idx is None else idx}_" + hashlib.sha1(
                 json.dumps([fkp, fkd]).encode()).hexdigest()[:6]
             gc = gain_chart(task, omega, kp, kd, ex, out / f"chart_gains_{ctag}.jsonl", target=target,
                             progress=progress)
-        if tuned is not None:
-            gkp, gkd = task.gains(tuned.kp, tuned.kd, nd)
-        else:
-            gkp, gkd = list(fkp), list(fkd)
-        otag = hashlib.sha1(json.dumps([gkp, gkd]).encode()).hexdigest()[:6]
-        oc = omega_chart(task, omegas, gkp, gkd, ex, out / f"chart_omega_{tag}_{otag}.jsonl", progress=progress)
+    if tuned is not None:
+        gkp, gkd = task.gains(tuned.kp, tuned.kd, nd)
+    else:
+        gkp, gkd = list(fkp), list(fkd)
+    otag = hashlib.sha1(json.dumps([gkp, gkd]).encode()).hexdigest()[:6]
+    oc = omega_chart(task, omegas, gkp, gkd, None, out / f"chart_omega_{tag}_{otag}.jsonl", progress=progress)
     # discretisation check at the chart point of the Omega chart's gains.  ModelPlant: the value is the
     # Richardson-extrapolated exponential midpoint (4th order, error ~ 16/15 |r_n - r_2n| asymptotically);
     # 4/3 |r_n - r_2n| bounds the error for any observed order >= 2 (2^p / (2^p - 1) falls with p).

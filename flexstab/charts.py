@@ -74,8 +74,10 @@ class ModelPlants:
     The orbit at a new Omega starts Newton from the orbit at the nearest Omega computed so far
     (continuation along an Omega sweep), so the values depend on the order of evaluation only to the
     Newton tolerance.  The plant at an Omega is :func:`flexstab.plants.plant_for` (the rule of ``tune``
-    and ``study --model``), cached per (Omega, tuning configuration, steps).  It holds Exudyn systems
-    built from a file loaded at run time: use it in this process (serial executor).
+    and ``study --model``), cached per (Omega, tuning configuration, steps).  It pickles by value (orbits and
+    linearisations as arrays, the model as its file's path, :class:`mbs_models.model_file.ModelDefinition`):
+    a copy sent to a worker process evaluates the Omegas already in it exactly as this process does (the gain
+    chart); an Omega sweep belongs in this process, where each orbit is continued from the nearest one.
 
     Parameters
     ----------

@@ -502,15 +502,12 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
 
     Gains: those tuned on the Exudyn model by the ``exudyn`` stage of this run (``exudyn.json``),
     else the reference gains (see the module docstring).  Measurement:
-    :func:`validation.multipliers.validate_model_multipliers` on the built-in model file
-    ``single-link``: the one-period map of the
+    :func:`flexstab.validation_runs.validate_multipliers` of the paper's link (the built-in model file
+    ``single-link``, as ``flexstab validate``): the one-period map of the
     nonlinear closed loop on the subspace of the compared multipliers, compared with the Exudyn
     linearisation within the measurement's own error bar.
     """
-    from mbs_models.reduced import ReducedModel
-    from stability import floquet
-    from validation.multipliers import (MultiplierCheckConfig, prediction_from_multipliers,
-                                        validate_model_multipliers)
+    from flexstab.validation_runs import ValidateOptions, validate_multipliers
     from validation.plots import plot_multiplier_plane
 
     kp, kd, source = _validation_gains(cfg, opts)
@@ -518,14 +515,10 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
     # three step levels also in quick mode (two give no verdict); --quick starts them at 2e-3 s (about half
     # the integration work of the default step); the step-convergence check and its error bar decide whether
     # that is fine enough, as at any step
-    check = MultiplierCheckConfig(refinements=2, step=2e-3 if opts.quick else None, amplitude=None)
-    definition, options = _link_definition(cfg, elements, damped=False)
-    reduced = floquet(ReducedModel(cfg.omega, kp, kd, cfg.manipulator))
-    v = validate_model_multipliers(definition, cfg.omega, kp, kd, config=check,
-                                   alternatives=[prediction_from_multipliers("reduced model", reduced.multipliers)],
-                                   **options)
-    d = v.to_dict()
-    d.update({"omega_over_pi": cfg.omega / math.pi, "gains_source": source})
+    check = ValidateOptions(model="exudyn", omega=cfg.omega, kp=(kp,), kd=(kd,), gains_source=source,
+                            elements=elements, step=2e-3 if opts.quick else None, refinements=2, growth_periods=0)
+    res = validate_multipliers(check, cfg)
+    v, d = res.measurement, res.report
     (opts.out / "validation.json").write_text(json.dumps({"rows": [d]}, indent=2, default=float))
     fig = "validation_multipliers.png"
     plot_multiplier_plane([v], opts.out / fig,
@@ -533,7 +526,7 @@ def _stage_validation(cfg: StudyConfig, opts: StudyOptions) -> StageOutput:
                           suptitle="Multipliers measured from nonlinear Exudyn runs vs predicted")
 
     blocks = validation_blocks(d, f"Free-hub Exudyn model ({elements} elements) under feed-forward + PD (gains: "
-                                  f"{source}).", check.steps, fig)
+                                  f"{source}).", d.get("steps") or (), fig)
     from flexstab.checks import validation_failures
 
     return StageOutput(json="validation.json", title=f"Nonlinear validation at Ω = {_w(cfg.omega)}", blocks=blocks,

@@ -24,7 +24,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["TuneOptions", "tune_gains", "check_tune_options", "robust_tuning", "whole_loop_fields", "check_failure",
            "build_plant", "FallbackRecorder", "factor_ranges", "RESTART_WIDTH", "tune_model_plant",
-           "unreachable_mode"]
+           "unreachable_mode", "model_plant_executor"]
 
 
 @dataclass(frozen=True)
@@ -56,9 +56,9 @@ class TuneOptions:
     damping : str, optional
         Structural damping of the beams (:func:`mbs_models.damping.parse_damping`; default the configuration's).
     scheduler : str, optional
-        Dask scheduler address.
+        Dask scheduler address (every model; a model file must be readable at the same path on the workers).
     workers : int, optional
-        Local worker processes.
+        Local worker processes (model files: :func:`model_plant_executor`).
     compare : bool
         Also run the direct optimisers (Nelder-Mead, differential evolution).
     grid : int, optional
@@ -244,6 +244,19 @@ def tune_model_plant(plant: Any, tcfg: "TuningConfig", *, executor: Any = None,
         tcfg = dataclasses.replace(full_cfg, ranges=narrowed)
 
 
+def model_plant_executor(hill: bool, workers: Optional[int]) -> str:
+    """The local executor kind of a model-file plant's runs (``--scheduler`` aside: Dask).
+
+    A plant pickles by value (orbit and linearisation as arrays; the model as its file's path and options,
+    loaded again in a worker only if called, :class:`mbs_models.model_file.ModelDefinition`), so its runs go
+    to worker processes like the reduced model's: ``workers > 1`` asks for a process pool; by default a Hill
+    plant (seconds per run) uses one and a time-stepping plant runs serially (``workers == 1`` always does).
+    """
+    if workers == 1:
+        return "serial"
+    return "process" if hill or (workers is not None and workers > 1) else "serial"
+
+
 def unreachable_mode(orbit: Any, omega: float, tcfg: Any) -> Optional[dict]:
     """The closed loop's largest multiplier at the centre of the gain ranges, when it belongs to a mode
     no drive can move (:func:`linearize.analysis.drive_movable`): PD gains cannot bring the spectral
@@ -377,8 +390,6 @@ def tune_gains(opts: TuneOptions, cfg: Any, *, notify: Optional[Callable[[str], 
         from flexstab.executor import validate_scheduler_address
 
         validate_scheduler_address(opts.scheduler)
-        if model_file:
-            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
     from flexstab.executor import make_executor
     from linearize.hill_plant import HillModelPlant
     from stability.engines import floquet
@@ -403,12 +414,7 @@ def tune_gains(opts: TuneOptions, cfg: Any, *, notify: Optional[Callable[[str], 
         unreachable = None
     hill = model_file and isinstance(plant, HillModelPlant)
     objective = GainObjective(plant)
-    kind = "dask" if opts.scheduler else "auto"
-    if model_file:
-        if opts.scheduler:
-            raise ValueError("--scheduler: model-file plants run in-process (serial) only")
-        # the plant holds a model loaded from a file: not picklable -- except the built-in ones
-        kind = "process" if hill and opts.workers != 1 else "serial"
+    kind = "dask" if opts.scheduler else (model_plant_executor(hill, opts.workers) if model_file else "auto")
     with make_executor(kind, max_workers=opts.workers, scheduler=opts.scheduler, n_tasks=oa.n_runs) as ex:
         from flexstab.progress import progress_bars
 

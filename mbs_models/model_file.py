@@ -45,6 +45,7 @@ Errors in a model file raise :class:`ModelFileError` with a one-line message
 """
 from __future__ import annotations
 
+import functools
 import importlib.util
 import inspect
 import logging
@@ -62,6 +63,7 @@ __all__ = [
     "BuiltModel",
     "Drive",
     "ModelDefinition",
+    "FileBuild",
     "ModelFileError",
     "PERIODICITY_TOLERANCE",
     "build_model",
@@ -221,12 +223,25 @@ class ModelDefinition:
         Path of the model file, ``None`` for a callable given directly.
     options : dict
         Keyword options bound to ``build``.
+
+    Notes
+    -----
+    A definition loaded from a file pickles as its file's path, name and options, not as the function: a
+    module loaded from a path is not importable by name in another process (a spawned or forkserver pool
+    worker, a Dask worker), so the receiving process loads the file itself, on the first call of
+    ``build`` and once per process (:class:`FileBuild`).  The options must be picklable; the file must be
+    readable at the same path there.  A definition of a callable pickles the callable (by reference).
     """
 
     name: str
     build: Callable[..., Any] = field(repr=False)
     source: Optional[str] = None
     options: dict = field(default_factory=dict)
+
+    def __reduce_ex__(self, protocol: int):
+        if self.source is not None and _is_file_build(self.build, self.source):
+            return (_definition_from_file, (self.name, self.source, dict(self.options)))
+        return object.__reduce_ex__(self, protocol)
 
     def with_options(self, **options: Any) -> "ModelDefinition":
         """The same model with further keyword options for ``build``."""
@@ -236,6 +251,52 @@ class ModelDefinition:
     def call_build(self, mbs: Any, omega: float) -> Any:
         """Call ``build(mbs, omega, **options)``."""
         return self.build(mbs, omega, **self.options)
+
+
+@dataclass(frozen=True)
+class FileBuild:
+    """The ``build`` function of the model file ``source``, loaded on the first call (once per process,
+    :func:`load_model_file`); what an unpickled :class:`ModelDefinition` of a file calls.
+
+    Attributes
+    ----------
+    source : str
+        Path of the model file.
+    """
+
+    source: str
+
+    def function(self) -> Callable[..., Any]:
+        """The file's ``build`` (the file is loaded once per process and path)."""
+        return _loaded_build(self.source)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.function()(*args, **kwargs)
+
+    @property
+    def __signature__(self) -> inspect.Signature:
+        """The signature of the file's ``build`` (for the options checks)."""
+        return inspect.signature(self.function())
+
+
+@functools.lru_cache(maxsize=None)
+def _loaded_build(source: str) -> Callable[..., Any]:
+    return load_model_file(source).build
+
+
+def _is_file_build(build: Any, source: str) -> bool:
+    """Whether ``build`` is the ``build`` of the model file ``source`` (so that loading the file again gives it)."""
+    if isinstance(build, FileBuild):
+        return build.source == source
+    module = sys.modules.get(getattr(build, "__module__", None) or "")
+    path = getattr(module, "__file__", None)
+    return (path is not None and getattr(build, "__name__", None) == "build"
+            and os.path.realpath(path) == os.path.realpath(source))
+
+
+def _definition_from_file(name: str, source: str, options: dict) -> "ModelDefinition":
+    """The unpickled :class:`ModelDefinition` of a model file: its ``build`` loaded lazily (:class:`FileBuild`)."""
+    return ModelDefinition(name=name, build=FileBuild(source), source=source, options=options)
 
 
 def model_from_build(build: Callable[..., Any], name: Optional[str] = None, **options: Any) -> ModelDefinition:

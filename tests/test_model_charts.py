@@ -88,7 +88,7 @@ def test_gain_chart_of_one_drive_with_the_other_fixed(tmp_path, capsys):
     (["--omega-range", "3", "2"], 2, "omega range is empty or inverted"),
     (["--drive", "knee"], 2, "drives are shoulder, elbow"),
     (["--kp", "1,2,3"], 2, "2 drive(s)"),
-    (["--scheduler", "tcp://127.0.0.1:1"], 2, "in this process"),
+    (["--scheduler", "tcp://127.0.0.1"], 2, "has no port"),  # checked before the first orbit
 ])
 def test_bad_chart_input_is_one_line(tmp_path, capsys, argv, rc, words):
     code = cli_main(["chart", "--model", DOUBLE, "--grid", "2", "--omega-points", "2", "--no-taguchi",

@@ -45,7 +45,9 @@ def register(sub) -> None:
     p.add_argument("--no-taguchi", action="store_true", help="do not draw the Taguchi path")
     p.add_argument("--out", default="results", help="output folder (default results/)")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
-    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: auto; a model file: serial, and the Omega chart always "
+                        "runs in this process)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=run)
 

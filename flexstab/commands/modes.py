@@ -1,4 +1,5 @@
-"""``flexstab modes``: natural frequencies of the Exudyn link beside Euler-Bernoulli theory."""
+"""``flexstab modes``: natural frequencies of the Exudyn link beside Euler-Bernoulli theory (the command line
+of :func:`flexstab.mode_runs.natural_frequencies`)."""
 from __future__ import annotations
 
 import argparse
@@ -7,7 +8,7 @@ import sys
 
 from flexstab.options import dump_json, result_output
 
-__all__ = ["register", "run", "modes_report"]
+__all__ = ["register", "run", "modes_options", "modes_report"]
 
 
 def _positive_int(text: str) -> int:
@@ -38,40 +39,31 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def modes_report(args: argparse.Namespace) -> dict:
-    """Compute the frequencies requested by ``args``; return the JSON-ready dict."""
-    from mbs_models.modes import exudyn_frequencies
-    from mbs_models.parameters import ManipulatorParameters
+def modes_options(args: argparse.Namespace) -> "ModesOptions":
+    """The :class:`~flexstab.mode_runs.ModesOptions` of the parsed command line."""
+    from flexstab.mode_runs import ModesOptions
 
-    params = ManipulatorParameters()
-    elements = args.elements
+    return ModesOptions(elements=args.elements, hub=args.hub, count=args.count)
+
+
+def modes_report(args: argparse.Namespace) -> dict:
+    """``flexstab modes``: :func:`flexstab.mode_runs.natural_frequencies` of the command line (``--config``'s
+    link if given); return the JSON-ready dict."""
+    from flexstab.mode_runs import check_modes_options, natural_frequencies
+
+    opts = modes_options(args)
+    check_modes_options(opts)
+    cfg = None
     if getattr(args, "config", None):
         from flexstab.config import load_config
 
         cfg = load_config(args.config)
-        params = cfg.manipulator
-        if elements is None:
-            elements = cfg.elements
-    elements = 8 if elements is None else elements
-    # analytic values exist for the bending modes; give as many as asked for
     # Exudyn prints its warnings (e.g. "more than 1000 coordinates, consider a sparse solver") through
     # Python's stdout: send them to stderr so that stdout holds only the table or the JSON object
     from mbs_models.console import exudyn_console  # Exudyn is imported only by the commands that use it
 
     with contextlib.redirect_stdout(sys.stderr), exudyn_console(quiet=bool(getattr(args, "json", False))):
-        res = exudyn_frequencies(params, elements=elements, hub=args.hub, count=args.count,
-                                 analytic_count=args.count)
-    out = res.to_dict()
-    # only bending modes have an Euler-Bernoulli value: keep the analytic list
-    # as long as the Exudyn frequencies it matches (within 5 %)
-    matched = []
-    for f, fa in zip(out["frequencies_hz"], out["analytic_hz"]):
-        if abs(f - fa) > 0.05 * fa:
-            break
-        matched.append(fa)
-    out["analytic_hz"] = matched
-    out["relative_errors"] = out["relative_errors"][: len(matched)]
-    return out
+        return natural_frequencies(opts, cfg).to_dict()
 
 
 def run(args: argparse.Namespace) -> int:

@@ -34,7 +34,8 @@ def register(sub) -> None:
     p.add_argument("--elements", type=int, default=None, help="ANCF elements (exudyn model)")
     add_damping_option(p)
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="Dask scheduler, tcp://HOST:PORT")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: auto)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: auto; a model file: serial, the two-link all cores)")
     p.add_argument("--compare", action="store_true", help="also run the direct optimisers (Nelder-Mead, DE)")
     p.add_argument("--robust", action="store_true",
                    help="robust design: gains crossed with an outer array of noise factors (payload, Omega, E; "

@@ -1,6 +1,7 @@
 """``flexstab validate``: Floquet multipliers measured from nonlinear Exudyn runs vs the prediction.
 
-The one-period map of the nonlinear closed loop (feed-forward + PD, started
+The command line of :func:`flexstab.validation_runs.validate_multipliers` (its table, JSON and
+``--out`` files).  The one-period map of the nonlinear closed loop (feed-forward + PD, started
 from the periodic orbit perturbed along the predicted Floquet vectors) is
 measured with generalised-alpha at ``rho_inf = 1`` and steps ``h, h/2, h/4``;
 its eigenvalues are compared with the predicted multipliers in modulus and
@@ -11,7 +12,7 @@ a resolved slow multiplier without a predicted partner is a failed check.
 
 Gains: ``--kp``/``--kd`` if given (a missing one is 0; one value per drive,
 comma-separated, or one value for all); if neither is given, the study's rule
-(:func:`flexstab.study` reference gains): the paper's printed Table 3 gains for
+(:func:`flexstab.validation_runs.resolve_gains`): the paper's printed Table 3 gains for
 the paper's manipulator at one of the paper's Omegas (2pi, 4pi, 6pi, 8pi),
 otherwise the gains Taguchi tunes on the reduced model of the configured
 manipulator at that Omega to the configured target (the output says which).
@@ -30,8 +31,9 @@ from pathlib import Path
 from typing import Optional
 
 from flexstab.options import dump_json, ensure_out_dir, gains_as_lists, parse_omega, result_output
+from flexstab.validation_runs import resolve_gains
 
-__all__ = ["register", "run", "validation_report", "resolve_gains"]
+__all__ = ["register", "run", "validate_options", "validation_report", "resolve_gains"]
 
 
 def register(sub) -> None:
@@ -93,8 +95,9 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _number(name: str, text: Optional[str], *, minimum: Optional[float] = None, integer: bool = False,
-            strict: bool = False) -> Optional[float]:
+def _number(name: str, text: Optional[str], *, integer: bool = False) -> Optional[float]:
+    """``text`` as a finite number (an integer with ``integer``); ``None`` stays ``None``.  The ranges are
+    checked by :func:`flexstab.validation_runs.check_validate_options`."""
     if text is None:
         return None
     try:
@@ -105,188 +108,51 @@ def _number(name: str, text: Optional[str], *, minimum: Optional[float] = None, 
         raise ValueError(f"--{name} must be finite, got {text!r}")
     if integer and value != int(value):
         raise ValueError(f"--{name} must be an integer, got {text!r}")
-    if minimum is not None and (value <= minimum if strict else value < minimum):
-        raise ValueError(f"--{name} must be {'>' if strict else '>='} {minimum:g}, got {text!r}")
     return int(value) if integer else value
 
 
-def _gains(name: str, text: Optional[str]) -> Optional[list]:
-    """Comma-separated non-negative gains (one per drive)."""
+def _gains(name: str, text: Optional[str]) -> Optional[tuple]:
+    """Comma-separated gains (one per drive)."""
     if text is None:
         return None
-    parts = [s for s in str(text).split(",")]
-    return [_number(name, s.strip(), minimum=0.0) for s in parts]
+    return tuple(_number(name, s.strip()) for s in str(text).split(","))
 
 
-def resolve_gains(omega: float, kp: Optional[float], kd: Optional[float], cfg=None) -> tuple[float, float, str]:
-    """Gains to use and where they come from (see the module docstring).
+def validate_options(args: argparse.Namespace) -> "ValidateOptions":
+    """The :class:`~flexstab.validation_runs.ValidateOptions` of the parsed command line (numbers parsed
+    here rather than by ``argparse`` so that every bad value ends as one line and exit code 2)."""
+    from flexstab.validation_runs import ValidateOptions
 
-    ``cfg`` (a :class:`~flexstab.config.StudyConfig`, default the paper's manipulator) decides
-    whether the printed Table 3 gains apply and gives the target and ranges of the tuning.
-    """
-    if kp is None and kd is None:
-        from flexstab.config import StudyConfig
-        from flexstab.paper_tables import is_paper_manipulator
-        from mbs_models.paper_data import table3_gains
-
-        cfg = cfg if cfg is not None else StudyConfig()
-        hit = table3_gains(omega)
-        if hit is not None and is_paper_manipulator(cfg.manipulator):
-            k, kp3, kd3 = hit
-            return kp3, kd3, f"paper Table 3 gains for Omega = {k}pi"
-        from mbs_models.reduced import ReducedModel
-        from taguchi.tuning import GainObjective, TuningConfig, taguchi_tune
-
-        res = taguchi_tune(GainObjective(ReducedModel(omega, params=cfg.manipulator)),
-                           TuningConfig(target=cfg.target, kp_range=cfg.kp_range, kd_range=cfg.kd_range))
-        return res.kp, res.kd, (f"Taguchi on the reduced model (no gains given; rho_d = {cfg.target:g}, "
-                                f"max|rho| = {res.spectral_radius:.5f}, {res.status})")
-    return (kp or 0.0), (kd or 0.0), "command line"
+    ints = {flag: _number(flag, getattr(args, flag.replace("-", "_")), integer=True)
+            for flag in ("elements", "samples", "refinements", "compare", "growth-periods", "workers")}
+    return ValidateOptions(
+        model=args.model, omega=parse_omega(args.omega) if args.omega is not None else None,
+        kp=_gains("kp", args.kp), kd=_gains("kd", args.kd), elements=ints["elements"], samples=ints["samples"],
+        step=_number("step", args.step), spectral_radius=_number("spectral-radius", args.spectral_radius),
+        refinements=ints["refinements"], amplitude=_number("amplitude", args.amplitude), compare=ints["compare"],
+        growth_periods=ints["growth-periods"], predict_reference=args.predict_reference,
+        full_map=bool(getattr(args, "full_map", False)), full_map_step=_number("full-map-step", args.full_map_step),
+        workers=ints["workers"])
 
 
 def validation_report(args: argparse.Namespace):
-    """Run the validation requested by ``args``; return ``(dict, MultiplierValidation)``."""
-    if args.model != "exudyn":
-        return _model_file_report(args)
-    if getattr(args, "full_map", False):
-        raise ValueError("--full-map applies to model files (e.g. --model single-link), not to --model exudyn")
-    # every argument is checked before the numerical imports and the configuration
-    omega = parse_omega(args.omega) if args.omega is not None else None
-    kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
-    for nm, g in (("kp", kps), ("kd", kds)):
-        if g is not None and len(g) != 1:
-            raise ValueError(f"--{nm}: the built-in single link has one drive (hub), got {len(g)} values")
-    kp = kps[0] if kps else None
-    kd = kds[0] if kds else None
-    elements = _number("elements", args.elements, minimum=1, integer=True)
-    elements = 4 if elements is None else elements
-    samples = _number("samples", args.samples, minimum=4, integer=True) if args.samples is not None else None
-    if samples is not None and samples % 2:
-        raise ValueError(f"--samples must be even, got {args.samples!r}")
-    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
-    refinements = _number("refinements", args.refinements, minimum=0, integer=True)
-    if refinements > 4:
-        raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
-    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True) if args.amplitude is not None else None
-    compare = _number("compare", args.compare, minimum=1, integer=True)
-    growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True)
-    spectral_radius = _spectral_radius(args)
-    from flexstab.config import load_config
+    """``flexstab validate``: :func:`flexstab.validation_runs.validate_multipliers` of the command line (its
+    checks first, then the configuration); return ``(dict, MultiplierValidation)``."""
+    from flexstab.validation_runs import CONFIG_FOR_MODEL_FILE, check_validate_options, validate_multipliers
 
-    cfg = load_config(args.config)
-    omega = cfg.omega if omega is None else omega
-    if step is not None and step >= 2 * math.pi / omega:
-        raise ValueError(f"--step must be smaller than the period T = {2 * math.pi / omega:.6g} s, got {args.step!r}")
-    if args.predict_reference != "periodic":
-        raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
-                         "about the periodic orbit (the rigid reference's distance is in docs/validation.md)")
+    if args.model != "exudyn" and args.config is not None:
+        raise ValueError(CONFIG_FOR_MODEL_FILE)
+    opts = validate_options(args)
+    check_validate_options(opts)  # every option before the configuration and the numerical imports
+    cfg = None
+    if opts.model == "exudyn":
+        from flexstab.config import load_config
+
+        cfg = load_config(args.config)
     if args.out is not None:
         ensure_out_dir(args.out)
-    from flexstab.options import resolve_model_definition
-    from mbs_models.reduced import ReducedModel
-    from stability import floquet
-    from validation.multipliers import (MODEL_SAMPLES, MultiplierCheckConfig, prediction_from_multipliers,
-                                        validate_model_multipliers)
-
-    kp, kd, source = resolve_gains(omega, kp, kd, cfg)
-    if growth is None:
-        growth = 3 if (kp == 0.0 and kd == 0.0) else 0
-    config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
-                                   growth_periods=growth, spectral_radius=spectral_radius)
-    # the paper's link is the built-in model file single-link with the configured manipulator
-    definition, options = resolve_model_definition(args.model, cfg, elements)
-    reduced = floquet(ReducedModel(omega=omega, kp=kp, kd=kd, params=cfg.manipulator))
-    res = validate_model_multipliers(definition, omega, kp=kp, kd=kd,
-                                     samples=MODEL_SAMPLES if samples is None else samples, config=config,
-                                     alternatives=[prediction_from_multipliers("reduced model", reduced.multipliers)],
-                                     **options)
-    d = res.to_dict()
-    d["model"] = args.model
-    d["elements"] = elements
-    d["gains_source"] = source
-    return d, res
-
-
-def _spectral_radius(args: argparse.Namespace) -> float:
-    rho = _number("spectral-radius", args.spectral_radius, minimum=0.0)
-    if rho > 1.0:
-        raise ValueError(f"--spectral-radius must be in [0, 1], got {args.spectral_radius!r}")
-    return rho
-
-
-def _model_file_report(args: argparse.Namespace):
-    """``--model PATH.py`` (or a built-in model name): the generic path."""
-    if args.config is not None:
-        raise ValueError("--config describes the built-in manipulator; it does not apply to a model file")
-    if args.predict_reference != "periodic":
-        raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
-                         "about the periodic orbit")
-    # every argument is checked before the numerical imports and the model file
-    from flexstab.options import check_model_arg, is_model_file
-
-    check_model_arg(args.model)
-    options: dict = {}
-    if args.elements is not None:
-        if is_model_file(args.model):
-            raise ValueError("--elements applies to the built-in models only (a model file sets its own mesh)")
-        options["elements"] = _number("elements", args.elements, minimum=1, integer=True)
-    omega = parse_omega(args.omega) if args.omega is not None else 2 * math.pi
-    T = 2 * math.pi / omega
-    kps, kds = _gains("kp", args.kp), _gains("kd", args.kd)
-    samples = (_number("samples", args.samples, minimum=4, integer=True) if args.samples is not None else None)
-    if samples is not None and samples % 2:
-        raise ValueError(f"--samples must be even, got {args.samples!r}")
-    step = _number("step", args.step, minimum=0.0, strict=True) if args.step is not None else None
-    if step is not None and step >= T:
-        raise ValueError(f"--step must be smaller than the period T = {T:.6g} s, got {args.step!r}")
-    refinements = _number("refinements", args.refinements, minimum=0, integer=True)
-    if refinements > 4:
-        raise ValueError(f"--refinements must be <= 4, got {args.refinements!r}")
-    amplitude = _number("amplitude", args.amplitude, minimum=0.0, strict=True) if args.amplitude is not None else None
-    compare = _number("compare", args.compare, minimum=1, integer=True)
-    growth = _number("growth-periods", args.growth_periods, minimum=0, integer=True) or 0
-    spectral_radius = _spectral_radius(args)
-    full_step = _number("full-map-step", args.full_map_step, minimum=0.0, strict=True) \
-        if getattr(args, "full_map_step", None) is not None else None
-    if full_step is not None and full_step >= T:
-        raise ValueError(f"--full-map-step must be smaller than the period T = {T:.6g} s, got {args.full_map_step!r}")
-    workers = _number("workers", getattr(args, "workers", None), minimum=1, integer=True) \
-        if getattr(args, "workers", None) is not None else 2
-    if args.out is not None:
-        ensure_out_dir(args.out)
-    from mbs_models.model_file import resolve_model
-    from validation.multipliers import MODEL_SAMPLES, MultiplierCheckConfig, validate_model_multipliers
-
-    definition = resolve_model(args.model, **options)
-    samples = MODEL_SAMPLES if samples is None else samples
-    config = MultiplierCheckConfig(compare=compare, step=step, refinements=refinements, amplitude=amplitude,
-                                   growth_periods=growth, spectral_radius=spectral_radius)
-    res = validate_model_multipliers(definition, omega, kp=kps if kps else 0.0, kd=kds if kds else 0.0,
-                                     samples=samples, config=config)
-    d = res.to_dict()
-    d["gains_source"] = "command line" if (kps or kds) else "none given (0 for every drive)"
-    d.setdefault("elements", definition.options.get("elements"))
-    if getattr(args, "full_map", False):
-        d["full_map"] = _full_map(args.model, options, omega, kps, kds, samples, full_step, refinements,
-                                  None if args.amplitude is None else amplitude, workers)
-    return d, res
-
-
-def _full_map(model, options, omega, kps, kds, samples, step, refinements, amplitude, workers) -> dict:
-    """The ``full_map`` block: :func:`validation.full_map.measure_model_full_map` against the linearisation."""
-    from flexstab.executor import make_executor
-    from linearize.analysis import analyze
-    from mbs_models.console import exudyn_console
-    from validation.full_map import FullMapConfig, full_map_report, measure_model_full_map
-
-    cfg = FullMapConfig(step=step, refinements=max(refinements, 2), amplitude=amplitude)
-    kp, kd = (kps if kps else 0.0), (kds if kds else 0.0)
-    with make_executor("process" if workers > 1 else "serial", max_workers=workers) as ex:
-        result, runner = measure_model_full_map(model, omega, kp, kd, samples=samples, config=cfg,
-                                                executor=None if workers == 1 else ex, chunks=workers, **options)
-    with exudyn_console(True):
-        analysis = analyze(runner.definition, omega, kp=kp, kd=kd, samples=samples, orbit=runner.orbit)
-    return full_map_report(result, analysis)
+    res = validate_multipliers(opts, cfg)
+    return res.report, res.measurement
 
 
 def _c(z) -> str:
