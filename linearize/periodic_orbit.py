@@ -121,6 +121,13 @@ CONTINUATION_START = 0.5
 CONTINUATION_STEP = 0.1
 CONTINUATION_MIN_STEP = 1e-3
 CONTINUATION_MAX_SOLVES = 40
+#: When no orbit is found at the start factor, it is halved at most this often (starts at 1/2, 1/4 and
+#: 1/8 of omega).  At omega/8 the inertia forces of the prescribed motion are 1/64 of those at omega: a
+#: lower start is no better guess, it only lengthens the simulated guess period and Exudyn's run with it
+#: (measured on a very soft single link, E = 2e7 N/m^2, 1 element, 32 samples: a failed start costs
+#: 1.1 s at omega/2 and 19 s at omega/16384; halving down to the solve budget took ~15 min).  Every
+#: continuation measured on the single link (1, 4 and 8 elements at 11 pi) started at omega/2.
+CONTINUATION_START_HALVINGS = 2
 #: Integrator steps per collocation sample for the guess and the shooting check.
 SHOOTING_STEPS_PER_SAMPLE = 16
 #: The shooting check passes when the one-period defect, relative to the
@@ -1519,8 +1526,10 @@ def find_orbit(
         best = min(at_target) if at_target else math.nan
         cont = ""
         if continuation:
+            lowest = CONTINUATION_START * 0.5 ** CONTINUATION_START_HALVINGS
             cont = (f"; continuation in omega converged up to {reached:.4g} omega only" if reached is not None
-                    else "; continuation in omega found no orbit even at lower omega")
+                    else f"; continuation in omega found no orbit to start from at {CONTINUATION_START:g} down to "
+                         f"{lowest:g} omega")
         raise OrbitConvergenceError(
             f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
             f"{at_target[-1] if at_target else math.nan:.2e} after {len(history)} Newton iterations "
@@ -1569,12 +1578,14 @@ def find_orbit(
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
                   X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None):
-    """Natural continuation in omega from :data:`CONTINUATION_START` omega.  Returns ``(X, history, ok,
+    """Natural continuation in omega from :data:`CONTINUATION_START` omega (halved at most
+    :data:`CONTINUATION_START_HALVINGS` times while no orbit is found to start from).  Returns ``(X, history, ok,
     col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
     converged (``None``: none), ``at_target`` the residuals of the solves at omega itself (an
     orbit at a lower omega is no answer at omega)."""
     f, step, X, history, at_target = CONTINUATION_START, CONTINUATION_STEP, None, [], []
     col = tb = reached = None
+    starts = 0
     for _ in range(CONTINUATION_MAX_SOLVES):
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
@@ -1593,6 +1604,9 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
             step *= 1.5
             f = target + step
         elif X is None:
+            starts += 1
+            if starts > CONTINUATION_START_HALVINGS:
+                break
             f *= 0.5
         else:
             step *= 0.5
