@@ -1592,7 +1592,7 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
         if shift is not None:
             col.set_shift(*shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
-        Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
+        Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations, early_give_up=True)
         history += hist
         if target >= 1.0:
             at_target += hist
