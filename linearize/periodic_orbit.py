@@ -31,7 +31,9 @@ prescribed; if full steps from it fail, full steps from the quasi-static guess
 (the drives on their motions, the model in static equilibrium at every sample,
 :func:`_quasi_static_guess`) are tried before the damped Newton.  If all fail,
 natural continuation in ``omega`` from ``omega/2`` (the model is rebuilt at each
-``omega``).  Measured on the single link (8 elements, 32 samples): full steps from
+``omega``; a start without an orbit is halved at most twice, to ``omega/8``, and a
+step whose damped Newton does not halve the residual within a few iterations is
+halved instead).  Measured on the single link (8 elements, 32 samples): full steps from
 the simulated period converge at 1 to 8.5 pi and 10 pi, the quasi-static guess
 rescues 9 pi, 9.5 pi and 12 pi; 11 pi still needs continuation.
 
@@ -125,7 +127,7 @@ CONTINUATION_MAX_SOLVES = 40
 #: 1/8 of omega).  At omega/8 the inertia forces of the prescribed motion are 1/64 of those at omega: a
 #: lower start is no better guess, it only lengthens the simulated guess period and Exudyn's run with it
 #: (measured on a very soft single link, E = 2e7 N/m^2, 1 element, 32 samples: a failed start costs
-#: 1.1 s at omega/2 and 19 s at omega/16384; halving down to the solve budget took ~15 min).  Every
+#: 1.1 s at omega/2 and 19 s at omega/16384; halving down to the solve budget, omega/2^40, takes ~15 min).  Every
 #: continuation measured on the single link (1, 4 and 8 elements at 11 pi) started at omega/2.
 CONTINUATION_START_HALVINGS = 2
 #: Integrator steps per collocation sample for the guess and the shooting check.
@@ -1664,7 +1666,8 @@ def _growing_coordinates(col: _Collocation) -> str:
         return ""
     again = _second_period_drift(col)
     if again is not None:  # (a failed second period leaves the first period's verdict)
-        keeps = (np.sign(again[idx]) == np.sign(drift[idx])) & (np.abs(again[idx]) >= GROWTH_REPEAT * np.abs(drift[idx]))
+        keeps = (np.sign(again[idx]) == np.sign(drift[idx])) & \
+            (np.abs(again[idx]) >= GROWTH_REPEAT * np.abs(drift[idx]))
         if not np.all(keeps):
             logger.info("orbit: %d coordinate(s) advanced over the guess period but not again over the next: "
                         "a transient, not growth", int(np.sum(~keeps)))
