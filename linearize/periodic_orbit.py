@@ -31,7 +31,9 @@ prescribed; if full steps from it fail, full steps from the quasi-static guess
 (the drives on their motions, the model in static equilibrium at every sample,
 :func:`_quasi_static_guess`) are tried before the damped Newton.  If all fail,
 natural continuation in ``omega`` from ``omega/2`` (the model is rebuilt at each
-``omega``).  Measured on the single link (8 elements, 32 samples): full steps from
+``omega``; a start without an orbit is halved at most twice, to ``omega/8``, and a
+step whose damped Newton does not halve the residual within a few iterations is
+halved instead).  Measured on the single link (8 elements, 32 samples): full steps from
 the simulated period converge at 1 to 8.5 pi and 10 pi, the quasi-static guess
 rescues 9 pi, 9.5 pi and 12 pi; 11 pi still needs continuation.
 
@@ -121,6 +123,13 @@ CONTINUATION_START = 0.5
 CONTINUATION_STEP = 0.1
 CONTINUATION_MIN_STEP = 1e-3
 CONTINUATION_MAX_SOLVES = 40
+#: When no orbit is found at the start factor, it is halved at most this often (starts at 1/2, 1/4 and
+#: 1/8 of omega).  At omega/8 the inertia forces of the prescribed motion are 1/64 of those at omega: a
+#: lower start is no better guess, it only lengthens the simulated guess period and Exudyn's run with it
+#: (measured on a very soft single link, E = 2e7 N/m^2, 1 element, 32 samples: a failed start costs
+#: 1.1 s at omega/2 and 19 s at omega/16384; halving down to the solve budget, omega/2^40, takes ~15 min).  Every
+#: continuation measured on the single link (1, 4 and 8 elements at 11 pi) started at omega/2.
+CONTINUATION_START_HALVINGS = 2
 #: Integrator steps per collocation sample for the guess and the shooting check.
 SHOOTING_STEPS_PER_SAMPLE = 16
 #: The shooting check passes when the one-period defect, relative to the
@@ -1522,8 +1531,10 @@ def find_orbit(
         best = min(at_target) if at_target else math.nan
         cont = ""
         if continuation:
+            lowest = CONTINUATION_START * 0.5 ** CONTINUATION_START_HALVINGS
             cont = (f"; continuation in omega converged up to {reached:.4g} omega only" if reached is not None
-                    else "; continuation in omega found no orbit even at lower omega")
+                    else f"; continuation in omega found no orbit to start from at {CONTINUATION_START:g} down to "
+                         f"{lowest:g} omega")
         raise OrbitConvergenceError(
             f"periodic orbit of {definition.name} at omega = {float(omega):.6g} did not converge: relative residual "
             f"{at_target[-1] if at_target else math.nan:.2e} after {len(history)} Newton iterations "
@@ -1572,19 +1583,21 @@ def find_orbit(
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
                   X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None):
-    """Natural continuation in omega from :data:`CONTINUATION_START` omega.  Returns ``(X, history, ok,
+    """Natural continuation in omega from :data:`CONTINUATION_START` omega (halved at most
+    :data:`CONTINUATION_START_HALVINGS` times while no orbit is found to start from).  Returns ``(X, history, ok,
     col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
     converged (``None``: none), ``at_target`` the residuals of the solves at omega itself (an
     orbit at a lower omega is no answer at omega)."""
     f, step, X, history, at_target = CONTINUATION_START, CONTINUATION_STEP, None, [], []
     col = tb = reached = None
+    starts = 0
     for _ in range(CONTINUATION_MAX_SOLVES):
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
         if shift is not None:
             col.set_shift(*shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
-        Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations)
+        Xn, hist, ok, tb = _newton(col, guess, tol, max_iterations, early_give_up=True)
         history += hist
         if target >= 1.0:
             at_target += hist
@@ -1596,6 +1609,9 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
             step *= 1.5
             f = target + step
         elif X is None:
+            starts += 1
+            if starts > CONTINUATION_START_HALVINGS:
+                break
             f *= 0.5
         else:
             step *= 0.5
@@ -1612,12 +1628,33 @@ GROWTH_FRACTION = 0.9
 #: ... and larger than this, relative to ``1 + |q(0)|`` (a tenth of a radian or metre: far above the
 #: drift of a slow transient vibration of a structure, far below a fraction of a turn).
 GROWTH_MINIMUM = 0.1
+#: ... and advances again over the next period, in the same direction, by at least this fraction of its
+#: first advance (a coordinate that grows keeps growing).  The transient of a very flexible structure can
+#: swing a bounded coordinate (an ANCF slope) monotonically through most of its range in one period and not
+#: in the next: measured on the single link with E = 2e7 N/m^2, 8 elements, a slope coordinate advanced by
+#: -1.97 in the first period and by -0.015 in the second; the rheonomic 1.5 turns per period advance by
+#: 9.42 in both.
+GROWTH_REPEAT = 0.5
+
+
+def _second_period_drift(col: _Collocation) -> Optional[np.ndarray]:
+    """``q(2T) - g(q(T))`` of the simulated guess run continued for a second period (the same steps, so
+    ``q(T)`` is the guess's), or ``None`` when Exudyn's integrator fails on it."""
+    built_p = build_model(col.built.definition, col.built.omega, prescribe_drives=True)
+    steps = SHOOTING_STEPS_PER_SAMPLE * col.K
+    try:
+        q2, _, rec = _simulate(built_p, col.system.q_initial, col.system.v_initial, 2.0 * col.T, 2 * steps,
+                               record_times=np.array([col.T]))
+    except ExudynRunError:
+        return None
+    return q2 - apply_map(rec[0], col.shift, col.signs, col.references)
 
 
 def _growing_coordinates(col: _Collocation) -> str:
     """``""``, or a phrase naming the coordinates that advanced monotonically over the simulated guess
-    period by something that is not whole turns (consulted only after Newton failed from that guess:
-    then no continuation in omega can help, and the user is told at once)."""
+    period by something that is not whole turns, and advanced again over a second period
+    (:data:`GROWTH_REPEAT`; consulted only after Newton failed from that guess: then no continuation
+    in omega can help, and the user is told at once)."""
     drift = col.guess_drift
     if drift is None:
         return ""
@@ -1630,6 +1667,16 @@ def _growing_coordinates(col: _Collocation) -> str:
     idx = np.flatnonzero(grows)
     if not idx.size:
         return ""
+    again = _second_period_drift(col)
+    if again is not None:  # (a failed second period leaves the first period's verdict)
+        keeps = (np.sign(again[idx]) == np.sign(drift[idx])) & \
+            (np.abs(again[idx]) >= GROWTH_REPEAT * np.abs(drift[idx]))
+        if not np.all(keeps):
+            logger.info("orbit: %d coordinate(s) advanced over the guess period but not again over the next: "
+                        "a transient, not growth", int(np.sum(~keeps)))
+        idx = idx[keeps]
+        if not idx.size:
+            return ""
     labels = col.system.coordinate_labels()
     rot = set(int(i) for i in col.system.rotation_coordinates())
     parts = []

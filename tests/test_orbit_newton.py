@@ -11,6 +11,7 @@ continuation in omega at 6 pi and 8 pi).
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -171,3 +172,94 @@ def test_wrong_reaction_pattern_is_caught_by_the_directional_check(monkeypatch):
     monkeypatch.setattr(cs, "PATTERN_CHECK_TOLERANCE", math.inf)
     unchecked = po._reaction_stiffness(system, q, lam, t, po.RICHARDSON_STEP, True, wrong)
     assert np.max(np.abs(unchecked - ref)) > 1e-3 * np.max(np.abs(ref))
+
+
+# --------------------------------------------------------------------------- continuation in omega
+#: The soft link of tests/test_config.py: E = 2e7 N/m^2 (Table 1: 7.11e10).
+SOFT_E = 2e7
+
+
+def _soft_params():
+    from mbs_models.parameters import ManipulatorParameters
+
+    return ManipulatorParameters(youngs_modulus=SOFT_E)
+
+
+def _record_omegas(monkeypatch) -> list:
+    """Every omega a collocation is built at (the target and each continuation solve), in order."""
+    omegas: list = []
+    real = po._Collocation.__init__
+
+    def recording(self, built, samples, solver="auto"):
+        omegas.append(float(built.omega))
+        real(self, built, samples, solver)
+
+    monkeypatch.setattr(po._Collocation, "__init__", recording)
+    return omegas
+
+
+def test_continuation_without_a_start_gives_up_at_an_eighth_of_omega(monkeypatch):
+    """Soft link, 1 element, 2 pi: Newton fails from every guess at omega and continuation finds no orbit
+    to start from at omega/2, /4, /8; it stops there (halving on, down to its solve budget omega/2^40,
+    costs ~15 min of ever longer guess periods, no better a guess).  One line, "did not converge" and the
+    starts tried; never "no periodic orbit" (one exists, tests/test_config.py)."""
+    omega = 2 * math.pi
+    omegas = _record_omegas(monkeypatch)
+    with pytest.raises(OrbitConvergenceError) as err:
+        find_orbit("single-link", omega, elements=1, params=_soft_params(), verify=False)
+    lowest = po.CONTINUATION_START * 0.5 ** po.CONTINUATION_START_HALVINGS
+    assert lowest == 0.125
+    assert [w / omega for w in omegas] == pytest.approx([1.0, 0.5, 0.25, 0.125], rel=1e-12)
+    msg = str(err.value)
+    assert len(msg.splitlines()) == 1 and "did not converge" in msg
+    assert "found no orbit to start from at 0.5 down to 0.125 omega" in msg and "no periodic orbit" not in msg
+    assert min(err.value.residuals) > po.DEFAULT_TOLERANCE
+
+
+def test_continuation_in_omega_still_finds_the_orbit_at_11_pi(monkeypatch):
+    """1 element, 32 samples, 11 pi: Newton fails from both guesses at omega (``continuation=False``
+    raises); continuation from omega/2 converges at omega, through a step that fails and is halved (the
+    early give-up of a continuation solve), and Exudyn's integrator confirms the orbit."""
+    omega = 11 * math.pi
+    with pytest.raises(OrbitConvergenceError, match="did not converge"):
+        find_orbit("single-link", omega, samples=32, elements=1, continuation=False, verify=False)
+    omegas = _record_omegas(monkeypatch)
+    orbit = find_orbit("single-link", omega, samples=32, elements=1, verify=True)
+    assert orbit.tolerance == po.DEFAULT_TOLERANCE and orbit.residual <= orbit.tolerance
+    assert orbit.shooting_residual <= po.SHOOTING_TOLERANCE
+    factors = [w / omega for w in omegas]
+    assert factors[0] == 1.0 and factors[1] == pytest.approx(po.CONTINUATION_START) and factors[-1] == 1.0
+    assert any(b < a for a, b in zip(factors[1:], factors[2:]))  # a failed step was retried shorter
+
+
+@pytest.mark.slow
+def test_the_orbit_continuation_finds_at_11_pi_is_the_hand_routes():
+    """4 elements, 32 samples, 11 pi (needs continuation): the orbit is the hand-derived route's (other
+    coordinates, other code), not another periodic solution.  Torques within 1e-6 of the largest, each
+    route's relative residual tolerance (measured 1.1e-9); another orbit differs at O(1)."""
+    from _link_oracle.exudyn_link import ExudynLinkConfig
+    from _link_oracle.link_orbit import find_periodic_orbit
+
+    omega = 11 * math.pi
+    with pytest.raises(OrbitConvergenceError):
+        find_orbit("single-link", omega, samples=32, elements=4, continuation=False, verify=False)
+    orbit = find_orbit("single-link", omega, samples=32, elements=4, verify=True)
+    assert orbit.residual <= orbit.tolerance and orbit.shooting_residual <= po.SHOOTING_TOLERANCE
+    hand = find_periodic_orbit(None, ExudynLinkConfig(elements=4, drive="free", omega=omega), samples=32,
+                               verify=False)
+    np.testing.assert_allclose(orbit.torques[:, 0], hand.hub_torques, rtol=0,
+                               atol=1e-6 * np.max(np.abs(hand.hub_torques)))
+
+
+def test_a_transient_swing_of_a_soft_link_is_not_reported_as_growth(monkeypatch):
+    """Soft link, 8 elements, 2 pi: over the simulated guess period an ANCF slope coordinate swings
+    monotonically by -1.97 (most of its range), over the next by -0.015: a transient, not growth, so no
+    "no periodic orbit" verdict.  On the first period alone (``GROWTH_REPEAT = 0``) it would be one."""
+    from mbs_models.model_file import build_model, resolve_model
+
+    definition = resolve_model("single-link", elements=8, params=_soft_params())
+    col = po._Collocation(build_model(definition, 2 * math.pi), 32)
+    po._guess(col, definition)
+    assert po._growing_coordinates(col) == ""
+    monkeypatch.setattr(po, "GROWTH_REPEAT", 0.0)
+    assert re.search(r"link\[18\] advances by -1\.9", po._growing_coordinates(col))
