@@ -1240,6 +1240,36 @@ def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: 
     return signs, refs
 
 
+#: A rotation-vector (Lie group) node is accepted when its total rotation vector stays within this (rad)
+#: of zero along the orbit.  Exudyn's velocity coordinates of such a node are its body-fixed angular
+#: velocity ``omega = T(nu) nu'`` and its constraint Jacobian is taken with respect to body-fixed rotation
+#: increments, whereas the collocation and the linearisation treat the velocity as ``nu'`` and difference
+#: the forces in ``nu``: the two agree to first order in ``|nu|`` only (``T(0) = I``).  Measured: a rod swinging
+#: about a fixed axis with ``|nu|`` up to 0.55 rad keeps its orbit (``nu' = omega`` there) but two of its four
+#: multipliers move by 0.27 from the ``NodeRigidBodyEP`` and ``NodeRigidBodyRxyz`` ones, which agree.
+ROTATION_VECTOR_TOLERANCE = 1e-8
+
+
+def _check_lie_group_nodes(system: ExudynSystem, definition: ModelDefinition, Q: np.ndarray) -> None:
+    """Refuse an orbit on which a ``RigidBodyRotVec*`` node leaves the rotation vector 0
+    (:data:`ROTATION_VECTOR_TOLERANCE`): its linearisation in the package's coordinates would be wrong.
+
+    Raises
+    ------
+    mbs_models.model_file.ModelFileError
+        In one line naming the node type, its largest rotation along the orbit and the node types that work.
+    """
+    for kind, idx, ref in system.rotation_parameters():
+        if not kind.startswith("RigidBodyRotVec"):
+            continue
+        size = float(np.max(np.linalg.norm(Q[:, idx] + ref, axis=1)))
+        if size > ROTATION_VECTOR_TOLERANCE:
+            raise ModelFileError(
+                f"model {definition.name}: a Node{kind} rotates by up to {size:.3g} rad along the orbit; its "
+                f"velocity coordinates are body-fixed angular velocities, which the linearisation supports only "
+                f"about the unrotated state: give the body a NodeRigidBodyEP or a NodeRigidBodyRxyz node")
+
+
 #: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
 #: by at most this, relative to their size plus one (round-off of sin/cos at arguments ~2 pi k:
 #: ~1e-15; 1e-8 rejects only a model that really changes after a turn, e.g. a spring to ground).
@@ -1531,6 +1561,7 @@ def find_orbit(
     _, L, U = col.split(X)
     L, U = L.copy(), U.copy()
     Q, V, A = (a.copy() for a in col.coords(X))
+    _check_lie_group_nodes(col.system, definition, Q)
     out, fscale = col.residual(X)
     residual = col.relative(out, fscale, max(1.0, float(np.max(np.abs(Q)))))
     # linearisation at the converged samples (Newton's last matrix is at the previous iterate)
