@@ -121,3 +121,19 @@ def test_the_refusal_is_needed_the_swinging_rod_multipliers_would_be_wrong(monke
     monkeypatch.setattr(periodic_orbit, "ROTATION_VECTOR_TOLERANCE", math.inf)
     rv = np.sort_complex(analyze(ROD, W, n_steps=None, node="RV").floquet.multipliers)
     assert np.max(np.abs(ep - rv)) > 1e-2
+
+
+def test_cli_refuses_a_rotated_rotation_vector_node_with_exit_2(tmp_path, capsys):
+    from flexstab.cli import main
+
+    model = tmp_path / "swinging_rod_rv.py"
+    model.write_text(f"import importlib.util\n"
+                     f"spec = importlib.util.spec_from_file_location('rod', {ROD!r})\n"
+                     f"rod = importlib.util.module_from_spec(spec)\n"
+                     f"spec.loader.exec_module(rod)\n\n\n"
+                     f"def build(mbs, omega):\n"
+                     f"    return rod.build(mbs, omega, node='RV')\n")
+    code = main(["floquet", "--model", str(model), "--omega", str(W)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1 and "NodeRigidBodyRotVecLG rotates by up to" in err
