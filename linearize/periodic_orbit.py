@@ -53,7 +53,7 @@ import numpy as np
 import scipy.linalg
 
 from linearize import collocation_solver as structured
-from linearize.exudyn_system import ExudynSystem
+from linearize.exudyn_system import ExudynSystem, from_exudyn_velocity, lie_group_nodes, to_exudyn_velocity
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
                                sample_times, trig_interpolate)
@@ -521,8 +521,8 @@ def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> 
     :data:`JACOBIAN_REFERENCE_FRACTION` of every row's allowance; if it cannot be,
     Exudyn's Jacobians are not accepted (differences everywhere, the safe side).
     """
-    if not const_mass:
-        return False  # the M(q) q'' term is not in Exudyn's Jacobian: differentiate everything
+    if not const_mass or system.has_lie_group_nodes:
+        return False  # the M(q) q'' term (or the rotation-vector chart) is not in Exudyn's Jacobian
     K, C = system.force_jacobians(q, v, t)
     force, damping = _force_functions(system, q, v, a, t, const_mass)
     rng = np.random.default_rng(11)
@@ -1060,8 +1060,9 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
     mbs = built.mbs
     sd = mbs.systemData
     ini = exu.ConfigurationType.Initial
+    lie = lie_group_nodes(mbs)  # rotation-vector nodes: Exudyn's velocities are angular velocities
     sd.SetODE2Coordinates(q0, configuration=ini)
-    sd.SetODE2Coordinates_t(v0, configuration=ini)
+    sd.SetODE2Coordinates_t(to_exudyn_velocity(lie, q0, v0), configuration=ini)
     s = exu.SimulationSettings()
     s.timeIntegration.startTime = 0.0
     s.timeIntegration.endTime = float(t_end)
@@ -1098,7 +1099,7 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
         if record_times is not None:
             mbs.SetPostStepUserFunction(0)
     qT = np.array(sd.GetODE2Coordinates())
-    vT = np.array(sd.GetODE2Coordinates_t())
+    vT = from_exudyn_velocity(lie, qT, np.array(sd.GetODE2Coordinates_t()))
     if ok is False or not (np.all(np.isfinite(qT)) and np.all(np.isfinite(vT))):
         raise ExudynRunError("Exudyn's integrator did not complete the period")
     rec = None
@@ -1238,36 +1239,6 @@ def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: 
                 f"a NodeRigidBodyEP (its Euler parameters change sign, handled) or a NodeRigidBodyRxyz (its angles "
                 f"advance by 2 pi k)")
     return signs, refs
-
-
-#: A rotation-vector (Lie group) node is accepted when its total rotation vector stays within this (rad)
-#: of zero along the orbit.  Exudyn's velocity coordinates of such a node are its body-fixed angular
-#: velocity ``omega = T(nu) nu'`` and its constraint Jacobian is taken with respect to body-fixed rotation
-#: increments, whereas the collocation and the linearisation treat the velocity as ``nu'`` and difference
-#: the forces in ``nu``: the two agree to first order in ``|nu|`` only (``T(0) = I``).  Measured: a rod swinging
-#: about a fixed axis with ``|nu|`` up to 0.55 rad keeps its orbit (``nu' = omega`` there) but two of its four
-#: multipliers move by 0.27 from the ``NodeRigidBodyEP`` and ``NodeRigidBodyRxyz`` ones, which agree.
-ROTATION_VECTOR_TOLERANCE = 1e-8
-
-
-def _check_lie_group_nodes(system: ExudynSystem, definition: ModelDefinition, Q: np.ndarray) -> None:
-    """Refuse an orbit on which a ``RigidBodyRotVec*`` node leaves the rotation vector 0
-    (:data:`ROTATION_VECTOR_TOLERANCE`): its linearisation in the package's coordinates would be wrong.
-
-    Raises
-    ------
-    mbs_models.model_file.ModelFileError
-        In one line naming the node type, its largest rotation along the orbit and the node types that work.
-    """
-    for kind, idx, ref in system.rotation_parameters():
-        if not kind.startswith("RigidBodyRotVec"):
-            continue
-        size = float(np.max(np.linalg.norm(Q[:, idx] + ref, axis=1)))
-        if size > ROTATION_VECTOR_TOLERANCE:
-            raise ModelFileError(
-                f"model {definition.name}: a Node{kind} rotates by up to {size:.3g} rad along the orbit; its "
-                f"velocity coordinates are body-fixed angular velocities, which the linearisation supports only "
-                f"about the unrotated state: give the body a NodeRigidBodyEP or a NodeRigidBodyRxyz node")
 
 
 #: :func:`whole_turn_shift` accepts a shift when the forces and constraint residuals after it differ
@@ -1561,7 +1532,6 @@ def find_orbit(
     _, L, U = col.split(X)
     L, U = L.copy(), U.copy()
     Q, V, A = (a.copy() for a in col.coords(X))
-    _check_lie_group_nodes(col.system, definition, Q)
     out, fscale = col.residual(X)
     residual = col.relative(out, fscale, max(1.0, float(np.max(np.abs(Q)))))
     # linearisation at the converged samples (Newton's last matrix is at the previous iterate)
