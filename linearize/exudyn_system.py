@@ -428,8 +428,8 @@ class ExudynSystem:
         ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
         sign (the orbit map's sign flip, :func:`linearize.periodic_orbit.whole_turn_map`) and a rotation
         vector reaches its singular length 2 pi (no smooth orbit continues: refused there).  A rotation-vector
-        node's velocity coordinates are Exudyn's body-fixed angular velocity, not the vector's rate: an orbit
-        that rotates one is refused (:data:`linearize.periodic_orbit.ROTATION_VECTOR_TOLERANCE`)."""
+        node's velocity coordinates are Exudyn's body-fixed angular velocity, not the vector's rate (converted
+        by the adapter, see the module docstring)."""
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):
