@@ -180,3 +180,16 @@ def test_cli_validate_refuses_a_rotation_vector_node_with_exit_2(tmp_path, capsy
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert len(err.splitlines()) == 1 and "validate does not run models with a NodeRigidBodyRotVecLG" in err
+
+
+def test_a_turning_rotation_vector_node_is_refused_in_one_line():
+    """The rotor carried by the turning hub with a rotation-vector node: its vector reaches the chart's
+    singular length 2 pi at the end of the turn; refused before any Newton step, naming the node types that
+    work (the same rotor with them: tests/test_turning_euler_parameters.py)."""
+    from linearize.periodic_orbit import find_orbit
+    from mbs_models.model_file import ModelFileError
+
+    with pytest.raises(ModelFileError, match="NodeRigidBodyRotVecLG turns by a whole turn") as err:
+        find_orbit(str(MODELS / "hub_rotor.py"), 30.0, node="RV")
+    assert "NodeRigidBodyEP" in str(err.value) and "NodeRigidBodyRxyz" in str(err.value)
+    assert len(str(err.value).splitlines()) == 1
