@@ -14,6 +14,19 @@ are written on the left-hand side: ``K = -df/dq``, ``C = -df/dq'``.
 
 User functions see the time set by :meth:`ExudynSystem.set_state` (Exudyn's
 current configuration time).
+
+Rotation-vector (Lie group) nodes
+---------------------------------
+Exudyn's velocity coordinates of a ``RigidBodyRotVec*`` node's rotation are its body-fixed angular
+velocity ``omega = T(nu) nu'`` (``nu`` the total rotation vector, :func:`tangent_operator`), its
+equations are body-fixed torques and its constraint Jacobian is taken in body-fixed rotation
+increments.  The adapter presents such a node in the rotation-vector chart, like any other node:
+the package's velocity is ``q'`` (``nu'``), and with ``P(q) = blockdiag(I, T(nu))``::
+
+    M = P^T M_ex P,    f = P^T (f_ex(q, P q') - M_ex P' q'),    C_q = C_q,ex P
+
+(:meth:`ExudynSystem.exudyn_velocity` and :meth:`ExudynSystem.chart_velocity` convert states for
+Exudyn's integrator).
 """
 from __future__ import annotations
 
@@ -25,13 +38,65 @@ import numpy as np
 
 from mbs_models.model_file import BuiltModel, ModelFileError
 
-__all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE"]
+__all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE", "from_exudyn_velocity", "lie_group_nodes", "tangent_operator",
+           "to_exudyn_velocity"]
 
 logger = logging.getLogger(__name__)
 
 #: Relative change of ``M`` under a configuration perturbation below which the
 #: mass matrix is treated as constant (round-off level of the assembly).
 MASS_CONSTANCY_TOLERANCE = 1e-13
+
+
+#: Below this rotation angle :func:`tangent_operator` uses its Taylor series (the closed form loses digits).
+TANGENT_SERIES_ANGLE = 1e-4
+
+
+def tangent_operator(nu: np.ndarray) -> np.ndarray:
+    """``T(nu)`` with the body-fixed angular velocity ``omega = T(nu) nu'`` of ``R = exp(skew(nu))``::
+
+        T = I - (1 - cos a) / a^2 skew(nu) + (a - sin a) / a^3 skew(nu)^2,   a = |nu|
+
+    Complex arguments are accepted (complex-step differentiation); singular at ``a = 2 pi k``, k >= 1."""
+    nu = np.asarray(nu)
+    a2 = nu @ nu
+    s = np.array([[0, -nu[2], nu[1]], [nu[2], 0, -nu[0]], [-nu[1], nu[0], 0]], dtype=nu.dtype)
+    if abs(a2) < TANGENT_SERIES_ANGLE ** 2:
+        c1, c2 = 0.5 - a2 / 24.0 + a2 * a2 / 720.0, 1.0 / 6.0 - a2 / 120.0 + a2 * a2 / 5040.0
+    else:
+        a = np.sqrt(a2)
+        c1, c2 = (1 - np.cos(a)) / a2, (a - np.sin(a)) / (a2 * a)
+    return np.eye(3, dtype=nu.dtype) - c1 * s + c2 * (s @ s)
+
+
+def lie_group_nodes(mbs: Any) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(ODE2 indices, reference rotation vector)`` of the rotation of every ``RigidBodyRotVec*`` node of
+    an assembled system."""
+    out = []
+    for j in range(mbs.systemData.NumberOfNodes()):
+        node = mbs.GetNode(j)
+        ltg = np.array([int(i) for i in mbs.systemData.GetNodeLTGODE2(j)], dtype=int)
+        if str(node.get("nodeType")).startswith("RigidBodyRotVec") and ltg.size == 6:
+            out.append((ltg[3:6], np.asarray(node.get("referenceCoordinates", [0.0] * 6), dtype=float)[3:6]))
+    return out
+
+
+def to_exudyn_velocity(nodes: list, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Exudyn's velocity coordinates of the state ``(q, q')`` (``omega = T(nu) nu'`` on the rotation-vector
+    nodes ``nodes``, :func:`lie_group_nodes`; unchanged elsewhere)."""
+    w = np.array(v, dtype=float)
+    for idx, ref in nodes:
+        w[idx] = tangent_operator(np.asarray(q, dtype=float)[idx] + ref) @ w[idx]
+    return w
+
+
+def from_exudyn_velocity(nodes: list, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``q'`` from Exudyn's velocity coordinates ``w`` at ``q`` (inverse of :func:`to_exudyn_velocity`; at the
+    chart's singular length ``|nu| = 2 pi`` the least-squares solution, finite)."""
+    v = np.array(w, dtype=float)
+    for idx, ref in nodes:
+        v[idx] = np.linalg.lstsq(tangent_operator(np.asarray(q, dtype=float)[idx] + ref), v[idx], rcond=None)[0]
+    return v
 
 
 class ExudynSystem:
@@ -68,7 +133,10 @@ class ExudynSystem:
         self.m = self.m_exudyn
         ini = exu.ConfigurationType.Initial
         self.q_initial = np.array(sd.GetODE2Coordinates(configuration=ini), dtype=float)
-        self.v_initial = np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float)
+        #: ``(ODE2 indices, reference rotation vector)`` of the rotation-vector (Lie group) nodes
+        self._lie = lie_group_nodes(self.mbs)
+        self.v_initial = self.chart_velocity(self.q_initial,
+                                             np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float))
         self._cur = exu.ConfigurationType.Current
         self._solver = exu.MainSolverImplicitSecondOrder()
         settings = exu.SimulationSettings()
@@ -125,12 +193,43 @@ class ExudynSystem:
         raise ModelFileError(f"model {self.built.definition.name}: ODE2 coordinates {idx.tolist()} have no mass and "
                              "no constraint acts on them (a singular mass matrix)")
 
+    # ----------------------------------------------------------------- rotation-vector chart
+    @property
+    def has_lie_group_nodes(self) -> bool:
+        """The model has rotation-vector (Lie group) nodes (see the module docstring)."""
+        return bool(self._lie)
+
+    def velocity_map(self, q: np.ndarray) -> np.ndarray:
+        """``P(q)``: Exudyn's velocity coordinates are ``P(q) q'`` (identity but for rotation-vector nodes)."""
+        P = np.eye(self.n)
+        for idx, ref in self._lie:
+            P[np.ix_(idx, idx)] = tangent_operator(np.asarray(q, dtype=float)[idx] + ref)
+        return P
+
+    def exudyn_velocity(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Exudyn's velocity coordinates of the state ``(q, q')`` (:func:`to_exudyn_velocity`)."""
+        return to_exudyn_velocity(self._lie, q, v)
+
+    def chart_velocity(self, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``q'`` from Exudyn's velocity coordinates ``w`` at ``q`` (:func:`from_exudyn_velocity`)."""
+        return from_exudyn_velocity(self._lie, q, w)
+
+    def _velocity_map_rate(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``P'(q, q') q'`` (complex-step derivative of :func:`tangent_operator` along ``q'``)."""
+        out = np.zeros(self.n)
+        h = 1e-30
+        for idx, ref in self._lie:
+            nu, rate = np.asarray(q, dtype=float)[idx] + ref, np.asarray(v, dtype=float)[idx]
+            out[idx] = (tangent_operator(nu + 1j * h * rate).imag / h) @ rate
+        return out
+
     # ----------------------------------------------------------------- state
     def set_state(self, q: np.ndarray, v: np.ndarray, t: float) -> None:
-        """Write ``(q, q', t)`` into Exudyn's current configuration."""
+        """Write ``(q, q', t)`` into Exudyn's current configuration (``q'`` as Exudyn's velocity
+        coordinates, :meth:`exudyn_velocity`)."""
         sd = self.mbs.systemData
         sd.SetODE2Coordinates(q, configuration=self._cur)
-        sd.SetODE2Coordinates_t(v, configuration=self._cur)
+        sd.SetODE2Coordinates_t(self.exudyn_velocity(q, v) if self._lie else v, configuration=self._cur)
         if self.m_exudyn:
             sd.SetAECoordinates(self._zero_lambda, configuration=self._cur)
         sd.SetTime(float(t), self._cur)
@@ -140,12 +239,23 @@ class ExudynSystem:
         """``f(q, q', t)``, shape ``(n,)``."""
         self.set_state(q, v, t)
         self._solver.ComputeODE2RHS(self.mbs)
-        return np.array(self._solver.GetSystemResidual(), dtype=float)[: self.n]
+        f = np.array(self._solver.GetSystemResidual(), dtype=float)[: self.n]
+        if not self._lie:
+            return f
+        P = self.velocity_map(q)
+        return P.T @ (f - self._mass_exudyn(q, t) @ self._velocity_map_rate(q, v))
 
-    def _mass_raw(self, q: np.ndarray, t: float) -> np.ndarray:
+    def _mass_exudyn(self, q: np.ndarray, t: float) -> np.ndarray:
         self.set_state(q, np.zeros(self.n), t)
         self._solver.ComputeMassMatrix(self.mbs)
         return np.array(self._solver.GetSystemMassMatrix(), dtype=float)[: self.n, : self.n]
+
+    def _mass_raw(self, q: np.ndarray, t: float) -> np.ndarray:
+        M = self._mass_exudyn(q, t)
+        if not self._lie:
+            return M
+        P = self.velocity_map(q)
+        return P.T @ M @ P
 
     def mass(self, q: np.ndarray, t: float = 0.0) -> np.ndarray:
         """``M(q)``, shape ``(n, n)`` (cached when the mass matrix is constant)."""
@@ -158,8 +268,11 @@ class ExudynSystem:
 
         Exudyn differentiates its items analytically where they implement it
         and numerically otherwise; :func:`linearize.periodic_orbit.tangent_blocks`
-        checks the result against Richardson differences once per model.
+        checks the result against Richardson differences once per model.  With rotation-vector nodes
+        Exudyn's Jacobians are in its own velocity coordinates, not the adapter's: NaN (never accepted).
         """
+        if self._lie:
+            return np.full((self.n, self.n), np.nan), np.full((self.n, self.n), np.nan)
         self.set_state(q, v, t)
         self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=-1.0, scalarFactor_ODE2_t=0.0,
                                             scalarFactor_ODE1=0.0, computeLoadsJacobian=2)
@@ -214,7 +327,8 @@ class ExudynSystem:
         """``C_q(q, t)``, shape ``(m, n)``."""
         if not self.m:
             return np.zeros((0, self.n))
-        return self._ae_jacobian_full(q, t)[self.active]
+        J = self._ae_jacobian_full(q, t)[self.active]
+        return J @ self.velocity_map(q) if self._lie else J
 
     def _ae_jacobian_full(self, q: np.ndarray, t: float) -> np.ndarray:
         """All of Exudyn's algebraic equations differentiated by ``q``, shape ``(m_exudyn, n)``."""
@@ -313,7 +427,9 @@ class ExudynSystem:
         values)`` of the Euler parameters of ``RigidBodyEP`` nodes and the rotation vectors of
         ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
         sign (the orbit map's sign flip, :func:`linearize.periodic_orbit.whole_turn_map`) and a rotation
-        vector reaches its singular length 2 pi (no smooth orbit continues: refused there)."""
+        vector reaches its singular length 2 pi (no smooth orbit continues: refused there).  A rotation-vector
+        node's velocity coordinates are Exudyn's body-fixed angular velocity, not the vector's rate (converted
+        by the adapter, see the module docstring)."""
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):

@@ -55,7 +55,7 @@ import numpy as np
 import scipy.linalg
 
 from linearize import collocation_solver as structured
-from linearize.exudyn_system import ExudynSystem
+from linearize.exudyn_system import ExudynSystem, from_exudyn_velocity, lie_group_nodes, to_exudyn_velocity
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
                                sample_times, trig_interpolate)
@@ -530,8 +530,8 @@ def _exudyn_jacobians_ok(system: ExudynSystem, q, v, a, t, step, const_mass) -> 
     :data:`JACOBIAN_REFERENCE_FRACTION` of every row's allowance; if it cannot be,
     Exudyn's Jacobians are not accepted (differences everywhere, the safe side).
     """
-    if not const_mass:
-        return False  # the M(q) q'' term is not in Exudyn's Jacobian: differentiate everything
+    if not const_mass or system.has_lie_group_nodes:
+        return False  # the M(q) q'' term (or the rotation-vector chart) is not in Exudyn's Jacobian
     K, C = system.force_jacobians(q, v, t)
     force, damping = _force_functions(system, q, v, a, t, const_mass)
     rng = np.random.default_rng(11)
@@ -1072,8 +1072,9 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
     mbs = built.mbs
     sd = mbs.systemData
     ini = exu.ConfigurationType.Initial
+    lie = lie_group_nodes(mbs)  # rotation-vector nodes: Exudyn's velocities are angular velocities
     sd.SetODE2Coordinates(q0, configuration=ini)
-    sd.SetODE2Coordinates_t(v0, configuration=ini)
+    sd.SetODE2Coordinates_t(to_exudyn_velocity(lie, q0, v0), configuration=ini)
     s = exu.SimulationSettings()
     s.timeIntegration.startTime = 0.0
     s.timeIntegration.endTime = float(t_end)
@@ -1110,7 +1111,7 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
         if record_times is not None:
             mbs.SetPostStepUserFunction(0)
     qT = np.array(sd.GetODE2Coordinates())
-    vT = np.array(sd.GetODE2Coordinates_t())
+    vT = from_exudyn_velocity(lie, qT, np.array(sd.GetODE2Coordinates_t()))
     if ok is False or not (np.all(np.isfinite(qT)) and np.all(np.isfinite(vT))):
         raise ExudynRunError("Exudyn's integrator did not complete the period")
     rec = None

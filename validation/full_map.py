@@ -662,6 +662,7 @@ class ClosedLoopRunner:
 
     def run(self, x: np.ndarray, h: float) -> np.ndarray:
         """State at ``T`` of the run from the orbit state perturbed by ``x`` at ``t = 0`` (constraint-consistent)."""
+        from linearize.exudyn_system import from_exudyn_velocity, lie_group_nodes, to_exudyn_velocity
         from validation.multipliers import _consistent_state
 
         r, T = self.r, self.period
@@ -669,12 +670,13 @@ class ClosedLoopRunner:
         dz, dzt = x[:r], x[r:]
         q, v = _consistent_state(self.constraints, self.q0 + self.N0 @ dz, self.v0 + self.N0 @ dzt + self.N0t @ dz,
                                  0.0, T)
+        lie = lie_group_nodes(mbs)  # rotation-vector nodes: Exudyn's velocities are angular velocities
         sd.SetODE2Coordinates(q, configuration=self._ini)
-        sd.SetODE2Coordinates_t(v, configuration=self._ini)
+        sd.SetODE2Coordinates_t(to_exudyn_velocity(lie, q, v), configuration=self._ini)
         if mbs.SolveDynamic(newmark_settings(0.0, T, h, self.spec.integrator)) is False:
             raise RuntimeError("Exudyn time integration did not succeed")
         qT = np.array(sd.GetODE2Coordinates())
-        vT = np.array(sd.GetODE2Coordinates_t())
+        vT = from_exudyn_velocity(lie, qT, np.array(sd.GetODE2Coordinates_t()))
         ez = self.N0p @ (qT - self.q0)
         return np.concatenate([ez, self.N0p @ (vT - self.v0 - self.N0t @ ez)])
 
@@ -754,9 +756,12 @@ def measure_model_full_map(
     samples = MODEL_SAMPLES if samples is None else int(samples)
     with exudyn_console(quiet):
         from linearize.periodic_orbit import find_orbit
-        from mbs_models.model_file import resolve_model
+        from mbs_models.model_file import build_model, resolve_model
+        from validation.multipliers import refuse_lie_group_nodes
 
-        orbit = find_orbit(resolve_model(model, **options), omega, samples=samples)
+        definition = resolve_model(model, **options)
+        refuse_lie_group_nodes(build_model(definition, omega))
+        orbit = find_orbit(definition, omega, samples=samples)
         n_drives = len(orbit.drive_names)
         kp_t = tuple(np.resize(np.atleast_1d(np.asarray(kp, dtype=float)), n_drives).tolist()) if n_drives else ()
         kd_t = tuple(np.resize(np.atleast_1d(np.asarray(kd, dtype=float)), n_drives).tolist()) if n_drives else ()

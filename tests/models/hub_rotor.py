@@ -3,13 +3,14 @@
 The hub (a ``NodeRigidBodyRxyz`` held at the origin) turns about x at omega: by a drive on its first
 angle (``hub="drive"``, released under PD by the gains) or by a rheonomic ``CoordinateConstraint`` with
 offset ``omega t`` (``hub="constraint"``, the default).  The rotor is a 3D rigid body with Euler parameters
-(``node="EP"``, the default) or Tait-Bryan angles (``node="Rxyz"``), joined to the hub by four
+(``node="EP"``, the default), Tait-Bryan angles (``node="Rxyz"``) or a rotation vector (``node="RV"``,
+``NodeRigidBodyRotVecLG``), joined to the hub by four
 isotropic ``CartesianSpringDamper`` pads at off-axis points, so that it turns with the hub: after one
 period its Euler parameters come back with the opposite sign.  Gravity along -y.
 """
 from exudyn.itemInterface import (CartesianSpringDamper, CoordinateConstraint, LoadMassProportional, MarkerBodyMass,
                                   MarkerBodyPosition, MarkerNodeCoordinate, NodePointGround, NodeRigidBodyEP,
-                                  NodeRigidBodyRxyz, ObjectRigidBody)
+                                  NodeRigidBodyRotVecLG, NodeRigidBodyRxyz, ObjectRigidBody)
 
 MASS, J_POLAR, J_TRANSVERSE = 2.0, 0.01, 0.05
 PADS = [(0.2, 0.05, 0.0), (0.2, -0.05, 0.0), (-0.2, 0.0, 0.05), (-0.2, 0.0, -0.05)]
@@ -32,6 +33,8 @@ def build(mbs, omega, node="EP", hub="constraint", gravity=9.81):
     if node == "EP":  # Euler parameters (1, 0, 0, 0); spin omega about x: p' = (0, omega / 2, 0, 0)
         nr = mbs.AddNode(NodeRigidBodyEP(referenceCoordinates=[0, 0, 0, 1, 0, 0, 0],
                                          initialVelocities=[0, 0, 0, 0, 0.5 * omega, 0, 0]))
+    elif node == "RV":  # body-fixed angular velocity (omega, 0, 0)
+        nr = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[0] * 6, initialVelocities=[0, 0, 0, omega, 0, 0]))
     else:
         nr = mbs.AddNode(NodeRigidBodyRxyz(referenceCoordinates=[0] * 6, initialVelocities=[0, 0, 0, omega, 0, 0]))
     rotor = mbs.AddObject(ObjectRigidBody(nodeNumber=nr, mass=MASS, inertia=[J_POLAR, J_TRANSVERSE, J_TRANSVERSE,

@@ -1,0 +1,195 @@
+"""Rotation-vector (Lie group) nodes, ``NodeRigidBodyRotVecLG``.
+
+Exudyn's conventions for such a node, checked here against Exudyn itself: its three rotation velocity
+coordinates are the body-fixed angular velocity (not the derivative of the rotation vector), its constraint
+Jacobian is taken with respect to body-fixed rotation increments (``C_q T(nu) = dC/dnu`` with the tangent
+operator ``T``), and its integrator re-charts the vector when its length passes 2 pi.  The adapter
+(:mod:`linearize.exudyn_system`) presents the node in the rotation-vector chart (velocity ``nu'``).
+References: the same rod with a ``NodeRigidBodyEP`` and with a ``NodeRigidBodyRxyz`` node (independent
+parametrisations).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("exudyn")
+
+from linearize import analyze  # noqa: E402
+from mbs_models.model_file import build_model, resolve_model  # noqa: E402
+
+MODELS = Path(__file__).with_name("models")
+ROD = str(MODELS / "swinging_rod.py")
+W = 5.0
+#: Agreement of independent parametrisations at an orbit at rest: the adaptive Floquet solve and the
+#: numerical force Jacobians (measured 1e-10 apart on the held-out Euler-parameter models).
+TOLERANCE = 1e-8
+
+
+def _skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _tangent_operator(v):
+    """``T(nu)`` with body-fixed angular velocity ``omega = T(nu) nu'`` (hand-derived from
+    ``R(nu) = exp(skew(nu))``)."""
+    th = float(np.linalg.norm(v))
+    s = _skew(v)
+    return np.eye(3) - (1 - math.cos(th)) / th ** 2 * s + (th - math.sin(th)) / th ** 3 * s @ s
+
+
+def _rotation(v):
+    th = float(np.linalg.norm(v))
+    s = _skew(v)
+    if th == 0.0:
+        return np.eye(3)
+    return np.eye(3) + math.sin(th) / th * s + (1 - math.cos(th)) / th ** 2 * s @ s
+
+
+def test_exudyn_constraint_jacobian_is_taken_in_body_fixed_rotations():
+    """Exudyn's ``C_q T(nu)`` and the adapter's ``C_q`` equal central differences of ``C`` in the rotation
+    vector; Exudyn's ``C_q`` alone does not."""
+    from linearize.exudyn_system import ExudynSystem
+
+    system = ExudynSystem(build_model(resolve_model(ROD, node="RV"), W))
+    q = np.zeros(system.n)
+    q[3:6] = [0.5, 0.3, 0.2]
+    t, h = 0.1, 1e-6
+    fd = np.array([(system.constraints(q + h * e, t) - system.constraints(q - h * e, t)) / (2 * h)
+                   for e in np.eye(system.n)]).T
+    raw = system._ae_jacobian_full(q, t)[system.active]
+    assert np.max(np.abs(raw[:, 3:6] @ _tangent_operator(q[3:6]) - fd[:, 3:6])) < 1e-8
+    assert np.max(np.abs(system.constraint_jacobian(q, t) - fd)) < 1e-8
+    assert np.max(np.abs(raw[:, 3:6] - fd[:, 3:6])) > 1e-2  # the check can fail
+
+
+def test_tangent_operator_gives_the_body_fixed_angular_velocity():
+    """``T(nu) nu'`` against ``R^T R'`` of the hand-written rotation matrix by central differences, also
+    below the series threshold; the adapter's velocity conversions invert each other."""
+    from linearize.exudyn_system import from_exudyn_velocity, tangent_operator, to_exudyn_velocity
+
+    rate = np.array([0.3, -0.7, 0.4])
+    for nu in (np.array([0.5, 0.3, 0.2]), np.array([2.0, -1.5, 2.5]), np.array([1e-6, 2e-6, -1e-6])):
+        h = 1e-6
+        dR = (_rotation(nu + h * rate) - _rotation(nu - h * rate)) / (2 * h)
+        W_ = _rotation(nu).T @ dR
+        omega = np.array([W_[2, 1], W_[0, 2], W_[1, 0]])
+        assert np.max(np.abs(tangent_operator(nu) @ rate - omega)) < 1e-8
+        assert np.max(np.abs(tangent_operator(nu).T @ rate - omega)) > 1e-7 or np.linalg.norm(nu) < 1e-3
+    nodes = [(np.array([3, 4, 5]), np.array([0.1, 0.0, 0.0]))]
+    q, v = np.array([0, 0, 0, 0.4, 0.2, -0.3]), np.array([1.0, 2.0, 3.0, 0.3, -0.7, 0.4])
+    w = to_exudyn_velocity(nodes, q, v)
+    assert np.allclose(w[:3], v[:3]) and not np.allclose(w[3:], v[3:])
+    assert np.max(np.abs(from_exudyn_velocity(nodes, q, w) - v)) < 1e-14
+
+
+def test_exudyn_spins_a_rotation_vector_node_with_angular_velocity_and_recharts_it():
+    """A free body spinning about a principal axis for 1.5 turns: the velocity coordinates stay the constant
+    body-fixed angular velocity, the vector never exceeds the length 2 pi (it is re-charted), and the rotation
+    it represents is the exact ``exp(t skew(omega))`` throughout."""
+    import exudyn as exu
+    from exudyn.itemInterface import NodeRigidBodyRotVecLG, ObjectRigidBody
+
+    w = 6.0 * np.array([1.0, 0.0, 0.0])
+    mbs = exu.SystemContainer().AddSystem()
+    node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[0] * 6, initialVelocities=[0, 0, 0, *w]))
+    mbs.AddObject(ObjectRigidBody(nodeNumber=node, mass=1.0, inertia=[0.05, 0.05, 0.05, 0, 0, 0]))
+    mbs.Assemble()
+    period = 2 * math.pi / float(np.linalg.norm(w))
+    s = exu.SimulationSettings()
+    s.timeIntegration.endTime, s.timeIntegration.numberOfSteps = 1.5 * period, 300
+    s.timeIntegration.verboseMode, s.solution.file.write = 0, False
+    rows = []
+    mbs.SetPostStepUserFunction(lambda m, t: rows.append((t, np.array(m.systemData.GetODE2Coordinates()),
+                                                          np.array(m.systemData.GetODE2Coordinates_t()))) or True)
+    mbs.SolveDynamic(s, solverType=exu.DynamicSolverType.RK44)
+    vectors = np.array([q[3:6] for _, q, _ in rows])
+    assert max(np.max(np.abs(v[3:6] - w)) for _, _, v in rows) < 1e-12
+    assert np.max(np.linalg.norm(vectors, axis=1)) <= 2 * math.pi + 1e-9
+    assert np.max(np.linalg.norm(np.diff(vectors, axis=0), axis=1)) > math.pi  # re-charted at least once
+    err = max(np.max(np.abs(_rotation(q[3:6]) - _rotation(t * w))) for t, q, _ in rows)
+    assert err < 1e-9
+    # the vector itself is not t w after the turn (a check that it moved charts can fail)
+    assert np.max(np.abs(vectors[-1] - rows[-1][0] * w)) > 1.0
+
+
+def test_rotation_vector_node_at_rest_gives_the_euler_parameter_multipliers():
+    """The rod hanging under a vertically oscillating support (its orbit does not rotate it): the
+    rotation-vector node is accepted and its multipliers are the Euler-parameter ones."""
+    ep = analyze(ROD, W, n_steps=None, node="EP", direction="z", amplitude=0.02).floquet.multipliers
+    rv = analyze(ROD, W, n_steps=None, node="RV", direction="z", amplitude=0.02).floquet.multipliers
+    assert np.max(np.abs(np.sort_complex(ep) - np.sort_complex(rv))) <= TOLERANCE
+    assert np.max(np.abs(np.abs(ep) - 1.0)) > 1e-3  # damped: not trivially on the unit circle
+
+
+def test_swinging_rotation_vector_node_gives_the_tait_bryan_multipliers():
+    """The rod swinging about a fixed axis (rotation vector up to 0.55 rad): the rotation-vector node's
+    multipliers are the Tait-Bryan ones."""
+    rv = analyze(ROD, W, n_steps=None, node="RV")
+    rx = analyze(ROD, W, n_steps=None, node="Rxyz")
+    assert float(np.max(np.abs(rv.orbit.q[:, 3:6]))) > 0.5
+    assert np.max(np.abs(np.sort_complex(rv.floquet.multipliers) - np.sort_complex(rx.floquet.multipliers))) \
+        <= TOLERANCE
+
+
+@pytest.mark.slow
+def test_rotation_vector_chart_agrees_with_euler_parameters_and_is_needed(monkeypatch):
+    """EP, Rxyz and RV agree on the swinging rod; without the adapter's chart (Exudyn's angular velocities
+    taken as the vector's rates, a wrong answer) two multipliers are off by far more than that."""
+    import linearize.exudyn_system as exudyn_system
+
+    ep = np.sort_complex(analyze(ROD, W, n_steps=None, node="EP").floquet.multipliers)
+    rx = np.sort_complex(analyze(ROD, W, n_steps=None, node="Rxyz").floquet.multipliers)
+    rv = np.sort_complex(analyze(ROD, W, n_steps=None, node="RV").floquet.multipliers)
+    assert np.max(np.abs(ep - rx)) <= TOLERANCE and np.max(np.abs(ep - rv)) <= TOLERANCE
+    monkeypatch.setattr(exudyn_system, "lie_group_nodes", lambda mbs: [])
+    wrong = np.sort_complex(analyze(ROD, W, n_steps=None, node="RV").floquet.multipliers)
+    assert np.max(np.abs(ep - wrong)) > 1e-2
+
+
+def _rv_rod_file(tmp_path):
+    model = tmp_path / "swinging_rod_rv.py"
+    model.write_text(f"import importlib.util\n"
+                     f"spec = importlib.util.spec_from_file_location('rod', {ROD!r})\n"
+                     f"rod = importlib.util.module_from_spec(spec)\n"
+                     f"spec.loader.exec_module(rod)\n\n\n"
+                     f"def build(mbs, omega):\n"
+                     f"    return rod.build(mbs, omega, node='RV')\n")
+    return str(model)
+
+
+def test_cli_floquet_on_a_rotation_vector_node(tmp_path, capsys):
+    import json
+
+    from flexstab.cli import main
+
+    code = main(["floquet", "--model", _rv_rod_file(tmp_path), "--omega", str(W), "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert code in (0, 1)  # a verdict, not a refusal
+    assert d["turns"] == {} and d["sign_flips"] == []
+    assert len(d["multipliers"]) == 4
+
+
+def test_cli_validate_refuses_a_rotation_vector_node_with_exit_2(tmp_path, capsys):
+    from flexstab.cli import main
+
+    code = main(["validate", "--model", _rv_rod_file(tmp_path), "--omega", str(W)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1 and "validate does not run models with a NodeRigidBodyRotVecLG" in err
+
+
+def test_a_turning_rotation_vector_node_is_refused_in_one_line():
+    """The rotor carried by the turning hub with a rotation-vector node: its vector reaches the chart's
+    singular length 2 pi at the end of the turn; refused before any Newton step, naming the node types that
+    work (the same rotor with them: tests/test_turning_euler_parameters.py)."""
+    from linearize.periodic_orbit import find_orbit
+    from mbs_models.model_file import ModelFileError
+
+    with pytest.raises(ModelFileError, match="NodeRigidBodyRotVecLG turns by a whole turn") as err:
+        find_orbit(str(MODELS / "hub_rotor.py"), 30.0, node="RV")
+    assert "NodeRigidBodyEP" in str(err.value) and "NodeRigidBodyRxyz" in str(err.value)
+    assert len(str(err.value).splitlines()) == 1
