@@ -436,8 +436,6 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
-    from scipy.optimize import linear_sum_assignment
-
     if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
         if _sort_order_pairs(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist()):
             return b
@@ -462,6 +460,8 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
         if cols == list(range(n)):
             return b
     else:
+        from scipy.optimize import linear_sum_assignment
+
         _, cols = linear_sum_assignment(np.asarray(cost))
     return _Spectrum(b.values[cols], b.log_moduli[cols])
 
