@@ -19,6 +19,7 @@ References
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
@@ -132,6 +133,17 @@ except ImportError:  # pragma: no cover - other numpy layouts
     _c_einsum = np.einsum
 
 
+@functools.lru_cache(maxsize=64)
+def _taylor_blocks(s: int) -> tuple[np.ndarray, float]:
+    """The Paterson-Stockmeyer coefficients of :func:`expm_soa` with the scaling ``2^-s`` folded in:
+    ``c_k 2^-ks`` as the ``(4, 4)`` blocks and ``c_16 2^-16s`` (cached: a handful of ``s`` occur;
+    read-only)."""
+    f = 2.0**-s
+    c = _PS_BLOCKS * (f ** np.arange(TAYLOR_DEGREE)).reshape(4, 4)
+    c.flags.writeable = False
+    return c, float(_TAYLOR[16] * f**16)
+
+
 def mm_soa(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A_k @ B_k`` for stacks stored *matrix-major*, shape ``(n, n, N)`` (the stack index last).
 
@@ -165,8 +177,11 @@ def expm_soa(A: np.ndarray) -> np.ndarray:
     n = A.shape[0]
     if A.size == 0:
         return A.copy()
-    A2 = mm_soa(A, A)
-    A3 = mm_soa(A2, A)
+    # A, A^2, A^3 in one contiguous array: the four Taylor blocks below are one product with it
+    powers = np.empty((3,) + A.shape)
+    powers[0] = A
+    A2 = _c_einsum("ijk,jlk->ilk", A, A, out=powers[1])
+    A3 = _c_einsum("ijk,jlk->ilk", A2, A, out=powers[2])
     A4 = mm_soa(A2, A2)
     # scaling from alpha_3 = max(||A^3||^(1/3), ||A^4||^(1/4)) <= ||A|| (Al-Mohy & Higham 2009,
     # Thm 4.2 with p = 3, p (p - 1) <= 17: the Taylor remainder, a series with positive
@@ -180,18 +195,21 @@ def expm_soa(A: np.ndarray) -> np.ndarray:
     s = max(0, int(math.ceil(math.log2(alpha / THETA_TAYLOR)))) if alpha > 0 else 0
     # the scaling 2^-s is folded into the coefficients, c_k 2^-ks A^k = c_k (2^-s A)^k: powers of two
     # scale exactly, so this equals scaling the powers (bit for bit away from under/overflow)
-    f = 2.0**-s
     if s > 32:  # c_16 2^-16s would approach the underflow threshold: scale the powers instead
-        A, A2, A3, A4 = A * f, A2 * f**2, A3 * f**3, A4 * f**4
-        f = 1.0
-    c = _PS_BLOCKS * (f ** np.arange(TAYLOR_DEGREE)).reshape(4, 4)
-    c16 = _TAYLOR[16] * f**16
+        f = 2.0**-s
+        powers[0] *= f
+        powers[1] *= f**2
+        powers[2] *= f**3
+        A4 = A4 * f**4
+        c, c16 = _taylor_blocks(0)
+    else:
+        c, c16 = _taylor_blocks(s)
     # the four degree-3 blocks B_j = sum_{i>=1} c_{4j+i} A^i in one product (4 x 3) @ (3 x n n N)
-    powers = np.stack([A, A2, A3]).reshape(3, -1)
-    B = (c[:, 1:] @ powers).reshape((4,) + A.shape)
-    diag = np.arange(n)
-    B[:, diag, diag] += c[:, :1, None]  # + c_{4j} I
-    X = B[3] + c16 * A4
+    B = (c[:, 1:] @ powers.reshape(3, -1)).reshape((4,) + A.shape)
+    # + c_{4j} I: the diagonal of each block as a strided view of its (n n, N) rows
+    B.reshape(4, n * n, -1)[:, :: n + 1] += c[:, :1, None]
+    X = c16 * A4
+    X += B[3]
     X = mm_soa(A4, X)
     X += B[2]
     X = mm_soa(A4, X)

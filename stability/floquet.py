@@ -436,8 +436,6 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
         return b
-    from scipy.optimize import linear_sum_assignment
-
     if n <= SMALL_N:  # a few complex numbers: plain Python is cheaper than numpy calls
         if _sort_order_pairs(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist()):
             return b
@@ -462,6 +460,8 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
         if cols == list(range(n)):
             return b
     else:
+        from scipy.optimize import linear_sum_assignment
+
         _, cols = linear_sum_assignment(np.asarray(cost))
     return _Spectrum(b.values[cols], b.log_moduli[cols])
 
@@ -1332,6 +1332,17 @@ def _gauss_times(nodes: tuple, period: float, Ns: tuple) -> np.ndarray:
     return times
 
 
+@functools.lru_cache(maxsize=64)
+def _step_lengths(period: float, Ns: tuple) -> Any:
+    """The step length of every sub-interval of the levels ``Ns`` of :func:`_gauss_times` (a float for
+    one level; cached like the points, read-only)."""
+    if len(Ns) == 1:
+        return period / Ns[0]
+    h = np.repeat([period / N for N in Ns], Ns)
+    h.flags.writeable = False
+    return h
+
+
 def _magnus_solves_small(
     scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: float, Ns: list[int], keep_factors: bool,
     strict: bool, optional_first: bool = False,
@@ -1347,8 +1358,6 @@ def _magnus_solves_small(
     """
     q = len(scheme.nodes)
     n = wrapped.n
-    nodes = np.asarray(scheme.nodes)
-    hs = [period / N for N in Ns]
     times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
     Pg = np.empty((q, n, n, Ntot))  # matrix-major (q, n, n, Ntot)
@@ -1357,8 +1366,7 @@ def _magnus_solves_small(
                     wrapped.ratio[None, :, :, None], out=Pg)
     else:
         Pg[...] = wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0)
-    h = np.repeat(hs, Ns) if len(Ns) > 1 else hs[0]
-    label = "/".join(str(N) for N in Ns)
+    h = _step_lengths(period, tuple(Ns))
     with np.errstate(over="ignore", invalid="ignore"):
         Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
@@ -1367,18 +1375,18 @@ def _magnus_solves_small(
                 # the coarsest level does not resolve P: drop it (the caller refines further)
                 keep = slice(Ns[0], Ntot)
                 Om, column, h = Om[:, :, keep], column[keep], h[keep]
-                Ns, hs = Ns[1:], hs[1:]
-                label = "/".join(str(N) for N in Ns)
+                Ns = Ns[1:]
             corr = float(column.max())
             if not corr <= COMMUTATOR_LIMIT:
                 raise _Unresolved(
                     f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
-                    f"with {label} sub-intervals (limit {COMMUTATOR_LIMIT:g}): the steps do not resolve P"
+                    f"with {'/'.join(str(N) for N in Ns)} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
+                    f"the steps do not resolve P"
                 )
         E = expm_soa(Om)
         products = _level_products(E, Ns)
-        diag = np.arange(n)
-        traces = np.add.reduceat(Om[diag, diag].sum(axis=0), [0, *itertools.accumulate(Ns[:-1])])
+        # the diagonals as a strided view of the (n n, N) rows
+        traces = np.add.reduceat(Om.reshape(n * n, -1)[:: n + 1].sum(axis=0), [0, *itertools.accumulate(Ns[:-1])])
         out = []
         start = 0
         for i, N in enumerate(Ns):

@@ -143,6 +143,21 @@ def _comm_soa(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     return mm_soa(A, B) - mm_soa(B, A)
 
 
+#: Rows of :func:`magnus_exponents_soa` (order 6) on the three Gauss-node values ``A1, A2, A3``:
+#: ``a1 = A2``, ``a2 = sqrt(15)/3 (A3 - A1)``, ``2 a3 = 20/3 (A3 - 2 A2 + A1)``, ``-20 a1 - a3``,
+#: ``a1 + a3 / 12 = (5 A1 + 8 A2 + 5 A3) / 18`` and ``a2 / 240`` (Blanes et al. 2009, Eq. 257).
+_K15 = math.sqrt(15) / 3.0
+_MAGNUS6_ROWS = np.array([
+    [0.0, 1.0, 0.0],
+    [-_K15, 0.0, _K15],
+    [20.0 / 3.0, -40.0 / 3.0, 20.0 / 3.0],
+    [-10.0 / 3.0, -40.0 / 3.0, -10.0 / 3.0],
+    [5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0],
+    [-_K15 / 240.0, 0.0, _K15 / 240.0],
+])
+_MAGNUS6_ROWS.flags.writeable = False
+
+
 def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h, split: bool = False):
     """:func:`magnus_exponents` for matrix-major stacks: ``Pg`` of shape ``(q, n, n, N)``, result ``(n, n, N)``.
 
@@ -160,18 +175,21 @@ def magnus_exponents_soa(scheme: MagnusScheme, Pg: np.ndarray, h, split: bool = 
         Om = 0.5 * h * (A1 + A2) + C
         return (Om, C) if split else Om
     if scheme.order == 6:
-        A1, A2, A3 = Pg[0], Pg[1], Pg[2]
-        a1 = h * A2
-        a2 = (math.sqrt(15) / 3.0) * h * (A3 - A1)
-        a3 = (10.0 / 3.0) * h * (A3 - 2.0 * A2 + A1)
+        # the linear combinations of the nodes that enter, in one product (6 x 3) @ (3 x n n N):
+        # a1, a2, 2 a3, -20 a1 - a3, the Gauss mean a1 + a3 / 12 and a2 / 240 (before the factor h)
+        q = Pg.shape[0]
+        rows = (_MAGNUS6_ROWS @ Pg.reshape(q, -1)).reshape((6,) + Pg.shape[1:])
+        rows *= h
+        a1, a2, two_a3, outer, mean, a2_240 = rows
         c1 = _comm_soa(a1, a2)
-        c2 = -(1.0 / 60.0) * _comm_soa(a1, 2.0 * a3 + c1)
-        C = _comm_soa(-20.0 * a1 - a3 + c1, a2 + c2)
-        C *= 1.0 / 240.0
-        # a1 + a3 / 12 = h (5 A1 + 8 A2 + 5 A3) / 18, the Gauss mean
-        Om = a1 + a3 / 12.0
-        Om += C
-        return (Om, C) if split else Om
+        two_a3 += c1
+        c2 = _comm_soa(a1, two_a3)  # -60 times the c2 of the scheme
+        outer += c1
+        c2 *= -1.0 / 14400.0
+        c2 += a2_240  # (a2 + c2) / 240
+        C = _comm_soa(outer, c2)  # (1 / 240) [-20 a1 - a3 + c1, a2 + c2]
+        mean += C
+        return (mean, C) if split else mean
     raise ValueError(f"unsupported Magnus order {scheme.order}")
 
 
