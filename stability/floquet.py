@@ -721,8 +721,11 @@ def _henrici_radius(eta: float, nu: float, m: int) -> float:
         return eta * sum(nu**k / d ** (k + 1) for k in range(m)) - 1.0
 
     lo, hi = eta, eta + max(nu, eta) + eta ** (1.0 / m) * max(1.0, nu) ** (1.0 - 1.0 / m) + 1.0
-    while excess(hi) > 0:
-        hi *= 2.0
+    try:
+        while excess(hi) > 0:
+            hi *= 2.0
+    except OverflowError:  # a bound beyond double precision: nothing is certified
+        return math.inf
     for _ in range(60):
         mid = math.sqrt(lo * hi)
         if excess(mid) > 0:
@@ -2139,6 +2142,9 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
             reasons[i] = _BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE)
         elif not covered[i]:
             reasons[i] = _OUTSIDE
+        elif changes is None and math.isinf(prop.error_estimate):
+            reasons[i] = (f"no error estimate: the coarser solves of the estimate (n_steps / 2, / 4) do not "
+                          f"resolve P with n_steps = {prop.n_steps}")
         elif changes is None:
             reasons[i] = "no error estimate (fixed n_steps with error_estimate=False)"
         elif not mask[i]:

@@ -417,3 +417,21 @@ def test_single_link_at_8pi_meets_the_contract_by_default_and_its_estimate_cover
     dom = abs(res.dominant_multiplier)
     k = int(np.argmin(np.abs(fmods - dom)))
     assert abs(fmods[k] - dom) / dom <= 1e-6
+
+
+def test_too_coarse_fixed_steps_give_no_certificate_and_say_why():
+    """Fixed steps far too coarse for P (the paper's uncontrolled manipulator at 4 pi, 32 steps: its
+    moduli are ~1e-6 off, the 8- and 16-step solves of the estimate do not resolve P): the call returns,
+    nothing is certified, and the reason names the coarse solves, not a switched-off estimate."""
+    from mbs_models.reduced import ReducedModel
+
+    model = ReducedModel(4 * math.pi, 0.0, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        for n in (32, 48):  # 48: the estimate exists, and a clustered group's Henrici bound is huge
+            res = floquet(model, n_steps=n)
+            assert not res.certified.any()
+            assert math.isfinite(res.spectral_radius)
+    coarse = floquet(model, n_steps=32)
+    assert "do not resolve P" in coarse.uncertified_reasons[0]
+    assert "error_estimate=False" in floquet(model, n_steps=32, error_estimate=False).uncertified_reasons[0]
