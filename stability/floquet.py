@@ -881,6 +881,11 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     fine = levels[-1]
     spec = fine.spectrum
     Ns = [lv.n_steps for lv in levels[-3:]]
+    if spec.values.size <= SMALL_N and len(levels) >= 3 and accuracy != "dominant" \
+            and Ns[1] * Ns[1] == Ns[0] * Ns[2]:
+        small = _level_estimates_small(levels, p, accuracy)
+        if small is not None:
+            return small
     norm = _fro(fine.monodromy)  # Frobenius: >= ||Phi||_2
     noise = _rounding_levels(spec, norm, fine.n_steps)
 
@@ -927,6 +932,84 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     order = float(observed.min()) if observed.size else math.nan
     return _LevelEstimate(est, phase, order, len(levels) >= 3, groups, limited, noise,
                           _estimate(est, spec, 1.0, accuracy), _estimate(phase, spec, 1.0))
+
+
+def _level_estimates_small(levels: Sequence["_Solve"], p: float, accuracy: str) -> Optional[_LevelEstimate]:
+    """:func:`_level_estimates` for a handful of multipliers, three levels in one ratio, in plain Python.
+
+    The same rules and the same numbers (to rounding: Python's ``math`` functions for numpy's), at a
+    fraction of the cost of the numpy calls on a few numbers.  Returns None where the general path
+    must decide: a non-finite multiplier or change (or one beyond the float range of ``math``), or a
+    possibly defective or clustered group.
+    """
+    try:
+        return _level_estimates_plain(levels, p, accuracy)
+    except (OverflowError, ValueError, ZeroDivisionError):
+        return None
+
+
+def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) -> Optional[_LevelEstimate]:
+    """The body of :func:`_level_estimates_small` (``math`` raises where numpy gives inf)."""
+    coarsest, middle, fine = levels[-3:]
+    spec = fine.spectrum
+    mid = _match(spec, middle.spectrum)
+    coarse = _match(mid, coarsest.spectrum)
+    vf, vm, vc = spec.values.tolist(), mid.values.tolist(), coarse.values.tolist()
+    lf, lm, lc = spec.log_moduli.tolist(), mid.log_moduli.tolist(), coarse.log_moduli.tolist()
+    finite = math.isfinite
+    if not all(finite(x) for x in lf + lm + lc):
+        return None
+    Na, Nb, Nc = (lv.n_steps for lv in levels[-3:])
+    norm = _fro(fine.monodromy)
+    scale = 10.0 * math.sqrt(max(Nc, 1)) * _EPS * norm
+    noise = [scale * math.exp(-x) for x in lf]
+    change, m2, m1, floor = _matrix_changes(levels)
+    both_phases = accuracy not in ("moduli", "dominant")
+    rows = []  # per multiplier: (d2, d1) of what accuracy measures, then of the phase
+    for a, b, c, la, lb, lcc in zip(vf, vm, vc, lf, lm, lc):
+        ph2, ph1 = abs(cmath.phase(a * b.conjugate())), abs(cmath.phase(b * c.conjugate()))
+        md2, md1 = abs(math.expm1(la - lb)), abs(math.expm1(lb - lcc))
+        if both_phases:
+            md2, md1 = max(md2, ph2), max(md1, ph1)
+        rows.append((md2, md1, ph2, ph1))
+    if not all(finite(x) for row in rows for x in row) or not (finite(m2) and finite(m1)):
+        return None
+    log_r = math.log(Nb / Na)
+    r = Nc / Nb
+
+    def extrapolate(d2: float, d1: float, level: float) -> tuple[float, float]:
+        """:func:`_extrapolated_estimate` of one change (equal ratios ``r``): ``(estimate, observed order)``."""
+        ratio = d1 / d2 if d2 > 0 else math.inf
+        q_obs = math.log(ratio) / log_r if ratio > 1.0 else 0.0
+        q_obs = min(q_obs, 3.0 * p) if finite(q_obs) else 0.0
+        informative = d2 > level and d1 > level
+        q = min(max(q_obs, MIN_ORDER), p) if informative else float(p)
+        if q < LOW_ORDER_FRACTION * p:
+            q = min(q, 1.0)
+        rq = r**q
+        last = d2 / (rq - 1.0)
+        if informative and q_obs > p + ACCIDENTAL_ORDER_EXCESS:
+            last = max(last, d1 / ((rq - 1.0) * rq))
+        return ESTIMATE_SAFETY * last, (q_obs if informative else math.nan)
+
+    est, phase, q_obs = [], [], []
+    for (md2, md1, ph2, ph1), nz in zip(rows, noise):
+        e, q = extrapolate(md2, md1, ORDER_NOISE * nz)
+        f, _ = extrapolate(ph2, ph1, ORDER_NOISE * nz)
+        est.append(max(e, nz))
+        phase.append(max(f, nz))
+        q_obs.append(q)
+    matrix_est, _ = extrapolate(m2, m1, floor)
+    matrix = _matrix_error(change, m2, matrix_est, floor)
+    bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
+    if groups:
+        return None
+    top = lf[0] + math.log(ESTIMATE_FLOOR)
+    keep = [x >= top for x in lf]
+    observed = [q for q, k in zip(q_obs, keep) if k and finite(q)]
+    return _LevelEstimate(np.array(est), np.array(phase), min(observed) if observed else math.nan, True, (),
+                          False, np.array(noise), max(e for e, k in zip(est, keep) if k),
+                          max(f for f, k in zip(phase, keep) if k))
 
 
 def _trace_integral(P: Any, wrapped: PeriodicMatrixFunction, period: float) -> float:
