@@ -725,7 +725,8 @@ def _sampling_order(lin: LinearizedPeriodicSystem) -> tuple[float, float, str]:
     """``(q, e, name)``: the lowest order of convergence in the samples among ``M, C, K`` of ``lin``
     whose interpolation error ``e`` is above :data:`SAMPLING_NOISE`, with that error and the matrix.
 
-    ``e`` is the largest error, relative to the matrix's largest entry, of the trigonometric interpolant
+    ``e`` is the largest error, relative to the matrix's largest entry (for ``C`` at least the critical
+    damping scale ``sqrt(max|K| max|M|)``), of the trigonometric interpolant
     of every other sample at the samples in between (the interpolant of half the samples: the samples
     are nested, so no new evaluation); ``e0`` the same for every fourth sample; ``q = log2(e0 / e)``.
     ``(inf, 0, "")`` when no matrix is informative or there are too few samples (fewer than 16, or not a
@@ -736,8 +737,11 @@ def _sampling_order(lin: LinearizedPeriodicSystem) -> tuple[float, float, str]:
     if N < 16 or N % 4:
         return math.inf, 0.0, ""
     worst = (math.inf, 0.0, "")
+    # C is measured against the critical damping scale sqrt(|K| |M|) too: an undamped model's C is
+    # rounding (1e-15 of it), whose interpolation error relative to C's own size is O(1)
+    critical = math.sqrt(float(np.max(np.abs(lin.K))) * float(np.max(np.abs(lin.M))))
     for name, S in (("M", lin.M), ("C", lin.C), ("K", lin.K)):
-        scale = float(np.max(np.abs(S))) or 1.0
+        scale = max(float(np.max(np.abs(S))), critical if name == "C" else 0.0) or 1.0
         e = float(np.max(np.abs(trig_interpolate(S[0::2], T, lin.times[1::2]) - S[1::2]))) / scale
         e0 = float(np.max(np.abs(trig_interpolate(S[0::4], T, lin.times[2::4]) - S[2::4]))) / scale
         if not e > SAMPLING_NOISE:

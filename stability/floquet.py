@@ -629,8 +629,29 @@ class _LevelEstimate:
     phase_error: float = math.nan  # :func:`_estimate` of ``phase_estimates``
 
 
+def _two_term_error(Ns: Sequence[int], s1: np.ndarray, s2: np.ndarray, p: float) -> np.ndarray:
+    """``|e(Nc)|`` of the two-term error model ``e(N) = C N^-p + D N^-(p+2)`` fitted to the *signed*
+    changes ``s1 = v(Nb) - v(Na)``, ``s2 = v(Nc) - v(Nb)`` of three levels ``Na < Nb < Nc``.
+
+    The symmetric Magnus schemes have an error expansion in even powers of the step (Blanes et al.
+    2009, Sec. 4.3), so the two leading terms are determined exactly by two changes (Cramer's rule on
+    ``x = C Nc^-p``, ``y = D Nc^-(p+2)``; ``e(Nc) = x + y``).  Where the coarse levels converge faster
+    than ``h^p`` (the observed order above ``p + 2``: the ``h^(p+2)`` term of the other sign dominated
+    them), the one-term extrapolation of the last change under-estimates the finest error and this
+    does not; elsewhere it is at most the one-term value and the larger of the two is kept.
+    """
+    Na, Nb, Nc = (float(N) for N in Ns)
+    A, B = Nc / Na, Nc / Nb
+    a11, a12 = A**p - B**p, A ** (p + 2) - B ** (p + 2)
+    a21, a22 = B**p - 1.0, B ** (p + 2) - 1.0
+    det = a11 * a22 - a12 * a21
+    x = (s1 * a22 - a12 * s2) / det
+    y = (a11 * s2 - a21 * s1) / det
+    return np.abs(x + y)
+
+
 def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.ndarray, p: float,
-                           noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                           noise: np.ndarray, signed: Optional[tuple] = None) -> tuple[np.ndarray, np.ndarray]:
     """Error estimate of the finest level from the changes ``d1`` (coarsest pair) and ``d2`` (finest).
 
     ``q = min(p, observed order)`` (clipped to ``[MIN_ORDER, p]``; ``p`` where the changes are at
@@ -638,7 +659,11 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     extrapolated from the last change; where the observed order exceeds ``p`` by more than
     :data:`ACCIDENTAL_ORDER_EXCESS` (an accidental agreement of the last two levels) the larger of
     that and the error predicted for the finest level from the change before,
-    ``ESTIMATE_SAFETY * d1 / ((r1^q - 1) r2^q)``.  With two levels only, ``q = p``.  Returns ``(estimates, observed orders)`` (NaN where unobserved).
+    ``ESTIMATE_SAFETY * d1 / ((r1^q - 1) r2^q)``.  ``signed``: the signed changes ``(s1, s2)``
+    (NaN where a change has no sign, e.g. a norm); where both changes are informative and the order
+    is not well below ``p``, the estimate is at least ``ESTIMATE_SAFETY`` times the two-term model's
+    error (:func:`_two_term_error`).  With two levels only, ``q = p``.  Returns ``(estimates,
+    observed orders)`` (NaN where unobserved).
     """
     r2 = Ns[-1] / Ns[-2]
     if d1 is None or len(Ns) < 3:
@@ -659,6 +684,10 @@ def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.n
     accidental = informative & (q_obs > p + ACCIDENTAL_ORDER_EXCESS)
     if accidental.any():
         last = np.where(accidental, np.maximum(last, d1 / ((r1**q - 1.0) * r2**q)), last)
+    if signed is not None:
+        two = _two_term_error(Ns[-3:], signed[0], signed[1], p)
+        use = informative & (q >= LOW_ORDER_FRACTION * p) & np.isfinite(two)
+        last = np.where(use, np.maximum(last, two), last)
     return ESTIMATE_SAFETY * last, np.where(informative, q_obs, math.nan)
 
 
@@ -898,15 +927,14 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
         la, lb = np.array((spec.log_moduli, mid.log_moduli)), np.array((mid.log_moduli, coarse.log_moduli))
     else:
         va, vb, la, lb = spec.values[None], mid.values[None], spec.log_moduli[None], mid.log_moduli[None]
-    dmod = np.abs(np.expm1(la - lb))
-    dph = np.abs(np.angle(va * np.conj(vb)))
-    if accuracy not in ("moduli", "dominant"):
-        dmod = np.maximum(dmod, dph)
-    # rows: what ``accuracy`` measures, the phase, the normwise change of the matrix (for the
-    # cluster bounds' error matrix, :func:`_matrix_estimate`), each (pairs, n)
+    smod = np.expm1(la - lb)  # signed: rows (fine - mid, mid - coarse)
+    sph = np.angle(va * np.conj(vb))
+    # rows: the moduli, the phases, the normwise change of the matrix (for the cluster bounds' error
+    # matrix, :func:`_matrix_estimate`), each (pairs, n); with accuracy="multipliers" the estimate of
+    # a multiplier is the larger of its modulus' and its phase's
     change, m2, m1, floor = _matrix_changes(levels)
-    d = np.empty((dmod.shape[0], 3, dmod.shape[1]))
-    d[:, 0], d[:, 1] = dmod, dph
+    d = np.empty((smod.shape[0], 3, smod.shape[1]))
+    d[:, 0], d[:, 1] = np.abs(smod), np.abs(sph)
     d[0, 2] = m2
     if three:
         d[1, 2] = m1
@@ -916,8 +944,16 @@ def _level_estimates(levels: Sequence["_Solve"], p: float, accuracy: str) -> _Le
     noises = np.empty((3, noise.size))
     noises[0] = noises[1] = noise
     noises[2] = floor / ORDER_NOISE
-    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noises)
+    signed = None
+    if three:
+        s = np.full((2, 3, noise.size), math.nan)
+        s[:, 0], s[:, 1] = smod, sph
+        signed = (s[1], s[0])
+    both, q_both = _extrapolated_estimate(Ns, d1, d2, p, noises, signed)
     est, phase, q_obs = both[0], both[1], q_both[0]
+    if accuracy not in ("moduli", "dominant"):
+        est = np.maximum(est, phase)
+        q_obs = np.fmin(q_obs, q_both[1])
     matrix = _matrix_error(change, m2, float(both[2][0]), floor)
     bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
     if groups:
@@ -965,20 +1001,22 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
     noise = [scale * math.exp(-x) for x in lf]
     change, m2, m1, floor = _matrix_changes(levels)
     both_phases = accuracy not in ("moduli", "dominant")
-    rows = []  # per multiplier: (d2, d1) of what accuracy measures, then of the phase
+    rows = []  # per multiplier: signed changes (fine - mid, mid - coarse) of the modulus and the phase
     for a, b, c, la, lb, lcc in zip(vf, vm, vc, lf, lm, lc):
-        ph2, ph1 = abs(cmath.phase(a * b.conjugate())), abs(cmath.phase(b * c.conjugate()))
-        md2, md1 = abs(math.expm1(la - lb)), abs(math.expm1(lb - lcc))
-        if both_phases:
-            md2, md1 = max(md2, ph2), max(md1, ph1)
-        rows.append((md2, md1, ph2, ph1))
+        rows.append((math.expm1(la - lb), math.expm1(lb - lcc),
+                     cmath.phase(a * b.conjugate()), cmath.phase(b * c.conjugate())))
     if not all(finite(x) for row in rows for x in row) or not (finite(m2) and finite(m1)):
         return None
     log_r = math.log(Nb / Na)
     r = Nc / Nb
+    # the two-term model of :func:`_two_term_error` for the ratios (r^2, r)
+    A, B = r * r, r
+    a11, a12, a21, a22 = A**p - B**p, A ** (p + 2) - B ** (p + 2), B**p - 1.0, B ** (p + 2) - 1.0
+    det = a11 * a22 - a12 * a21
 
-    def extrapolate(d2: float, d1: float, level: float) -> tuple[float, float]:
+    def extrapolate(s2: float, s1: float, level: float, signed: bool = True) -> tuple[float, float]:
         """:func:`_extrapolated_estimate` of one change (equal ratios ``r``): ``(estimate, observed order)``."""
+        d2, d1 = abs(s2), abs(s1)
         ratio = d1 / d2 if d2 > 0 else math.inf
         q_obs = math.log(ratio) / log_r if ratio > 1.0 else 0.0
         q_obs = min(q_obs, 3.0 * p) if finite(q_obs) else 0.0
@@ -990,16 +1028,22 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
         last = d2 / (rq - 1.0)
         if informative and q_obs > p + ACCIDENTAL_ORDER_EXCESS:
             last = max(last, d1 / ((rq - 1.0) * rq))
+        if signed and informative and q >= LOW_ORDER_FRACTION * p:
+            two = abs((s1 * a22 - a12 * s2) / det + (a11 * s2 - a21 * s1) / det)
+            last = max(last, two)
         return ESTIMATE_SAFETY * last, (q_obs if informative else math.nan)
 
     est, phase, q_obs = [], [], []
-    for (md2, md1, ph2, ph1), nz in zip(rows, noise):
-        e, q = extrapolate(md2, md1, ORDER_NOISE * nz)
-        f, _ = extrapolate(ph2, ph1, ORDER_NOISE * nz)
+    for (m2_, m1_, p2_, p1_), nz in zip(rows, noise):
+        e, q = extrapolate(m2_, m1_, ORDER_NOISE * nz)
+        f, qf = extrapolate(p2_, p1_, ORDER_NOISE * nz)
+        if both_phases:
+            e = max(e, f)
+            q = qf if not finite(q) else (q if not finite(qf) else min(q, qf))
         est.append(max(e, nz))
         phase.append(max(f, nz))
         q_obs.append(q)
-    matrix_est, _ = extrapolate(m2, m1, floor)
+    matrix_est, _ = extrapolate(m2, m1, floor, signed=False)
     matrix = _matrix_error(change, m2, matrix_est, floor)
     bounds, groups, limited = _cluster_bounds(spec, levels[-3:], p, mid, matrix)
     if groups:

@@ -195,3 +195,26 @@ def test_hill_is_never_chosen_nor_run_on_a_piecewise_linearisation():
     bare = type("Bare", (), {"period": lin.period, "M": lin.M, "C": lin.C, "K": lin.K,
                              "evaluate": staticmethod(lin.evaluate)})()
     assert system_properties(bare).trigonometric
+
+
+def test_rounding_noise_damping_is_not_a_non_smooth_linearisation():
+    """An undamped model's C is rounding noise (1e-15 of the critical damping scale): its interpolation
+    error relative to its own size is O(1), which must not read as a non-smooth motion; a C with a
+    genuine kink at the same size relative to critical damping as K's is still caught."""
+    import types
+
+    from linearize.analysis import SAMPLING_MIN_ORDER, _sampling_order
+
+    N, T = 32, 1.0
+    t = np.arange(N) * (T / N)
+    rng = np.random.default_rng(3)
+    M = np.broadcast_to(np.diag([0.075, 0.075, 0.01]), (N, 3, 3)).copy()
+    K = (2.4 + 0.5 * np.cos(2 * np.pi * t))[:, None, None] * np.eye(3)
+    noise = 3e-15 * rng.standard_normal((N, 3, 3))
+    lin = types.SimpleNamespace(samples=N, period=T, times=t, M=M, C=noise, K=K)
+    q, e, name = _sampling_order(lin)
+    assert not (q < SAMPLING_MIN_ORDER and e > 1e-9), (q, e, name)
+    # a kinked damping |sin(2 pi t)| at 10 % of critical damping is reported as non-smooth
+    kink = 0.04 * np.abs(np.sin(2 * np.pi * t))[:, None, None] * np.eye(3)
+    q, e, name = _sampling_order(types.SimpleNamespace(samples=N, period=T, times=t, M=M, C=kink, K=K))
+    assert name == "C" and q < SAMPLING_MIN_ORDER and e > 1e-6
