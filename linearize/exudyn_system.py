@@ -49,12 +49,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from mbs_models.model_file import BuiltModel, ModelFileError
 
 __all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE", "TurningChart", "from_exudyn_velocity", "lie_group_nodes",
-           "from_exudyn_state", "tait_bryan_rate_matrix", "tangent_operator", "to_exudyn_state", "to_exudyn_velocity",
+           "from_exudyn_state", "rotation_matrix", "rotation_vector", "tait_bryan_rate_matrix", "tangent_operator", "to_exudyn_state", "to_exudyn_velocity",
            "turning_chart"]
 
 logger = logging.getLogger(__name__)
@@ -128,6 +127,63 @@ def tait_bryan_rate_matrix(theta: np.ndarray) -> np.ndarray:
     return np.array([[c2 * c3, s3, zero], [-c2 * s3, c3, zero], [s2, zero, zero + 1.0]])
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _tait_bryan_rotation(theta: np.ndarray) -> np.ndarray:
+    """``Rx(theta_1) Ry(theta_2) Rz(theta_3)``."""
+    c1, c2, c3 = np.cos(theta)
+    s1, s2, s3 = np.sin(theta)
+    return np.array([[c2 * c3, -c2 * s3, s2],
+                     [c1 * s3 + s1 * s2 * c3, c1 * c3 - s1 * s2 * s3, -s1 * c2],
+                     [s1 * s3 - c1 * s2 * c3, s1 * c3 + c1 * s2 * s3, c1 * c2]])
+
+
+def _tait_bryan_angles(R: np.ndarray) -> np.ndarray:
+    """The angles of ``R = Rx Ry Rz`` with ``theta_2`` in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``."""
+    return np.array([math.atan2(-R[1, 2], R[2, 2]), math.atan2(R[0, 2], math.hypot(R[0, 0], R[0, 1])),
+                     math.atan2(-R[0, 1], R[0, 0])])
+
+
+def rotation_matrix(nu: np.ndarray) -> np.ndarray:
+    """``exp(skew(nu))`` (Rodrigues; series below :data:`TANGENT_SERIES_ANGLE`)."""
+    nu = np.asarray(nu, dtype=float)
+    a2 = float(nu @ nu)
+    if a2 < TANGENT_SERIES_ANGLE ** 2:
+        c0, c1 = 1.0 - a2 / 6.0, 0.5 - a2 / 24.0
+    else:
+        a = math.sqrt(a2)
+        c0, c1 = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    S = _skew(nu)
+    return np.eye(3) + c0 * S + c1 * (S @ S)
+
+
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    """The rotation vector (length ``<= pi``) of the rotation matrix ``R``, through its unit quaternion
+    (Shepperd's choice of the largest component, accurate also near the angle pi)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
+        v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (4.0 * w)
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        vi = 0.5 * math.sqrt(max(1.0 + 2.0 * R[i, i] - tr, 0.0))
+        v = np.empty(3)
+        v[i] = vi
+        v[j] = (R[j, i] + R[i, j]) / (4.0 * vi)
+        v[m] = (R[m, i] + R[i, m]) / (4.0 * vi)
+        w = (R[m, j] - R[j, m]) / (4.0 * vi)
+    if w < 0.0:
+        w, v = -w, -v
+    sv = float(np.linalg.norm(v))
+    if sv < 1e-300:
+        return np.zeros(3)
+    return (2.0 * math.atan2(sv, w) / sv) * v
+
+
 @dataclass(frozen=True)
 class TurningChart:
     """The Tait-Bryan chart ``R = outer Rx(theta_1) Ry(theta_2) Rz(theta_3) inner`` of a rotation-vector
@@ -150,18 +206,18 @@ class TurningChart:
 
     def rotation(self, theta: np.ndarray) -> np.ndarray:
         """``R(theta)``."""
-        return self.outer @ Rotation.from_euler("XYZ", np.asarray(theta, dtype=float)).as_matrix() @ self.inner
+        return self.outer @ _tait_bryan_rotation(np.asarray(theta, dtype=float)) @ self.inner
 
     def exudyn_coordinates(self, theta: np.ndarray) -> np.ndarray:
         """Exudyn's ODE2 coordinates of the rotation: the rotation vector of ``R(theta)`` (length
         ``<= pi``) less the reference."""
-        return Rotation.from_matrix(self.rotation(theta)).as_rotvec() - self.reference
+        return rotation_vector(self.rotation(theta)) - self.reference
 
     def angles(self, coordinates: np.ndarray, near: np.ndarray) -> np.ndarray:
         """The angles of the rotation of Exudyn's coordinates (``exp(reference + coordinates)``) nearest
         to ``near`` (each angle up to whole turns, the tilt ``theta_2`` within ``[-pi/2, pi/2]``)."""
-        R = Rotation.from_rotvec(np.asarray(coordinates, dtype=float) + self.reference).as_matrix()
-        theta = Rotation.from_matrix(self.outer.T @ R @ self.inner.T).as_euler("XYZ")
+        R = rotation_matrix(np.asarray(coordinates, dtype=float) + self.reference)
+        theta = _tait_bryan_angles(self.outer.T @ R @ self.inner.T)
         return theta + 2.0 * math.pi * np.round((np.asarray(near, dtype=float) - theta) / (2.0 * math.pi))
 
     def rate_map(self, theta: np.ndarray) -> np.ndarray:
@@ -181,7 +237,7 @@ def turning_chart(indices: np.ndarray, reference: np.ndarray, axis: np.ndarray,
     if sin < 1e-14:
         outer = np.eye(3) if cos > 0 else np.diag([-1.0, 1.0, -1.0])  # (a half turn about y when axis = -x)
     else:
-        outer = Rotation.from_rotvec(cross / sin * math.atan2(sin, cos)).as_matrix()
+        outer = rotation_matrix(cross / sin * math.atan2(sin, cos))
     return TurningChart(np.asarray(indices, dtype=int), np.asarray(reference, dtype=float), outer,
                         outer.T @ np.asarray(start, dtype=float))
 
