@@ -35,11 +35,14 @@ def build(mbs, omega, node="EP", held=False, body_frame=(0.0, 0.0, 0.0)):
         mgr = mbs.AddMarker(MarkerBodyPosition(bodyNumber=ground, localPosition=[side * 0.2, 0, 0]))
         mbs.AddObject(CartesianSpringDamper(markerNumbers=[mgr, mr], stiffness=[2e3, 4e3, 4e3], damping=[2, 2, 2]))
     if held:  # spin held at omega t by a generic joint on the rotation about x (tilts free): not autonomous
+        import exudyn as exu
         from exudyn.itemInterface import MarkerBodyRigid, ObjectJointGeneric
 
-        mr = mbs.AddMarker(MarkerBodyRigid(bodyNumber=rotor, localPosition=[0, 0, 0]))
+        if node == "EP":
+            mr = mbs.AddMarker(MarkerBodyRigid(bodyNumber=rotor, localPosition=[0, 0, 0]))
+        else:  # the joint's frame on the rotor: its principal axes
+            mr = mbs.AddMarker(MarkerBodyRigid(bodyNumber=rotor, localHT=exu.HT(rotation=Rb.T, translation=[0, 0, 0])))
         mgr = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground, localPosition=[0, 0, 0]))
         mbs.AddObject(ObjectJointGeneric(markerNumbers=[mgr, mr], constrainedAxes=[0, 0, 0, 1, 0, 0],
-                                         rotationMarker1=(Rb.T if node != "EP" else np.eye(3)).tolist(),
                                          offsetUserFunction=lambda mbs_, t, item, par: [0, 0, 0, omega * t, 0, 0]))
     return []
