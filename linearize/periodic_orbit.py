@@ -1081,18 +1081,19 @@ def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations:
 # --------------------------------------------------------------------------- Exudyn runs
 def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, steps: int,
               record_times: Optional[np.ndarray] = None,
-              charts: tuple = ()) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
+              charts: tuple = (), rate: Optional[float] = None) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
     """One Exudyn generalised-alpha run (rho_inf = 1) of a model with prescribed drives, from and to the
     package's coordinates (``charts``: the turning rotation-vector nodes' Tait-Bryan charts,
     :class:`~linearize.exudyn_system.TurningChart`; their angles are followed step by step, and the run is
-    cut into :func:`_rechart_segments` that each start from the rotation vector of length ``<= pi``)."""
+    cut into :func:`_rechart_segments` that each start from the rotation vector of length ``<= pi``; ``rate``:
+    the largest rate of their angles in the run, default the initial one)."""
     import exudyn as exu
 
     mbs = built.mbs
     sd = mbs.systemData
     ini = exu.ConfigurationType.Initial
     lie = lie_group_nodes(mbs)  # rotation-vector nodes: Exudyn's velocities are angular velocities
-    segments = _rechart_segments(charts, v0, t_end)
+    segments = _rechart_segments(charts, v0, t_end, rate)
     per_segment = -(-int(steps) // segments)
     steps = segments * per_segment
     s = exu.SimulationSettings()
@@ -1160,11 +1161,13 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
 RECHART_ANGLE = 0.5 * math.pi
 
 
-def _rechart_segments(charts: tuple, v0: np.ndarray, t_end: float) -> int:
-    """Segments of a run (:data:`RECHART_ANGLE`): one without turning rotation-vector nodes."""
+def _rechart_segments(charts: tuple, v0: np.ndarray, t_end: float, rate: Optional[float] = None) -> int:
+    """Segments of a run (:data:`RECHART_ANGLE`) at the angles' largest ``rate`` (default: their initial
+    rate in ``v0``): one without turning rotation-vector nodes."""
     if not charts:
         return 1
-    rate = max(float(np.linalg.norm(np.asarray(v0, dtype=float)[c.indices])) for c in charts)
+    if rate is None:
+        rate = max(float(np.linalg.norm(np.asarray(v0, dtype=float)[c.indices])) for c in charts)
     return max(2, int(math.ceil(rate * float(t_end) / RECHART_ANGLE - 1e-9)))
 
 
@@ -1468,7 +1471,8 @@ def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.
         P = Q - grid.times[:, None] * (s[None, :] / T)
         q0, v0 = grid.smooth(P, 0.0), grid.smooth(P, 0.0, 1) + s / T
     try:
-        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples, charts=charts)
+        rate = max((float(np.max(np.linalg.norm(V[:, c.indices], axis=1))) for c in charts), default=None)
+        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples, charts=charts, rate=rate)
     except ExudynRunError:
         return math.inf
     x0 = np.concatenate([apply_map(q0, s, sg, refs), sg * v0])
