@@ -27,19 +27,34 @@ the package's velocity is ``q'`` (``nu'``), and with ``P(q) = blockdiag(I, T(nu)
 
 (:meth:`ExudynSystem.exudyn_velocity` and :meth:`ExudynSystem.chart_velocity` convert states for
 Exudyn's integrator).
+
+A rotation-vector node that turns (whole turns per period) is presented in a Tait-Bryan chart instead
+(:class:`TurningChart`, set by :meth:`ExudynSystem.set_turning_charts`): the package's coordinates are
+three angles ``theta`` with ``R = C1 Rx(theta_1) Ry(theta_2) Rz(theta_3) C2`` (constant rotations ``C1``,
+``C2`` chosen so that the body turns about the first axis, far from the chart's singularity
+``theta_2 = +-pi/2``), Exudyn's coordinates are the rotation vector of ``R`` (less the node's reference
+value) and ``P(q) = blockdiag(I, C2^T G(theta))`` with the body-fixed angular velocity
+``omega = C2^T G(theta) theta'`` (:func:`tait_bryan_rate_matrix`); the same formulas for ``M``, ``f`` and
+``C_q`` hold.  A whole turn advances ``theta_1`` by ``2 pi`` and leaves ``R`` unchanged, so such a node's
+angles are rotation coordinates like those of a ``RigidBodyRxyz`` node.  Exudyn evaluates the node's
+equations from ``R`` alone (any rotation vector of ``R`` gives the same forces, mass matrix and
+constraints), so the rotation vector's branch (length ``<= pi``) does not matter.
 """
 from __future__ import annotations
 
 import logging
+import math
 import re
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from mbs_models.model_file import BuiltModel, ModelFileError
 
-__all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE", "from_exudyn_velocity", "lie_group_nodes", "tangent_operator",
-           "to_exudyn_velocity"]
+__all__ = ["ExudynSystem", "MASS_CONSTANCY_TOLERANCE", "TurningChart", "from_exudyn_velocity", "lie_group_nodes",
+           "from_exudyn_state", "rotation_matrix", "rotation_vector", "tait_bryan_rate_matrix", "tangent_operator", "to_exudyn_state", "to_exudyn_velocity",
+           "turning_chart"]
 
 logger = logging.getLogger(__name__)
 
@@ -99,6 +114,165 @@ def from_exudyn_velocity(nodes: list, q: np.ndarray, w: np.ndarray) -> np.ndarra
     return v
 
 
+def tait_bryan_rate_matrix(theta: np.ndarray) -> np.ndarray:
+    """``G(theta)`` with the body-fixed angular velocity ``omega = G(theta) theta'`` of
+    ``R = Rx(theta_1) Ry(theta_2) Rz(theta_3)``::
+
+        G = [[c2 c3, s3, 0], [-c2 s3, c3, 0], [s2, 0, 1]]
+
+    Complex arguments are accepted (complex-step differentiation); singular at ``cos(theta_2) = 0``."""
+    th = np.asarray(theta)
+    c2, s2, c3, s3 = np.cos(th[1]), np.sin(th[1]), np.cos(th[2]), np.sin(th[2])
+    zero = 0.0 * c2
+    return np.array([[c2 * c3, s3, zero], [-c2 * s3, c3, zero], [s2, zero, zero + 1.0]])
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _tait_bryan_rotation(theta: np.ndarray) -> np.ndarray:
+    """``Rx(theta_1) Ry(theta_2) Rz(theta_3)``."""
+    c1, c2, c3 = np.cos(theta)
+    s1, s2, s3 = np.sin(theta)
+    return np.array([[c2 * c3, -c2 * s3, s2],
+                     [c1 * s3 + s1 * s2 * c3, c1 * c3 - s1 * s2 * s3, -s1 * c2],
+                     [s1 * s3 - c1 * s2 * c3, s1 * c3 + c1 * s2 * s3, c1 * c2]])
+
+
+def _tait_bryan_angles(R: np.ndarray) -> np.ndarray:
+    """The angles of ``R = Rx Ry Rz`` with ``theta_2`` in ``[-pi/2, pi/2]``, the others in ``(-pi, pi]``."""
+    return np.array([math.atan2(-R[1, 2], R[2, 2]), math.atan2(R[0, 2], math.hypot(R[0, 0], R[0, 1])),
+                     math.atan2(-R[0, 1], R[0, 0])])
+
+
+def rotation_matrix(nu: np.ndarray) -> np.ndarray:
+    """``exp(skew(nu))`` (Rodrigues; series below :data:`TANGENT_SERIES_ANGLE`)."""
+    nu = np.asarray(nu, dtype=float)
+    a2 = float(nu @ nu)
+    if a2 < TANGENT_SERIES_ANGLE ** 2:
+        c0, c1 = 1.0 - a2 / 6.0, 0.5 - a2 / 24.0
+    else:
+        a = math.sqrt(a2)
+        c0, c1 = math.sin(a) / a, (1.0 - math.cos(a)) / a2
+    S = _skew(nu)
+    return np.eye(3) + c0 * S + c1 * (S @ S)
+
+
+def rotation_vector(R: np.ndarray) -> np.ndarray:
+    """The rotation vector (length ``<= pi``) of the rotation matrix ``R``, through its unit quaternion
+    (Shepperd's choice of the largest component, accurate also near the angle pi)."""
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    k = int(np.argmax([tr, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = 0.5 * math.sqrt(max(1.0 + tr, 0.0))
+        v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (4.0 * w)
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        vi = 0.5 * math.sqrt(max(1.0 + 2.0 * R[i, i] - tr, 0.0))
+        v = np.empty(3)
+        v[i] = vi
+        v[j] = (R[j, i] + R[i, j]) / (4.0 * vi)
+        v[m] = (R[m, i] + R[i, m]) / (4.0 * vi)
+        w = (R[m, j] - R[j, m]) / (4.0 * vi)
+    if w < 0.0:
+        w, v = -w, -v
+    sv = float(np.linalg.norm(v))
+    if sv < 1e-300:
+        return np.zeros(3)
+    return (2.0 * math.atan2(sv, w) / sv) * v
+
+
+@dataclass(frozen=True)
+class TurningChart:
+    """The Tait-Bryan chart ``R = outer Rx(theta_1) Ry(theta_2) Rz(theta_3) inner`` of a rotation-vector
+    node that turns (see the module docstring).
+
+    Attributes
+    ----------
+    indices : ndarray, shape (3,)
+        ODE2 indices of the node's rotation.
+    reference : ndarray, shape (3,)
+        The node's reference rotation vector (Exudyn's total rotation vector is reference + ODE2 coordinates).
+    outer, inner : ndarray, shape (3, 3)
+        ``C1`` and ``C2``.
+    """
+
+    indices: np.ndarray
+    reference: np.ndarray
+    outer: np.ndarray
+    inner: np.ndarray
+
+    def rotation(self, theta: np.ndarray) -> np.ndarray:
+        """``R(theta)``."""
+        return self.outer @ _tait_bryan_rotation(np.asarray(theta, dtype=float)) @ self.inner
+
+    def exudyn_coordinates(self, theta: np.ndarray) -> np.ndarray:
+        """Exudyn's ODE2 coordinates of the rotation: the rotation vector of ``R(theta)`` (length
+        ``<= pi``) less the reference."""
+        return rotation_vector(self.rotation(theta)) - self.reference
+
+    def angles(self, coordinates: np.ndarray, near: np.ndarray) -> np.ndarray:
+        """The angles of the rotation of Exudyn's coordinates (``exp(reference + coordinates)``) nearest
+        to ``near`` (each angle up to whole turns, the tilt ``theta_2`` within ``[-pi/2, pi/2]``)."""
+        R = rotation_matrix(np.asarray(coordinates, dtype=float) + self.reference)
+        theta = _tait_bryan_angles(self.outer.T @ R @ self.inner.T)
+        return theta + 2.0 * math.pi * np.round((np.asarray(near, dtype=float) - theta) / (2.0 * math.pi))
+
+    def rate_map(self, theta: np.ndarray) -> np.ndarray:
+        """``C2^T G(theta)``: the body-fixed angular velocity is ``rate_map(theta) theta'`` (complex-safe)."""
+        return self.inner.T @ tait_bryan_rate_matrix(theta)
+
+
+def turning_chart(indices: np.ndarray, reference: np.ndarray, axis: np.ndarray,
+                  start: np.ndarray) -> TurningChart:
+    """The chart of a node that turns about the (inertial) ``axis`` from the rotation ``start``: ``C1``
+    takes the x axis to ``axis``, ``C2 = C1^T start`` (so ``theta = 0`` at ``start`` and a spin about
+    ``axis`` advances ``theta_1`` alone)."""
+    a = np.asarray(axis, dtype=float) / float(np.linalg.norm(axis))
+    ex = np.array([1.0, 0.0, 0.0])
+    cross = np.cross(ex, a)
+    sin, cos = float(np.linalg.norm(cross)), float(ex @ a)
+    if sin < 1e-14:
+        outer = np.eye(3) if cos > 0 else np.diag([-1.0, 1.0, -1.0])  # (a half turn about y when axis = -x)
+    else:
+        outer = rotation_matrix(cross / sin * math.atan2(sin, cos))
+    return TurningChart(np.asarray(indices, dtype=int), np.asarray(reference, dtype=float), outer,
+                        outer.T @ np.asarray(start, dtype=float))
+
+
+def _chart_free(nodes: list, charts: tuple) -> list:
+    first = {int(c.indices[0]) for c in charts}
+    return [(idx, ref) for idx, ref in nodes if int(idx[0]) not in first]
+
+
+def to_exudyn_state(nodes: list, charts: tuple, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exudyn's ODE2 coordinates and velocity coordinates of the package's state ``(q, q')``: the
+    rotation-vector nodes ``nodes`` (:func:`lie_group_nodes`) in the rotation-vector chart but those of
+    ``charts`` (:class:`TurningChart`)."""
+    q_ex = np.array(q, dtype=float)
+    w = to_exudyn_velocity(_chart_free(nodes, charts), q, v)
+    for c in charts:
+        theta = np.asarray(q, dtype=float)[c.indices]
+        q_ex[c.indices] = c.exudyn_coordinates(theta)
+        w[c.indices] = c.rate_map(theta) @ np.asarray(v, dtype=float)[c.indices]
+    return q_ex, w
+
+
+def from_exudyn_state(nodes: list, charts: tuple, q_ex: np.ndarray, w: np.ndarray,
+                      near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The package's ``(q, q')`` of Exudyn's state (inverse of :func:`to_exudyn_state`; the angles of
+    ``charts`` nearest to those of ``near``)."""
+    q = np.array(q_ex, dtype=float)
+    for c in charts:
+        q[c.indices] = c.angles(q[c.indices], np.asarray(near, dtype=float)[c.indices])
+    v = from_exudyn_velocity(_chart_free(nodes, charts), q, w)
+    for c in charts:
+        v[c.indices] = np.linalg.solve(c.rate_map(q[c.indices]), np.asarray(w, dtype=float)[c.indices])
+    return q, v
+
+
 class ExudynSystem:
     """Evaluate ``M(q)``, ``f(q, q', t)``, ``C(q, t)`` and ``C_q(q, t)`` of a built model.
 
@@ -135,6 +309,8 @@ class ExudynSystem:
         self.q_initial = np.array(sd.GetODE2Coordinates(configuration=ini), dtype=float)
         #: ``(ODE2 indices, reference rotation vector)`` of the rotation-vector (Lie group) nodes
         self._lie = lie_group_nodes(self.mbs)
+        #: Tait-Bryan charts of the rotation-vector nodes that turn (:meth:`set_turning_charts`)
+        self.charts: tuple[TurningChart, ...] = ()
         self.v_initial = self.chart_velocity(self.q_initial,
                                              np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float))
         self._cur = exu.ConfigurationType.Current
@@ -197,30 +373,82 @@ class ExudynSystem:
     @property
     def has_lie_group_nodes(self) -> bool:
         """The model has rotation-vector (Lie group) nodes (see the module docstring)."""
-        return bool(self._lie)
+        return bool(self._lie or self.charts)
+
+    def set_turning_charts(self, charts: tuple[TurningChart, ...]) -> None:
+        """Present the rotation-vector nodes of ``charts`` in their Tait-Bryan charts (see the module
+        docstring; the other rotation-vector nodes stay in the rotation-vector chart).  The initial state
+        (:attr:`q_initial`, :attr:`v_initial`) is re-read in the new coordinates, the angles nearest to
+        zero."""
+        import exudyn as exu
+
+        charts = tuple(charts)
+        first = {int(c.indices[0]) for c in charts}
+        self.charts = charts
+        self._lie = [(idx, ref) for idx, ref in lie_group_nodes(self.mbs) if int(idx[0]) not in first]
+        sd = self.mbs.systemData
+        ini = exu.ConfigurationType.Initial
+        q_ex = np.array(sd.GetODE2Coordinates(configuration=ini), dtype=float)
+        self.q_initial = self.chart_coordinates(q_ex, np.zeros(self.n))
+        self.v_initial = self.chart_velocity(self.q_initial,
+                                             np.array(sd.GetODE2Coordinates_t(configuration=ini), dtype=float))
+        self._mass_constant, self._mass0, self._coupling_pattern = None, None, None
 
     def velocity_map(self, q: np.ndarray) -> np.ndarray:
         """``P(q)``: Exudyn's velocity coordinates are ``P(q) q'`` (identity but for rotation-vector nodes)."""
         P = np.eye(self.n)
+        q = np.asarray(q, dtype=float)
         for idx, ref in self._lie:
-            P[np.ix_(idx, idx)] = tangent_operator(np.asarray(q, dtype=float)[idx] + ref)
+            P[np.ix_(idx, idx)] = tangent_operator(q[idx] + ref)
+        for c in self.charts:
+            P[np.ix_(c.indices, c.indices)] = c.rate_map(q[c.indices])
         return P
+
+    def exudyn_coordinates(self, q: np.ndarray) -> np.ndarray:
+        """Exudyn's ODE2 coordinates of the package's ``q`` (the same but for turning rotation-vector
+        nodes, :meth:`TurningChart.exudyn_coordinates`)."""
+        if not self.charts:
+            return q
+        out = np.array(q, dtype=float)
+        for c in self.charts:
+            out[c.indices] = c.exudyn_coordinates(out[c.indices])
+        return out
+
+    def chart_coordinates(self, q_exudyn: np.ndarray, near: np.ndarray) -> np.ndarray:
+        """The package's ``q`` of Exudyn's ODE2 coordinates, the angles of turning rotation-vector nodes
+        nearest to those of ``near`` (:meth:`TurningChart.angles`)."""
+        out = np.array(q_exudyn, dtype=float)
+        for c in self.charts:
+            out[c.indices] = c.angles(out[c.indices], np.asarray(near, dtype=float)[c.indices])
+        return out
 
     def exudyn_velocity(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Exudyn's velocity coordinates of the state ``(q, q')`` (:func:`to_exudyn_velocity`)."""
-        return to_exudyn_velocity(self._lie, q, v)
+        w = to_exudyn_velocity(self._lie, q, v)
+        for c in self.charts:
+            w[c.indices] = c.rate_map(np.asarray(q, dtype=float)[c.indices]) @ np.asarray(v, dtype=float)[c.indices]
+        return w
 
     def chart_velocity(self, q: np.ndarray, w: np.ndarray) -> np.ndarray:
         """``q'`` from Exudyn's velocity coordinates ``w`` at ``q`` (:func:`from_exudyn_velocity`)."""
-        return from_exudyn_velocity(self._lie, q, w)
+        v = from_exudyn_velocity(self._lie, q, w)
+        for c in self.charts:
+            v[c.indices] = np.linalg.solve(c.rate_map(np.asarray(q, dtype=float)[c.indices]),
+                                           np.asarray(w, dtype=float)[c.indices])
+        return v
 
     def _velocity_map_rate(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """``P'(q, q') q'`` (complex-step derivative of :func:`tangent_operator` along ``q'``)."""
+        """``P'(q, q') q'`` (complex-step derivative of :func:`tangent_operator` or
+        :meth:`TurningChart.rate_map` along ``q'``)."""
         out = np.zeros(self.n)
         h = 1e-30
+        q, v = np.asarray(q, dtype=float), np.asarray(v, dtype=float)
         for idx, ref in self._lie:
-            nu, rate = np.asarray(q, dtype=float)[idx] + ref, np.asarray(v, dtype=float)[idx]
+            nu, rate = q[idx] + ref, v[idx]
             out[idx] = (tangent_operator(nu + 1j * h * rate).imag / h) @ rate
+        for c in self.charts:
+            theta, rate = q[c.indices], v[c.indices]
+            out[c.indices] = (c.rate_map(theta + 1j * h * rate).imag / h) @ rate
         return out
 
     # ----------------------------------------------------------------- state
@@ -228,8 +456,9 @@ class ExudynSystem:
         """Write ``(q, q', t)`` into Exudyn's current configuration (``q'`` as Exudyn's velocity
         coordinates, :meth:`exudyn_velocity`)."""
         sd = self.mbs.systemData
-        sd.SetODE2Coordinates(q, configuration=self._cur)
-        sd.SetODE2Coordinates_t(self.exudyn_velocity(q, v) if self._lie else v, configuration=self._cur)
+        sd.SetODE2Coordinates(self.exudyn_coordinates(q), configuration=self._cur)
+        sd.SetODE2Coordinates_t(self.exudyn_velocity(q, v) if self.has_lie_group_nodes else v,
+                                configuration=self._cur)
         if self.m_exudyn:
             sd.SetAECoordinates(self._zero_lambda, configuration=self._cur)
         sd.SetTime(float(t), self._cur)
@@ -240,7 +469,7 @@ class ExudynSystem:
         self.set_state(q, v, t)
         self._solver.ComputeODE2RHS(self.mbs)
         f = np.array(self._solver.GetSystemResidual(), dtype=float)[: self.n]
-        if not self._lie:
+        if not self.has_lie_group_nodes:
             return f
         P = self.velocity_map(q)
         return P.T @ (f - self._mass_exudyn(q, t) @ self._velocity_map_rate(q, v))
@@ -252,7 +481,7 @@ class ExudynSystem:
 
     def _mass_raw(self, q: np.ndarray, t: float) -> np.ndarray:
         M = self._mass_exudyn(q, t)
-        if not self._lie:
+        if not self.has_lie_group_nodes:
             return M
         P = self.velocity_map(q)
         return P.T @ M @ P
@@ -271,7 +500,7 @@ class ExudynSystem:
         checks the result against Richardson differences once per model.  With rotation-vector nodes
         Exudyn's Jacobians are in its own velocity coordinates, not the adapter's: NaN (never accepted).
         """
-        if self._lie:
+        if self.has_lie_group_nodes:
             return np.full((self.n, self.n), np.nan), np.full((self.n, self.n), np.nan)
         self.set_state(q, v, t)
         self._solver.ComputeJacobianODE2RHS(self.mbs, scalarFactor_ODE2=-1.0, scalarFactor_ODE2_t=0.0,
@@ -328,7 +557,7 @@ class ExudynSystem:
         if not self.m:
             return np.zeros((0, self.n))
         J = self._ae_jacobian_full(q, t)[self.active]
-        return J @ self.velocity_map(q) if self._lie else J
+        return J @ self.velocity_map(q) if self.has_lie_group_nodes else J
 
     def _ae_jacobian_full(self, q: np.ndarray, t: float) -> np.ndarray:
         """All of Exudyn's algebraic equations differentiated by ``q``, shape ``(m_exudyn, n)``."""
@@ -409,8 +638,9 @@ class ExudynSystem:
     def rotation_coordinates(self) -> np.ndarray:
         """ODE2 indices of the angles a whole turn (2 pi) leaves the configuration unchanged for:
         the angle of ``RigidBody2D`` nodes and the three Tait-Bryan angles of ``RigidBodyRxyz`` nodes
-        (they enter the kinematics through sines and cosines only).  The candidates for an orbit
-        periodic up to whole turns (:func:`linearize.periodic_orbit.whole_turn_shift`)."""
+        and of turning rotation-vector nodes (:attr:`charts`; they enter the kinematics through sines and
+        cosines only).  The candidates for an orbit periodic up to whole turns
+        (:func:`linearize.periodic_orbit.whole_turn_shift`)."""
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):
@@ -420,16 +650,19 @@ class ExudynSystem:
                 out.append(ltg[2])
             elif kind == "RigidBodyRxyz" and len(ltg) == 6:
                 out.extend(ltg[3:6])
+        for c in self.charts:
+            out.extend(int(i) for i in c.indices)
         return np.array(sorted(out), dtype=int)
 
     def rotation_parameters(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """3D nodes whose rotation coordinates are not angles: ``(node type, ODE2 indices, reference
         values)`` of the Euler parameters of ``RigidBodyEP`` nodes and the rotation vectors of
         ``RigidBodyRotVec*`` nodes.  After a whole turn Euler parameters come back with the opposite
-        sign (the orbit map's sign flip, :func:`linearize.periodic_orbit.whole_turn_map`) and a rotation
-        vector reaches its singular length 2 pi (no smooth orbit continues: refused there).  A rotation-vector
-        node's velocity coordinates are Exudyn's body-fixed angular velocity, not the vector's rate (converted
-        by the adapter, see the module docstring)."""
+        sign (the orbit map's sign flip, :func:`linearize.periodic_orbit.whole_turn_map`); a rotation-vector
+        node that turns is presented in a Tait-Bryan chart instead (:meth:`set_turning_charts`; listed by
+        :meth:`rotation_coordinates`, not here).  A rotation-vector node's velocity coordinates are Exudyn's
+        body-fixed angular velocity, not the vector's rate (converted by the adapter, see the module
+        docstring)."""
         mbs = self.mbs
         out = []
         for j in range(mbs.systemData.NumberOfNodes()):
@@ -439,7 +672,8 @@ class ExudynSystem:
             ref = np.asarray(node.get("referenceCoordinates", []), dtype=float)
             if kind == "RigidBodyEP" and ltg.size == 7:
                 out.append((kind, ltg[3:7], ref[3:7]))
-            elif kind.startswith("RigidBodyRotVec") and ltg.size == 6:
+            elif kind.startswith("RigidBodyRotVec") and ltg.size == 6 and \
+                    not any(int(c.indices[0]) == int(ltg[3]) for c in self.charts):
                 out.append((kind, ltg[3:6], ref[3:6]))
         return out
 

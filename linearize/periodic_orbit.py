@@ -53,9 +53,11 @@ from typing import Any, Optional
 
 import numpy as np
 import scipy.linalg
+from scipy.spatial.transform import Rotation
 
 from linearize import collocation_solver as structured
-from linearize.exudyn_system import ExudynSystem, from_exudyn_velocity, lie_group_nodes, to_exudyn_velocity
+from linearize.exudyn_system import (ExudynSystem, from_exudyn_state, lie_group_nodes, to_exudyn_state,
+                                     turning_chart)
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
                                sample_times, trig_interpolate)
@@ -270,6 +272,9 @@ class PeriodicOrbit:
         The rest of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): ``signs`` is -1 on the
         Euler parameters of a body that turns an odd number of times per period (their absolute values
         ``q + references`` change sign), +1 elsewhere.  The rates map by ``S = diag(signs)``.
+    charts : tuple of TurningChart
+        The Tait-Bryan charts of the rotation-vector nodes that turn (:class:`~linearize.exudyn_system.TurningChart`):
+        ``q`` holds their angles, not Exudyn's coordinates (empty when none turns).
     autonomous : bool
         The model has no drives and does not depend on time: the orbit is one of a family of time
         shifts (e.g. a free spin turned about its axis), its phase was fixed by a phase condition, and
@@ -310,6 +315,7 @@ class PeriodicOrbit:
     references: Optional[np.ndarray] = field(default=None, repr=False)
     autonomous: bool = False
     breakpoints: tuple = ()
+    charts: tuple = ()
 
     def __post_init__(self) -> None:
         n = self.q.shape[1]
@@ -713,6 +719,15 @@ class _Collocation:
         if _is_autonomous(self.system, built):
             self.set_autonomous()
 
+    def set_charts(self, charts: tuple) -> None:
+        """Present the turning rotation-vector nodes of ``charts`` in their Tait-Bryan charts
+        (:meth:`ExudynSystem.set_turning_charts`); their angles are no rotation parameters."""
+        if not charts:
+            return
+        self.system.set_turning_charts(charts)
+        self.parameter_rows = np.array(sorted(int(i) for _, idx, _ in self.system.rotation_parameters()
+                                              for i in idx), dtype=int)
+
     def set_shift(self, shift: np.ndarray, signs: Optional[np.ndarray] = None,
                   references: Optional[np.ndarray] = None) -> None:
         """The map ``g`` of the orbit, ``q(t + T) = g(q(t))``: a whole-turn shift ``s`` of angles and, for
@@ -1065,20 +1080,24 @@ def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations:
 
 # --------------------------------------------------------------------------- Exudyn runs
 def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, steps: int,
-              record_times: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
-    """One Exudyn generalised-alpha run (rho_inf = 1) of a model with prescribed drives."""
+              record_times: Optional[np.ndarray] = None,
+              charts: tuple = (), rate: Optional[float] = None) -> tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]:
+    """One Exudyn generalised-alpha run (rho_inf = 1) of a model with prescribed drives, from and to the
+    package's coordinates (``charts``: the turning rotation-vector nodes' Tait-Bryan charts,
+    :class:`~linearize.exudyn_system.TurningChart`; their angles are followed step by step, and the run is
+    cut into :func:`_rechart_segments` that each start from the rotation vector of length ``<= pi``; ``rate``:
+    the largest rate of their angles in the run, default the initial one)."""
     import exudyn as exu
 
     mbs = built.mbs
     sd = mbs.systemData
     ini = exu.ConfigurationType.Initial
     lie = lie_group_nodes(mbs)  # rotation-vector nodes: Exudyn's velocities are angular velocities
-    sd.SetODE2Coordinates(q0, configuration=ini)
-    sd.SetODE2Coordinates_t(to_exudyn_velocity(lie, q0, v0), configuration=ini)
+    segments = _rechart_segments(charts, v0, t_end, rate)
+    per_segment = -(-int(steps) // segments)
+    steps = segments * per_segment
     s = exu.SimulationSettings()
-    s.timeIntegration.startTime = 0.0
-    s.timeIntegration.endTime = float(t_end)
-    s.timeIntegration.numberOfSteps = int(steps)
+    s.timeIntegration.numberOfSteps = per_segment
     s.timeIntegration.generalizedAlpha.spectralRadius = SHOOTING_SPECTRAL_RADIUS
     s.timeIntegration.verboseMode = 0
     s.timeIntegration.automaticStepSize = False
@@ -1091,35 +1110,65 @@ def _simulate(built: BuiltModel, q0: np.ndarray, v0: np.ndarray, t_end: float, s
     sparse = int(sd.ODE2Size()) + int(sd.AEsize()) > SPARSE_SIMULATION_SIZE
     s.linearSolver.solverType = exu.LinearSolverType.EigenSparse if sparse else exu.LinearSolverType.EigenDense
     rows: list = []
-    if record_times is not None:
-        h = t_end / steps
-        wanted = {int(round(t / h)) for t in record_times}
-        counter = {"i": 0}
+    h = t_end / steps
+    wanted = set() if record_times is None else {int(round(t / h)) for t in record_times}
+    last = {"q": np.array(q0, dtype=float)}  # the package's coordinates at the last step (charts: followed)
 
-        def post(mbs_, t):
-            i = int(round(t / h))
-            if i in wanted and i not in {r[0] for r in rows}:
-                rows.append((i, np.array(mbs_.systemData.GetODE2Coordinates())))
-            return True
+    def post(mbs_, t):
+        q = np.array(mbs_.systemData.GetODE2Coordinates())
+        if charts:
+            last["q"] = q = from_exudyn_state([], charts, q, np.zeros_like(q), last["q"])[0]
+        i = int(round(t / h))
+        if i in wanted and i not in {r[0] for r in rows}:
+            rows.append((i, q))
+        return True
 
+    hooked = record_times is not None or bool(charts)
+    if hooked:
         mbs.SetPostStepUserFunction(post)
+    qT, vT, ok = np.asarray(q0, dtype=float), np.asarray(v0, dtype=float), True
     try:
-        ok = mbs.SolveDynamic(s)
+        for j in range(segments):
+            q_ex, w = to_exudyn_state(lie, charts, qT, vT)
+            sd.SetODE2Coordinates(q_ex, configuration=ini)
+            sd.SetODE2Coordinates_t(w, configuration=ini)
+            s.timeIntegration.startTime = float(t_end) * j / segments
+            s.timeIntegration.endTime = float(t_end) * (j + 1) / segments
+            ok = mbs.SolveDynamic(s)
+            qT, vT = from_exudyn_state(lie, charts, np.array(sd.GetODE2Coordinates()),
+                                       np.array(sd.GetODE2Coordinates_t()), last["q"])
+            if ok is False:
+                break
     except Exception as exc:  # noqa: BLE001 - Exudyn raises its own error types
         raise ExudynRunError(f"Exudyn's integrator failed ({' '.join(str(exc).split())})") from None
     finally:
-        if record_times is not None:
+        if hooked:
             mbs.SetPostStepUserFunction(0)
-    qT = np.array(sd.GetODE2Coordinates())
-    vT = from_exudyn_velocity(lie, qT, np.array(sd.GetODE2Coordinates_t()))
     if ok is False or not (np.all(np.isfinite(qT)) and np.all(np.isfinite(vT))):
         raise ExudynRunError("Exudyn's integrator did not complete the period")
     rec = None
     if record_times is not None:
-        h = t_end / steps
         got = dict(rows)
         rec = np.array([q0 if int(round(t / h)) == 0 else got.get(int(round(t / h)), qT) for t in record_times])
     return qT, vT, rec
+
+
+#: A run with turning rotation-vector nodes is cut into segments in which each such node turns by at most
+#: this angle (at its initial rate): each segment starts from the rotation vector of length <= pi, so the
+#: vector stays below 1.5 pi, away from the length 2 pi where the tangent operator of Exudyn's Lie-group
+#: integrator is singular.  Measured on the hub rotor (one turn per period, 512 steps): one uncut period ends
+#: at length 2 pi with a state 1e-6 off (a relative shooting defect 4e-2); cut in quarter turns, 1e-11.
+RECHART_ANGLE = 0.5 * math.pi
+
+
+def _rechart_segments(charts: tuple, v0: np.ndarray, t_end: float, rate: Optional[float] = None) -> int:
+    """Segments of a run (:data:`RECHART_ANGLE`) at the angles' largest ``rate`` (default: their initial
+    rate in ``v0``): one without turning rotation-vector nodes."""
+    if not charts:
+        return 1
+    if rate is None:
+        rate = max(float(np.linalg.norm(np.asarray(v0, dtype=float)[c.indices])) for c in charts)
+    return max(2, int(math.ceil(rate * float(t_end) / RECHART_ANGLE - 1e-9)))
 
 
 def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
@@ -1134,11 +1183,19 @@ def _guess(col: _Collocation, model: ModelDefinition) -> np.ndarray:
     q0 = np.asarray(sysm.q_initial, dtype=float)
     try:
         qT, _, Qs = _simulate(built_p, sysm.q_initial, sysm.v_initial, col.T, SHOOTING_STEPS_PER_SAMPLE * col.K,
-                              record_times=col.times)
+                              record_times=col.times, charts=sysm.charts)
     except ExudynRunError as exc:
         logger.info("orbit guess: %s; starting from the initial state at every sample", exc)
         qT, Qs = None, np.broadcast_to(q0, (col.K, col.n))
     if not np.any(col.shift) and not col.anti.size:
+        if qT is not None and not sysm.charts:
+            charts = _turning_charts(sysm, np.vstack([Qs, qT[None, :]]))
+            if charts:  # the samples in the new charts, each angle followed from the previous sample
+                col.set_charts(charts)
+                rows = [sysm.q_initial]
+                for row in np.vstack([Qs[1:], qT[None, :]]):
+                    rows.append(sysm.chart_coordinates(row, rows[-1]))
+                Qs, qT, q0 = np.array(rows[:-1]), rows[-1], np.asarray(sysm.q_initial, dtype=float)
         col.set_shift(*whole_turn_map(col.system, col.built, None if qT is None else qT - q0))
     if qT is not None:
         col.guess_drift = qT - apply_map(q0, col.shift, col.signs, col.references)
@@ -1163,16 +1220,42 @@ def apply_map(q: np.ndarray, shift: np.ndarray, signs: np.ndarray, references: n
     return q
 
 
+#: A rotation-vector node turns when the rotation it accumulates over the simulated guess period (the sum of
+#: its increments from sample to sample, in the inertial frame) is at least this angle: half a turn, far
+#: above the swing of a pendulum-like part (swinging back and forth accumulates nearly nothing) and far
+#: below the whole turn of a spinning one.
+TURNING_ANGLE = math.pi
+
+
+def _turning_charts(system: ExudynSystem, rows: np.ndarray) -> tuple:
+    """Tait-Bryan charts (:func:`~linearize.exudyn_system.turning_chart`) of the rotation-vector nodes that
+    turn over the simulated guess period, ``rows`` its samples and end state in Exudyn's coordinates: the
+    accumulated rotation is at least :data:`TURNING_ANGLE`; the chart's axis is the accumulated rotation's,
+    its start the node's rotation at the first sample.  Samples must be less than half a turn apart."""
+    charts = []
+    for idx, ref in lie_group_nodes(system.mbs):
+        R = Rotation.from_rotvec(rows[:, idx] + ref)
+        turned = (R[1:] * R[:-1].inv()).as_rotvec().sum(axis=0)  # R_{k+1} R_k^T, inertial increments
+        if float(np.linalg.norm(turned)) >= TURNING_ANGLE:
+            charts.append(turning_chart(idx, ref, turned, R[0].as_matrix()))
+            logger.info("rotation-vector node at %s turns by %.3g turns per period: Tait-Bryan chart about %s",
+                        idx.tolist(), float(np.linalg.norm(turned)) / (2 * math.pi),
+                        np.round(turned / np.linalg.norm(turned), 6).tolist())
+    return tuple(charts)
+
+
 def whole_turn_map(system: ExudynSystem, built: BuiltModel,
                    advance: Optional[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(shift, signs, references)`` of the orbit map ``q(t + T) = g(q(t))`` (:func:`apply_map`): the
     whole turns of angles (:func:`whole_turn_shift`) and the sign flips of the Euler parameters of
-    bodies that turn (``NodeRigidBodyEP``: after a whole turn the parameters come back as ``-p``).
+    bodies that turn (``NodeRigidBodyEP``: after a whole turn the parameters come back as ``-p``).  A
+    rotation-vector node that turns is in its Tait-Bryan chart by then (:func:`_turning_charts`): its angles
+    are rotation coordinates.
 
     Raises
     ------
     mbs_models.model_file.ModelFileError
-        A rotation-vector node turns (no smooth orbit in its coordinates), or as :func:`whole_turn_shift`.
+        A rotation-vector node still in the rotation-vector chart turns, or as :func:`whole_turn_shift`.
     """
     signs, refs = np.ones(system.n), np.zeros(system.n)
     if advance is not None:
@@ -1234,7 +1317,8 @@ def _rotation_parameter_flips(system: ExudynSystem, built: BuiltModel, advance: 
     ``NodeRigidBodyEP`` node whose parameters come back with the opposite sign over the simulated period
     (``advance = q(T) - q(0)``; a body making an odd number of whole turns), +1 and 0 elsewhere.
 
-    Raises :class:`ModelFileError` when a rotation-vector node turns: its vector passes the singular
+    Raises :class:`ModelFileError` when a rotation-vector node left in the rotation-vector chart turns
+    (:func:`_turning_charts` puts a turning node in a Tait-Bryan chart first): its vector passes the singular
     length 2 pi, so no smooth orbit periodic up to whole turns exists in its coordinates (Newton would
     otherwise settle on another orbit, e.g. the body at rest)."""
     q0 = np.asarray(system.q_initial, dtype=float)
@@ -1372,7 +1456,8 @@ def _quasi_static_guess(col: _Collocation) -> Optional[np.ndarray]:
 
 def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.ndarray, samples: int,
                      shift: Optional[np.ndarray] = None, signs: Optional[np.ndarray] = None,
-                     references: Optional[np.ndarray] = None, grid: Optional[PiecewiseGrid] = None) -> float:
+                     references: Optional[np.ndarray] = None, grid: Optional[PiecewiseGrid] = None,
+                     charts: tuple = ()) -> float:
     built_p = build_model(model, omega, prescribe_drives=True)
     T = 2 * math.pi / omega
     n = Q.shape[1]
@@ -1386,7 +1471,8 @@ def _shooting_defect(model: ModelDefinition, omega: float, Q: np.ndarray, V: np.
         P = Q - grid.times[:, None] * (s[None, :] / T)
         q0, v0 = grid.smooth(P, 0.0), grid.smooth(P, 0.0, 1) + s / T
     try:
-        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples)
+        rate = max((float(np.max(np.linalg.norm(V[:, c.indices], axis=1))) for c in charts), default=None)
+        qT, vT, _ = _simulate(built_p, q0, v0, T, SHOOTING_STEPS_PER_SAMPLE * samples, charts=charts, rate=rate)
     except ExudynRunError:
         return math.inf
     x0 = np.concatenate([apply_map(q0, s, sg, refs), sg * v0])
@@ -1496,6 +1582,7 @@ def find_orbit(
     if guess is not None and guess.samples == col.K and guess.q.shape[1] == col.n and \
             guess.lambdas.shape[1] == col.m and guess.torques.shape[1] == col.d and \
             np.allclose(guess.times / guess.period, col.times / col.T, rtol=0.0, atol=1e-12):
+        col.set_charts(guess.charts)
         col.set_shift(guess.shift, guess.signs, guess.references)
         X = np.hstack([guess.q - col.ramp, guess.lambdas, guess.torques])
         X, history, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=True)
@@ -1524,7 +1611,7 @@ def find_orbit(
         logger.info("orbit: Newton from the simulated guess failed (%.2e); continuation in omega", history[-1])
         shift = (col.shift, col.signs, col.references)
         X, h2, ok, col, tb, reached, h_target = _continuation(definition, float(omega), samples, tol,
-                                                              max_iterations, X, solver, shift)
+                                                              max_iterations, X, solver, shift, col.system.charts)
         history += h2
         at_target += h_target
     lap("newton")
@@ -1556,7 +1643,7 @@ def find_orbit(
     shooting = math.nan
     if verify:
         shooting = _shooting_defect(definition, float(omega), Q, V, samples, col.shift, col.signs, col.references,
-                                    col.grid)
+                                    col.grid, col.system.charts)
     lap("shooting")
     if verify:
         if not shooting <= SHOOTING_TOLERANCE:
@@ -1575,7 +1662,7 @@ def find_orbit(
         timings=timings, cpu_timings=cpu_timings, shift=col.shift.copy(), signs=col.signs.copy(),
         references=col.references.copy(), autonomous=bool(col.autonomous) and float(np.max(np.abs(V))) >
         PHASE_MOTION * max(1.0, float(np.max(np.abs(Q)))) / col.T,
-        breakpoints=() if col.grid is None else col.grid.boundaries,
+        breakpoints=() if col.grid is None else col.grid.boundaries, charts=col.system.charts,
     )
     logger.info("orbit of %s at omega=%.4g: residual %.1e after %d iterations, shooting defect %.1e (%.2f s)",
                 definition.name, omega, residual, len(history), shooting, orbit.wall_time)
@@ -1583,7 +1670,7 @@ def find_orbit(
 
 
 def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: float, max_iterations: int,
-                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None):
+                  X_fail: np.ndarray, solver: str = "auto", shift: Optional[tuple] = None, charts: tuple = ()):
     """Natural continuation in omega from :data:`CONTINUATION_START` omega (halved at most
     :data:`CONTINUATION_START_HALVINGS` times while no orbit is found to start from).  Returns ``(X, history, ok,
     col, tangent, reached, at_target)``: ``reached`` the largest omega factor at which an orbit
@@ -1595,6 +1682,7 @@ def _continuation(definition: ModelDefinition, omega: float, samples: int, tol: 
     for _ in range(CONTINUATION_MAX_SOLVES):
         target = min(1.0, f)
         col = _Collocation(build_model(definition, omega * target), samples, solver)
+        col.set_charts(charts)  # (the model's initial rotation and the axis of its turn do not depend on omega)
         if shift is not None:
             col.set_shift(*shift)  # whole turns per period do not depend on omega
         guess = _guess(col, definition) if X is None else X.copy()
@@ -1645,7 +1733,7 @@ def _second_period_drift(col: _Collocation) -> Optional[np.ndarray]:
     steps = SHOOTING_STEPS_PER_SAMPLE * col.K
     try:
         q2, _, rec = _simulate(built_p, col.system.q_initial, col.system.v_initial, 2.0 * col.T, 2 * steps,
-                               record_times=np.array([col.T]))
+                               record_times=np.array([col.T]), charts=col.system.charts)
     except ExudynRunError:
         return None
     return q2 - apply_map(rec[0], col.shift, col.signs, col.references)

@@ -4,9 +4,11 @@ Exudyn's conventions for such a node, checked here against Exudyn itself: its th
 coordinates are the body-fixed angular velocity (not the derivative of the rotation vector), its constraint
 Jacobian is taken with respect to body-fixed rotation increments (``C_q T(nu) = dC/dnu`` with the tangent
 operator ``T``), and its integrator re-charts the vector when its length passes 2 pi.  The adapter
-(:mod:`linearize.exudyn_system`) presents the node in the rotation-vector chart (velocity ``nu'``).
+(:mod:`linearize.exudyn_system`) presents the node in the rotation-vector chart (velocity ``nu'``), and a
+node that turns in a Tait-Bryan chart about the turn's axis.
 References: the same rod with a ``NodeRigidBodyEP`` and with a ``NodeRigidBodyRxyz`` node (independent
-parametrisations).
+parametrisations); the rotor on a turning hub (tests/models/hub_rotor.py) with a ``NodeRigidBodyEP`` node;
+hand-written rotation matrices for the chart's conversions.
 """
 from __future__ import annotations
 
@@ -22,6 +24,8 @@ from linearize import analyze  # noqa: E402
 from mbs_models.model_file import build_model, resolve_model  # noqa: E402
 
 MODELS = Path(__file__).with_name("models")
+from test_rotating_orbits import _distance  # noqa: E402  (multipliers matched, not sorted: pairs of equal ones)
+
 ROD = str(MODELS / "swinging_rod.py")
 W = 5.0
 #: Agreement of independent parametrisations at an orbit at rest: the adaptive Floquet solve and the
@@ -121,7 +125,7 @@ def test_rotation_vector_node_at_rest_gives_the_euler_parameter_multipliers():
     rotation-vector node is accepted and its multipliers are the Euler-parameter ones."""
     ep = analyze(ROD, W, n_steps=None, node="EP", direction="z", amplitude=0.02).floquet.multipliers
     rv = analyze(ROD, W, n_steps=None, node="RV", direction="z", amplitude=0.02).floquet.multipliers
-    assert np.max(np.abs(np.sort_complex(ep) - np.sort_complex(rv))) <= TOLERANCE
+    assert _distance(ep, rv) <= TOLERANCE
     assert np.max(np.abs(np.abs(ep) - 1.0)) > 1e-3  # damped: not trivially on the unit circle
 
 
@@ -131,7 +135,7 @@ def test_swinging_rotation_vector_node_gives_the_tait_bryan_multipliers():
     rv = analyze(ROD, W, n_steps=None, node="RV")
     rx = analyze(ROD, W, n_steps=None, node="Rxyz")
     assert float(np.max(np.abs(rv.orbit.q[:, 3:6]))) > 0.5
-    assert np.max(np.abs(np.sort_complex(rv.floquet.multipliers) - np.sort_complex(rx.floquet.multipliers))) \
+    assert _distance(rv.floquet.multipliers, rx.floquet.multipliers) \
         <= TOLERANCE
 
 
@@ -144,10 +148,10 @@ def test_rotation_vector_chart_agrees_with_euler_parameters_and_is_needed(monkey
     ep = np.sort_complex(analyze(ROD, W, n_steps=None, node="EP").floquet.multipliers)
     rx = np.sort_complex(analyze(ROD, W, n_steps=None, node="Rxyz").floquet.multipliers)
     rv = np.sort_complex(analyze(ROD, W, n_steps=None, node="RV").floquet.multipliers)
-    assert np.max(np.abs(ep - rx)) <= TOLERANCE and np.max(np.abs(ep - rv)) <= TOLERANCE
+    assert _distance(ep, rx) <= TOLERANCE and _distance(ep, rv) <= TOLERANCE
     monkeypatch.setattr(exudyn_system, "lie_group_nodes", lambda mbs: [])
     wrong = np.sort_complex(analyze(ROD, W, n_steps=None, node="RV").floquet.multipliers)
-    assert np.max(np.abs(ep - wrong)) > 1e-2
+    assert _distance(ep, wrong) > 1e-2
 
 
 def _rv_rod_file(tmp_path):
@@ -182,14 +186,88 @@ def test_cli_validate_refuses_a_rotation_vector_node_with_exit_2(tmp_path, capsy
     assert len(err.splitlines()) == 1 and "validate does not run models with a NodeRigidBodyRotVecLG" in err
 
 
-def test_a_turning_rotation_vector_node_is_refused_in_one_line():
-    """The rotor carried by the turning hub with a rotation-vector node: its vector reaches the chart's
-    singular length 2 pi at the end of the turn; refused before any Newton step, naming the node types that
-    work (the same rotor with them: tests/test_turning_euler_parameters.py)."""
-    from linearize.periodic_orbit import find_orbit
-    from mbs_models.model_file import ModelFileError
+def _tait_bryan(theta):
+    """``Rx Ry Rz``, written out from the three elementary rotations."""
+    c, s = np.cos(theta), np.sin(theta)
+    rx = np.array([[1, 0, 0], [0, c[0], -s[0]], [0, s[0], c[0]]])
+    ry = np.array([[c[1], 0, s[1]], [0, 1, 0], [-s[1], 0, c[1]]])
+    rz = np.array([[c[2], -s[2], 0], [s[2], c[2], 0], [0, 0, 1]])
+    return rx @ ry @ rz
 
-    with pytest.raises(ModelFileError, match="NodeRigidBodyRotVecLG turns by a whole turn") as err:
-        find_orbit(str(MODELS / "hub_rotor.py"), 30.0, node="RV")
-    assert "NodeRigidBodyEP" in str(err.value) and "NodeRigidBodyRxyz" in str(err.value)
-    assert len(str(err.value).splitlines()) == 1
+
+def test_tait_bryan_chart_of_a_turning_node_against_hand_written_rotations():
+    """The chart ``R = C1 Rx Ry Rz C2`` of a node turning about a generic axis: advancing the first angle
+    turns ``R`` about that axis, ``rate_map(theta) theta'`` is the body-fixed angular velocity ``R^T R'`` (central
+    differences), Exudyn's coordinates are a rotation vector of ``R`` (less the reference), and the angles come
+    back from them whole turns included."""
+    from linearize.exudyn_system import tait_bryan_rate_matrix, turning_chart
+
+    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
+    ref = np.array([0.2, 0.1, -0.4])
+    chart = turning_chart(np.array([3, 4, 5]), ref, axis, _rotation(np.array([0.7, -0.2, 1.1])))
+    theta, rate, h = np.array([7.3, 0.25, -0.6]), np.array([30.0, 0.4, -0.9]), 1e-6
+    assert np.max(np.abs(chart.rotation(np.zeros(3)) - _rotation(np.array([0.7, -0.2, 1.1])))) < 1e-14
+    turned = chart.rotation(theta + np.array([0.9, 0.0, 0.0]))
+    assert np.max(np.abs(turned - _rotation(0.9 * axis) @ chart.rotation(theta))) < 1e-14
+    dR = (chart.rotation(theta + h * rate) - chart.rotation(theta - h * rate)) / (2 * h)
+    W_ = chart.rotation(theta).T @ dR
+    omega = np.array([W_[2, 1], W_[0, 2], W_[1, 0]])
+    assert np.max(np.abs(chart.rate_map(theta) @ rate - omega)) < 1e-6 * np.linalg.norm(rate)
+    dT = (_tait_bryan(theta + h * rate) - _tait_bryan(theta - h * rate)) / (2 * h)
+    W_ = _tait_bryan(theta).T @ dT
+    assert np.max(np.abs(tait_bryan_rate_matrix(theta) @ rate - np.array([W_[2, 1], W_[0, 2], W_[1, 0]]))) < 1e-6 * 30
+    nu = chart.exudyn_coordinates(theta)
+    assert np.linalg.norm(nu + ref) <= math.pi + 1e-12
+    assert np.max(np.abs(_rotation(nu + ref) - chart.rotation(theta))) < 1e-13
+    assert np.max(np.abs(chart.angles(nu, theta + 0.3) - theta)) < 1e-12  # theta_1 = 7.3: beyond a turn
+    assert np.max(np.abs(chart.angles(nu, theta - [2 * math.pi, 0, 0]) - theta + [2 * math.pi, 0, 0])) < 1e-12
+
+
+def _hub_rotor(**options):
+    return analyze(str(MODELS / "hub_rotor.py"), 30.0, n_steps=None, hub="constraint", rtol=1e-10, **options)
+
+
+def test_turning_rotation_vector_rotor_gives_the_euler_parameter_multipliers_and_needs_its_chart(monkeypatch):
+    """The rotor carried by the turning hub with a rotation-vector node (one turn per period): presented in
+    its Tait-Bryan chart (one turn of the first angle), its multipliers are those of the same rotor with
+    Euler parameters (sign flip map; both against the Newton-Euler oracle: tests/test_turning_euler_parameters.py),
+    within the tolerance of independent parametrisations.  With the chart's velocity map taken as constant
+    (Exudyn's angular velocities as the angles' rates, a wrong answer) they are not."""
+    import linearize.exudyn_system as exudyn_system
+
+    ep = _hub_rotor(node="EP")
+    rv = _hub_rotor(node="RV")
+    assert rv.orbit.summary()["turns"] == {"hub[3]": 1, "rotor[9]": 1} and rv.orbit.summary()["sign_flips"] == []
+    assert len(rv.orbit.charts) == 1 and rv.orbit.shooting_residual < 1e-5
+    assert len(rv.floquet.multipliers) == 12
+    assert _distance(ep.floquet.multipliers, rv.floquet.multipliers) \
+        <= TOLERANCE
+    monkeypatch.setattr(exudyn_system.TurningChart, "rate_map", lambda self, theta: self.inner.T + 0 * theta[0])
+    wrong = _hub_rotor(node="RV")
+    assert _distance(ep.floquet.multipliers, wrong.floquet.multipliers) \
+        > 100 * TOLERANCE
+
+
+def test_cli_floquet_on_a_turning_rotation_vector_node(tmp_path, capsys):
+    """``flexstab floquet --model`` on the hub rotor with a rotation-vector node: a verdict (no refusal), the
+    rotor's chart angle reported as a whole turn, the multipliers of the Euler-parameter rotor to the
+    accuracy contract (``--rtol``, default 1e-6)."""
+    import json
+
+    from flexstab.cli import main
+
+    model = tmp_path / "hub_rotor_rv.py"
+    model.write_text(f"import importlib.util\n"
+                     f"spec = importlib.util.spec_from_file_location('hub', {str(MODELS / 'hub_rotor.py')!r})\n"
+                     f"hub = importlib.util.module_from_spec(spec)\n"
+                     f"spec.loader.exec_module(hub)\n\n\n"
+                     f"def build(mbs, omega):\n"
+                     f"    return hub.build(mbs, omega, node='RV')\n")
+    code = main(["floquet", "--model", str(model), "--omega", "30", "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert code in (0, 1)  # a verdict, not a refusal (exit 2)
+    assert d["turns"] == {"hub[3]": 1, "rotor[9]": 1} and d["sign_flips"] == []
+    mu = np.array([complex(re, im) for re, im in d["multipliers"]])
+    ep = _hub_rotor(node="EP").floquet.multipliers
+    assert len(mu) == 12
+    assert _distance(mu, ep) <= 1e-6

@@ -3,7 +3,8 @@
 References independent of the package: a rotor carried by a turning hub (tests/models/hub_rotor.py)
 against a hand-written Newton-Euler model of it, its orbit found by shooting and its monodromy by
 complex-step differentiation of the DOP853 flow (tests/_hub_rotor_reference.py); the same model with a
-``NodeRigidBodyRxyz`` rotor (angles that advance by 2 pi); a freely spinning rotor on two bearings
+``NodeRigidBodyRxyz`` rotor (angles that advance by 2 pi) and with a ``NodeRigidBodyRotVecLG`` rotor (in its
+Tait-Bryan chart, tests/test_rotation_vector_nodes.py); a freely spinning rotor on two bearings
 against the hand-derived constant-coefficient linearisation of tests/test_rotating_orbits.py.
 """
 from __future__ import annotations
@@ -43,7 +44,7 @@ def reference():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("node", ["EP", "Rxyz"])
+@pytest.mark.parametrize("node", ["EP", "Rxyz", "RV"])
 def test_rotor_on_a_turning_hub_matches_the_hand_written_model(reference, node):
     res = analyze(HUB_ROTOR, W, n_steps=None, node=node, hub="constraint", rtol=1e-10)
     mu = res.floquet.multipliers
@@ -54,6 +55,8 @@ def test_rotor_on_a_turning_hub_matches_the_hand_written_model(reference, node):
     if node == "EP":  # the four Euler parameters change sign over the period, nothing turns by 2 pi
         assert res.orbit.summary()["sign_flips"] == [f"rotor[{i}]" for i in range(9, 13)]
         assert not np.any(res.orbit.shift[6:])
+    if node == "RV":  # the chart's first angle turns once, like the hub's
+        assert res.orbit.summary()["turns"] == {"hub[3]": 1, "rotor[9]": 1}
 
 
 def test_euler_parameter_orbit_closes_under_the_sign_flip():
