@@ -53,7 +53,8 @@ def test_whole_loop_spectral_radius_is_the_axial_mode(arm):
     assert same.floquet.spectral_radius == rho
     own = max(10.0 ** -float(same.floquet.reliable_digits[0]), 1e-8 / rho)
     assert est == pytest.approx(own, rel=1e-9)
-    assert est <= same.floquet.error_estimate and est < 1e-3
+    # (10^-digits of -log10(estimate): equal to it up to the rounding of that round trip)
+    assert est <= same.floquet.error_estimate * (1.0 + 1e-12) and est < 1e-3
     assert w["verdict_detail"]["verdict"] == "asymptotically stable"
     # the drive modes' response is the tuned 0.300 -- and it is rejected as the spectral radius
     tuned = abs(ref.dominant_multiplier)
