@@ -271,3 +271,18 @@ def test_cli_floquet_on_a_turning_rotation_vector_node(tmp_path, capsys):
     ep = _hub_rotor(node="EP").floquet.multipliers
     assert len(mu) == 12
     assert _distance(mu, ep) <= 1e-6
+
+
+def test_rotation_vector_rotor_turning_twice_per_period_gives_the_euler_parameter_multipliers():
+    """Two whole turns per period (the hub at 2 omega; Euler parameters then come back with their own
+    sign, the rotation vector passes its singular length mid-period): the rotation-vector rotor's
+    multipliers are the Euler-parameter rotor's, within the tolerance of independent parametrisations,
+    and both report the two turns."""
+    ep = analyze(str(MODELS / "hub_rotor.py"), 15.0, n_steps=None, rtol=1e-10, node="EP", turns=2)
+    rv = analyze(str(MODELS / "hub_rotor.py"), 15.0, n_steps=None, rtol=1e-10, node="RV", turns=2)
+    assert ep.orbit.summary()["turns"] == {"hub[3]": 2} and ep.orbit.summary()["sign_flips"] == []
+    assert rv.orbit.summary()["turns"] == {"hub[3]": 2, "rotor[9]": 2}
+    assert _distance(ep.floquet.multipliers, rv.floquet.multipliers) <= TOLERANCE
+    # not the one-turn rotor at the same period (a different machine: the check can fail)
+    one = analyze(str(MODELS / "hub_rotor.py"), 15.0, n_steps=None, rtol=1e-10, node="EP")
+    assert _distance(one.floquet.multipliers, rv.floquet.multipliers) > 100 * TOLERANCE

@@ -6,7 +6,8 @@ offset ``omega t`` (``hub="constraint"``, the default).  The rotor is a 3D rigid
 (``node="EP"``, the default), Tait-Bryan angles (``node="Rxyz"``) or a rotation vector (``node="RV"``,
 ``NodeRigidBodyRotVecLG``), joined to the hub by four
 isotropic ``CartesianSpringDamper`` pads at off-axis points, so that it turns with the hub: after one
-period its Euler parameters come back with the opposite sign.  Gravity along -y.
+period its Euler parameters come back with the opposite sign.  ``turns``: whole turns of the hub per
+period ``2 pi / omega`` (its speed is ``turns * omega``).  Gravity along -y.
 """
 from exudyn.itemInterface import (CartesianSpringDamper, CoordinateConstraint, LoadMassProportional, MarkerBodyMass,
                                   MarkerBodyPosition, MarkerNodeCoordinate, NodePointGround, NodeRigidBodyEP,
@@ -17,7 +18,8 @@ PADS = [(0.2, 0.05, 0.0), (0.2, -0.05, 0.0), (-0.2, 0.0, 0.05), (-0.2, 0.0, -0.0
 K, C = 4.0e3, 2.0
 
 
-def build(mbs, omega, node="EP", hub="constraint", gravity=9.81):
+def build(mbs, omega, node="EP", hub="constraint", gravity=9.81, turns=1):
+    omega = turns * omega  # the hub speed; the period stays 2 pi / omega of the call
     ground = mbs.AddNode(NodePointGround())
     mg = mbs.AddMarker(MarkerNodeCoordinate(nodeNumber=ground, coordinate=0))
     nh = mbs.AddNode(NodeRigidBodyRxyz(referenceCoordinates=[0] * 6, initialVelocities=[0, 0, 0, omega, 0, 0]))
