@@ -21,9 +21,11 @@ single-threaded with ``OPENBLAS_NUM_THREADS=1``), so that other tenants of a
 shared machine do not decide the ratio.  Both sides are timed *interleaved*: after
 the search, each round times a batch of default calls and one run of every
 baseline finalist (each accepted method within :data:`FINALIST_FACTOR` of the
-fastest one found), and each side's figure is its minimum over the rounds (the
-usual estimator for deterministic CPU-bound code: noise only adds time), so a slow
-spell of the machine hits both sides alike.  Accuracy is checked against a
+fastest one found; the timed runs use a plain right-hand side, the clock is read
+only in the search), one sample per side and round (the default's is the mean of a
+batch of calls), and each side's figure is the minimum of its samples (the usual
+estimator for deterministic CPU-bound code: noise only adds time), so a slow spell
+of the machine hits both sides alike and both have the same number of samples.  Accuracy is checked against a
 reference computed once per case (default: ``method="paper"``, the paper's
 procedure at rtol 1e-11 -- DOP853, or Radau where P is stiff; its agreement with
 the default is reported too).  A baseline run already slower than
@@ -92,7 +94,7 @@ DEFAULT_BATCH = 15
 #: Both sides are timed in CPU seconds of this (single-threaded) process: on a
 #: shared machine wall time mostly measures the other tenants.
 CLOCK = time.process_time
-CLOCK_NAME = "CPU time of this process (time.process_time), minimum over interleaved rounds"
+CLOCK_NAME = "CPU time of this process (time.process_time), minimum over interleaved rounds (default: batch means)"
 
 
 class _Abandoned(Exception):
@@ -186,10 +188,16 @@ def _ivp_monodromy(model: ReducedModel, method: str, rtol: float, deadline: floa
     n = 4
     eye = np.eye(n)
 
-    def rhs(t, y):
-        if CLOCK() > deadline:
-            raise _Abandoned
-        return (P(t) @ y.reshape(n, n)).ravel()
+    if math.isinf(deadline):  # a timed run: the plain right-hand side, no clock reads
+
+        def rhs(t, y):
+            return (P(t) @ y.reshape(n, n)).ravel()
+    else:  # the search: abandoned past the deadline
+
+        def rhs(t, y):
+            if CLOCK() > deadline:
+                raise _Abandoned
+            return (P(t) @ y.reshape(n, n)).ravel()
 
     kwargs = {}
     if method in IMPLICIT:
@@ -236,18 +244,20 @@ def _search_baseline(model, ref, methods, rtols, log):
 
 
 def _interleaved(model, finalists, rounds: int, **options):
-    """Minimum CPU time of ``floquet(model, **options)`` (batches of :data:`DEFAULT_BATCH` calls) and of
-    each baseline finalist, timed in ``rounds`` interleaved rounds.  Returns
-    ``(default seconds, default calls, last result, [finalist seconds])``."""
+    """CPU time of ``floquet(model, **options)`` and of each baseline finalist, timed in ``rounds``
+    interleaved rounds: one sample per side and round (for the default the mean of a batch of
+    :data:`DEFAULT_BATCH` calls, a run of its own length comparable to one baseline run), each side's
+    figure the minimum of its ``rounds`` samples.  Returns ``(default seconds, default calls, last
+    result, [finalist seconds])``."""
     res = floquet(model, **options)  # warm-up
     default, calls = math.inf, 0
     base = [math.inf] * len(finalists)
     for _ in range(rounds):
+        t0 = CLOCK()
         for _ in range(DEFAULT_BATCH):
-            t0 = CLOCK()
             res = floquet(model, **options)
-            default = min(default, CLOCK() - t0)
-            calls += 1
+        default = min(default, (CLOCK() - t0) / DEFAULT_BATCH)
+        calls += DEFAULT_BATCH
         for i, (_, method, rtol, _) in enumerate(finalists):
             t0 = CLOCK()
             _ivp_monodromy(model, method, rtol, math.inf)

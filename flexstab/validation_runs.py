@@ -151,7 +151,7 @@ def check_validate_options(opts: ValidateOptions) -> None:
     exudyn = opts.model == "exudyn"
     if not exudyn:
         if opts.predict_reference != "periodic":
-            raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
+            raise ValueError("--predict-reference accepts only 'periodic': the prediction is the linearisation "
                              "about the periodic orbit")
         check_model_arg(opts.model)
         if opts.elements is not None and is_model_file(opts.model):
@@ -181,7 +181,7 @@ def check_validate_options(opts: ValidateOptions) -> None:
     _at_least("full-map-step", opts.full_map_step, 0.0, strict=True)
     _at_least("workers", opts.workers, 1)
     if exudyn and opts.predict_reference != "periodic":
-        raise ValueError("--predict-reference rigid is no longer available: the prediction is the linearisation "
+        raise ValueError("--predict-reference accepts only 'periodic': the prediction is the linearisation "
                          "about the periodic orbit (the rigid reference's distance is in docs/validation.md)")
 
 

@@ -64,6 +64,9 @@ PROPAGATOR_WARNING = 1e-4
 SAMPLING_MIN_ORDER = 2.0
 #: Relative interpolation errors below this are rounding (no order information).
 SAMPLING_NOISE = 1e-12
+#: The structural multiplier of an autonomous orbit is 1 to within this at least (see
+#: :attr:`ModelFloquetResult.structural`).
+STRUCTURAL_TOLERANCE = 1e-6
 #: ``| |rho| - 1 | <`` this: an undamped mode (on the unit circle within the propagator's accuracy).
 UNDAMPED_TOLERANCE = 2e-3
 #: A mode carries a drive's name, and counts as one the drives can move, only when that drive's share
@@ -190,10 +193,20 @@ class ModelFloquetResult:
     @property
     def structural(self) -> tuple:
         """Indices of the structural multipliers: on an autonomous orbit (its phase free), the multiplier
-        nearest 1, which the verdict leaves out (the verdict is then one of orbital stability)."""
+        nearest 1, which the verdict leaves out (the verdict is then one of orbital stability) -- only when
+        it is 1 within ten times its own error estimate (at least :data:`STRUCTURAL_TOLERANCE`); a
+        multiplier farther from 1 is no phase shift and nothing is left out."""
         if not self.orbit.autonomous:
             return ()
-        return (int(np.argmin(np.abs(np.asarray(self.floquet.multipliers) - 1.0))),)
+        mu = np.asarray(self.floquet.multipliers)
+        i = int(np.argmin(np.abs(mu - 1.0)))
+        digits = np.asarray(self.floquet.reliable_digits, dtype=float)
+        error = 10.0 ** -float(digits[i]) if digits.size > i else math.inf
+        if not abs(mu[i] - 1.0) <= max(10.0 * error, STRUCTURAL_TOLERANCE):
+            logger.warning("autonomous orbit without a multiplier 1 (nearest %s, error estimate %.1e): no "
+                           "multiplier is left out of the verdict", complex(mu[i]), error)
+            return ()
+        return (i,)
 
     @property
     def dominant_mode(self) -> str:

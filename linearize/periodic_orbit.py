@@ -925,22 +925,33 @@ def _solve_with_phase(J: np.ndarray, w: np.ndarray):
     return solve
 
 
+#: :func:`_is_autonomous` compares the model at this many times of the period (equispaced, offset by an
+#: irrational fraction of a step): a load or constraint that varies on a time scale of at least
+#: ``T / AUTONOMY_TIMES`` differs between some two of them (two times would miss e.g. a load equal at
+#: both, or a blow between them).
+AUTONOMY_TIMES = 32
+
+
 def _is_autonomous(system: ExudynSystem, built: BuiltModel) -> bool:
     """True when the model has no drives and its forces and constraints do not depend on time (compared
-    at a generic state at two times): its periodic orbits then come in families of time shifts."""
+    at two generic states at :data:`AUTONOMY_TIMES` times of the period): its periodic orbits then come
+    in families of time shifts."""
     if built.drives:
         return False
     T = built.period
     rng = np.random.default_rng(5)
-    q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
-    v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
-    f0, f1 = system.rhs(q, v, 0.21 * T), system.rhs(q, v, 0.64 * T)
-    if np.any(np.abs(f1 - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))):
-        return False
-    if system.m:
-        c0, c1 = system.constraints(q, 0.21 * T), system.constraints(q, 0.64 * T)
-        if np.any(np.abs(c1 - c0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))):
-            return False
+    times = (np.arange(AUTONOMY_TIMES) + 0.381966) * (T / AUTONOMY_TIMES)
+    for _ in range(2):
+        q = np.asarray(system.q_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+        v = np.asarray(system.v_initial, dtype=float) + 1e-2 * rng.standard_normal(system.n)
+        f0 = system.rhs(q, v, float(times[0]))
+        c0 = system.constraints(q, float(times[0])) if system.m else None
+        for t in times[1:]:
+            if np.any(np.abs(system.rhs(q, v, float(t)) - f0) > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(f0)))):
+                return False
+            if c0 is not None and np.any(np.abs(system.constraints(q, float(t)) - c0)
+                                         > INVARIANCE_TOLERANCE * (1.0 + np.max(np.abs(q)))):
+                return False
     return True
 
 

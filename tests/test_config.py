@@ -98,7 +98,7 @@ def test_cli_usage_errors_are_one_line(argv, capsys):
 def test_cli_non_converging_orbit_is_one_line_exit_1(tmp_path, capsys):
     """A link so soft (E = 2e7 N/m^2, 1 element, 2 pi) that Newton finds no periodic orbit from its guesses,
     nor continuation in omega a start at omega/2, /4 or /8: one line naming the cause, exit code 1, in
-    seconds (~1.5 s CPU; the continuation used to halve its start down to omega/2^40, ~15 min).  The
+    seconds (~1.5 s CPU; the continuation halves its start at most twice).  The
     message says "did not converge", never that no orbit exists: one does (reached by continuation in
     material damping from the damped link's attracting orbit; confirmed by Exudyn's integrator at 64
     samples), the solver's guesses do not reach it."""

@@ -57,3 +57,22 @@ def test_judge_structural_indices():
     for bad in ([2], [0, 1], [-1]):
         with pytest.raises(ValueError, match="structural"):
             judge([1.0, 0.5], [1e-9, 1e-9], structural=bad)
+
+
+def test_structural_multiplier_must_be_one_within_its_error():
+    """Only a multiplier that is 1 within (ten times) its error estimate is left out as the phase shift of
+    an autonomous orbit; otherwise nothing is (no real multiplier may vanish from the verdict)."""
+    import types
+
+    from linearize.analysis import ModelFloquetResult
+
+    def structural(mus, digits, autonomous=True):
+        ns = types.SimpleNamespace(orbit=types.SimpleNamespace(autonomous=autonomous),
+                                   floquet=types.SimpleNamespace(multipliers=np.array(mus, complex),
+                                                                 reliable_digits=np.array(digits, float)))
+        return ModelFloquetResult.structural.fget(ns)
+
+    assert structural([0.5, 1.0 + 1e-9, 0.2], [10, 8, 10]) == (1,)
+    assert structural([0.5, 1.0 + 3e-4, 0.2], [10, 4, 10]) == (1,)  # a defective 1: sqrt-level error
+    assert structural([0.5, 0.9, 0.2], [10, 10, 10]) == ()
+    assert structural([0.5, 1.0 + 1e-9], [10, 8], autonomous=False) == ()

@@ -286,3 +286,35 @@ def test_rotation_vector_rotor_turning_twice_per_period_gives_the_euler_paramete
     # not the one-turn rotor at the same period (a different machine: the check can fail)
     one = analyze(str(MODELS / "hub_rotor.py"), 15.0, n_steps=None, rtol=1e-10, node="EP")
     assert _distance(one.floquet.multipliers, rv.floquet.multipliers) > 100 * TOLERANCE
+
+
+@pytest.mark.parametrize("angle", [1e-6, 1.01e-4, 1e-2, 0.3, 0.49, 0.51, 1.0, 2.5])
+def test_tangent_operator_and_rotation_are_accurate_to_rounding_at_every_angle(angle):
+    """T(nu) and exp(skew nu) against their series summed in 60-digit decimal arithmetic (independent of
+    the float code): within a few units of rounding at every angle, also just above the series threshold
+    (where the closed forms (1 - cos a) / a^2 and (a - sin a) / a^3 lose digits to cancellation)."""
+    from decimal import Decimal, getcontext
+
+    from linearize.exudyn_system import rotation_matrix, tangent_operator
+
+    getcontext().prec = 60
+    axis = np.array([0.3, -0.5, 0.81])
+    nu = angle * axis / np.linalg.norm(axis)
+    a2 = sum(Decimal(float(x)) ** 2 for x in nu)
+    coef = []
+    for j in (1, 2, 3):
+        total, term, k, fact = Decimal(0), Decimal(1), 0, Decimal(math.factorial(j))
+        while True:
+            piece = term / fact
+            total += piece
+            if abs(piece) < Decimal(10) ** -40:
+                break
+            k += 1
+            term = -term * a2
+            fact = Decimal(math.factorial(2 * k + j))
+        coef.append(float(total))
+    S = np.array([[0, -nu[2], nu[1]], [nu[2], 0, -nu[0]], [-nu[1], nu[0], 0]])
+    T_ref = np.eye(3) - coef[1] * S + coef[2] * (S @ S)
+    R_ref = np.eye(3) + coef[0] * S + coef[1] * (S @ S)
+    assert np.max(np.abs(tangent_operator(nu) - T_ref)) <= 4e-16
+    assert np.max(np.abs(rotation_matrix(nu) - R_ref)) <= 4e-16

@@ -95,7 +95,7 @@ def _same(a, b, path="") -> None:
     ({"elements": 0}, "--elements must be >= 1"),
     ({"workers": 0}, "--workers must be >= 1"),
     ({"full_map": True}, "--full-map applies to model files"),
-    ({"predict_reference": "rigid"}, "no longer available"),
+    ({"predict_reference": "rigid"}, "accepts only 'periodic'"),
     ({"model": "missing.py"}, "model file 'missing.py' not found"),
     ({"model": PENDULUM, "elements": 4}, "--elements applies to the built-in models only"),
 ])
