@@ -76,3 +76,24 @@ def test_structural_multiplier_must_be_one_within_its_error():
     assert structural([0.5, 1.0 + 3e-4, 0.2], [10, 4, 10]) == (1,)  # a defective 1: sqrt-level error
     assert structural([0.5, 0.9, 0.2], [10, 10, 10]) == ()
     assert structural([0.5, 1.0 + 1e-9], [10, 8], autonomous=False) == ()
+
+
+def test_cli_marks_the_structural_row_and_states_the_judged_radius(capsys):
+    """The table of an autonomous orbit marks the structural multiplier's row and prints, beside the
+    spectral radius 1, the radius the verdict judged (the JSON's verdict_detail); a forced model marks none."""
+    import json
+
+    from flexstab.cli import main
+
+    model = str(Path(__file__).with_name("models") / "motor_rotor.py")
+    assert main(["floquet", "--model", model, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["structural_multipliers"] == 1 and len(d["structural_indices"]) == 1
+    i = d["structural_indices"][0]
+    assert abs(complex(*d["multipliers"][i]) - 1.0) < 1e-6
+    assert main(["floquet", "--model", model]) == 0
+    out = capsys.readouterr().out
+    row = [line for line in out.splitlines() if line.strip().startswith(f"{i + 1} ")][0]
+    assert "structural" in row
+    judged = d["verdict_detail"]["spectral_radius"]
+    assert judged < 0.9 and f"judged without the structural multiplier: {judged:.10g}" in out

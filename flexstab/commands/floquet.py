@@ -102,7 +102,10 @@ def _table(d: dict) -> str:
             label = f"  |rho| = 10^{lg / math.log(10):.2f}"
         if modes:
             m = modes[i - 1]
-            label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
+            if i - 1 in (d.get("structural_indices") or ()):
+                label += f"  {m.get('mode', '')} (structural: the orbit's free phase, not judged)"
+            else:
+                label += f"  {m.get('mode', '')}" + (" (undamped)" if m.get("undamped") else "")
         if re is None or im is None:  # phase unknown (below the rounding floor): the modulus only
             re_s, im_s = f"{'?':>14}", f"{'?':>14}"
             label += "  phase unknown"
@@ -122,7 +125,9 @@ def _table(d: dict) -> str:
         liouville = f"{'inf' if liou is None else f'{liou:.1e}'} (from the {d['liouville_source']})"
     lines += [
         "",
-        f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})",
+        f"spectral radius  {d['spectral_radius']:.10g}   -> {d['verdict']} (tolerance {d['stability_tolerance']:.1e})"
+        + (f"; judged without the structural multiplier: {d['verdict_detail']['spectral_radius']:.10g}"
+           if d.get("structural_indices") and d.get("verdict_detail") else ""),
         *([f"verdict          {d['verdict_detail']['message']}"] if d.get("verdict_detail") else []),
         f"error estimate   {'n/a' if est is None else f'{est:.1e}'} (relative, of the {d.get('accuracy', 'moduli')};"
         f" phases {phase} rad)",
