@@ -128,7 +128,8 @@ CHORD_REUSE_FACTOR = 0.01
 #: A Newton that lands further away has jumped to another orbit (e.g. the inverted pendulum).
 NEAR_GUESS_ANGLE = 0.5 * math.pi
 #: ... and every rigid-body node's position within this fraction of the model's size (the largest
-#: distance of such a node from the origin or from another one along the guess): a body turned over
+#: distance of such a node from the origin or from another one along the guess, at least 1 as the
+#: coordinate scale of the relative residual): a body turned over
 #: about a pivot moves its centre of mass by twice its distance from the pivot; the forced swing about
 #: the orbit a model file sets up, and a transient decaying to it, move it by a small part of that.
 NEAR_GUESS_SIZE = 0.5
@@ -1094,7 +1095,8 @@ def _far_from_guess(col: _Collocation, X: np.ndarray) -> str:
             return (f"{labels[rot[j]]}[{int(rot[j])}] at t = {float(col.times[k]):.4g} differs from the simulated "
                     f"period of the model's initial state by {float(d[k, j]):.3g} rad beyond whole turns")
     pos, size = _rigid_positions(col.system.mbs, G)
-    if pos.size and size > 0.0:
+    size = max(1.0, size)  # (as the coordinate scale of the relative residual: a model near the origin)
+    if pos.size:
         d = np.abs(X[:, pos] - G[:, pos])
         k, j = np.unravel_index(int(np.argmax(d)), d.shape)
         if d[k, j] > NEAR_GUESS_SIZE * size:
