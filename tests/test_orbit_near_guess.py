@@ -48,3 +48,18 @@ def test_the_distance_from_the_guess_counts_half_turns_not_whole_turns():
     moved = X.copy()
     moved[:, 2] += 2 * L
     assert "rod[2]" in _far_from_guess(col, moved)
+
+
+def test_the_hanging_rod_multipliers_are_the_damped_pendulum_s():
+    """Independent of the solver: for the small forced swing the slowest multipliers are the linear damped
+    pendulum's about the pivot, I_p = J_T + m L^2, damping torque c L^2 theta', |rho| = exp(-c L^2 T / (2 I_p))
+    = 0.97133 (the inverted rod has a multiplier > 1)."""
+    from linearize.constrained import linearize_orbit
+    from stability.floquet import floquet
+
+    orbit = find_orbit(ROD, 5.0, node="Rxyz", direction="x", amplitude=1e-3)
+    rho = np.sort(np.abs(floquet(linearize_orbit(orbit), method="magnus6").multipliers))
+    i_p = 0.02 + 1.0 * L**2
+    expected = np.exp(-0.05 * L**2 * (2 * np.pi / 5.0) / (2 * i_p))
+    # the swing of 1e-3 rad changes the linearisation by O(1e-6); the pair sits at the top of the spectrum
+    assert abs(rho[-1] - expected) < 1e-4 and abs(rho[-2] - expected) < 1e-4, (rho[-2:], expected)
