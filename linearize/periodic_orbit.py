@@ -120,6 +120,19 @@ FULL_STEP_PROGRESS = 0.1
 #: that cut the residual this much (the quadratic phase, where the old matrix still
 #: contracts fast); otherwise it is rebuilt at the new iterate.
 CHORD_REUSE_FACTOR = 0.01
+#: An orbit found from the simulated guess is accepted only while every rotation coordinate
+#: (:meth:`~linearize.exudyn_system.ExudynSystem.rotation_coordinates`) stays within this of the guess at
+#: the same sample, up to whole turns (both in their periodic part, the whole turns of the orbit map
+#: taken out): half of the half turn that separates a hanging from an inverted body, larger than the
+#: difference between a transient swing and the orbit it decays to for the models the guess is meant for.
+#: A Newton that lands further away has jumped to another orbit (e.g. the inverted pendulum).
+NEAR_GUESS_ANGLE = 0.5 * math.pi
+#: ... and every rigid-body node's position within this fraction of the model's size (the largest
+#: distance of such a node from the origin or from another one along the guess, at least 1 as the
+#: coordinate scale of the relative residual): a body turned over
+#: about a pivot moves its centre of mass by twice its distance from the pivot; the forced swing about
+#: the orbit a model file sets up, and a transient decaying to it, move it by a small part of that.
+NEAR_GUESS_SIZE = 0.5
 #: Continuation in omega: start factor, first increment, smallest increment, solves.
 CONTINUATION_START = 0.5
 CONTINUATION_STEP = 0.1
@@ -708,6 +721,8 @@ class _Collocation:
         #: part (None before the guess)
         self.guess_drift: Optional[np.ndarray] = None
         self._guess_samples: Optional[np.ndarray] = None
+        #: why the last orbit Newton converged to was rejected as away from the guess (:func:`_far_from_guess`)
+        self.far_orbit = ""
         if solver not in SOLVERS:
             raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
         if solver == "auto":
@@ -1030,10 +1045,17 @@ def _full_step_newton(col: _Collocation, X: np.ndarray, tol: float, max_iteratio
 
 
 def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False,
-            second_guess=None):
+            second_guess=None, abandoned: Optional[list] = None):
     """Full-step Newton from ``X``, then (if given and it fails) from ``second_guess(col)``,
-    then damped Newton from ``X``; returns ``(X, history, ok, tangent)``."""
+    then damped Newton from ``X``; returns ``(X, history, ok, tangent)``.  An orbit that converges away
+    from the simulated guess (:func:`_far_from_guess`) counts as a failure.  ``abandoned``: see
+    :func:`_damped_newton`."""
     Xf, history, ok, tb = _full_step_newton(col, X, tol, max_iterations)
+    if ok and _far_from_guess(col, Xf):
+        col.far_orbit = _far_from_guess(col, Xf)
+        logger.info("orbit: full-step Newton converged to an orbit away from the simulated guess (%s); "
+                    "damped Newton", col.far_orbit)
+        ok = False
     if ok:
         return Xf, history, True, tb
     if second_guess is not None:
@@ -1043,15 +1065,93 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, e
         if X2 is not None:
             Xf, h2, ok, tb = _full_step_newton(col, X2, tol, max_iterations)
             history += h2
-            if ok:
+            if ok and not _far_from_guess(col, Xf):
                 return Xf, history, True, tb
     logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess",
                  history[-1] if history else math.nan)
-    X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up)
+    X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up, abandoned)
+    if ok and _far_from_guess(col, X):
+        col.far_orbit = _far_from_guess(col, X)
+        logger.info("orbit: damped Newton converged to an orbit away from the simulated guess (%s)",
+                    col.far_orbit)
+        ok = False
     return X, history + h2, ok, tb
 
 
-def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False):
+def _far_from_guess(col: _Collocation, X: np.ndarray) -> str:
+    """``""``, or a phrase naming the rotation coordinate whose periodic part at some sample differs from
+    the simulated guess's (:func:`_guess`) by more than :data:`NEAR_GUESS_ANGLE` beyond whole turns
+    (``""`` also when there is no simulated guess)."""
+    G = col._guess_samples
+    if G is None or G.shape != X[:, :col.n].shape:
+        return ""
+    labels = col.system.coordinate_labels()
+    rot = col.system.rotation_coordinates()
+    if rot.size:
+        d = X[:, rot] - G[:, rot]
+        d = np.abs(d - 2.0 * math.pi * np.round(d / (2.0 * math.pi)))
+        k, j = np.unravel_index(int(np.argmax(d)), d.shape)
+        if d[k, j] > NEAR_GUESS_ANGLE:
+            return (f"{labels[rot[j]]}[{int(rot[j])}] at t = {float(col.times[k]):.4g} differs from the simulated "
+                    f"period of the model's initial state by {float(d[k, j]):.3g} rad beyond whole turns")
+    pos, size = _rigid_positions(col.system.mbs, G)
+    size = max(1.0, size)  # (as the coordinate scale of the relative residual: a model near the origin)
+    if pos.size:
+        d = np.abs(X[:, pos] - G[:, pos])
+        k, j = np.unravel_index(int(np.argmax(d)), d.shape)
+        if d[k, j] > NEAR_GUESS_SIZE * size:
+            return (f"{labels[pos[j]]}[{int(pos[j])}] at t = {float(col.times[k]):.4g} differs from the simulated "
+                    f"period of the model's initial state by {float(d[k, j]):.3g}, more than {NEAR_GUESS_SIZE:g} "
+                    f"of the model's size {size:.3g}")
+    return ""
+
+
+def _rigid_positions(mbs, G: np.ndarray) -> tuple[np.ndarray, float]:
+    """ODE2 indices of the rigid-body nodes' position coordinates and the model's size: the largest
+    distance of such a node from the origin or from another one over the samples ``G`` (the positions
+    are the reference values plus the displacement coordinates)."""
+    idx, refs = [], []
+    for j in range(mbs.systemData.NumberOfNodes()):
+        node = mbs.GetNode(j)
+        kind = str(node.get("nodeType"))
+        if not kind.startswith("RigidBody"):
+            continue
+        dim = 2 if kind == "RigidBody2D" else 3
+        ltg = [int(i) for i in mbs.systemData.GetNodeLTGODE2(j)][:dim]
+        ref = np.asarray(node.get("referenceCoordinates"), dtype=float)[:dim]
+        if len(ltg) == dim and ref.size == dim:
+            idx.append(ltg)
+            refs.append(ref)
+    if not idx:
+        return np.zeros(0, dtype=int), 0.0
+    P = np.stack([G[:, i] + r for i, r in zip(idx, refs)], axis=1)  # samples x nodes x dim
+    size = float(np.max(np.linalg.norm(P, axis=2)))
+    if P.shape[1] > 1:
+        size = max(size, float(np.max(np.linalg.norm(P[:, :, None, :] - P[:, None, :, :], axis=3))))
+    return np.array([i for ii in idx for i in ii], dtype=int), size
+
+
+def _whole_turns_to_guess(col: _Collocation, X: np.ndarray) -> np.ndarray:
+    """``X`` with each rotation coordinate moved by the whole turns ``2 pi k`` that bring it nearest to the
+    simulated guess (the same configurations: the model depends on these angles through sines and cosines
+    only)."""
+    G = col._guess_samples
+    rot = col.system.rotation_coordinates()
+    if G is None or not rot.size or G.shape != X[:, :col.n].shape:
+        return X
+    k = np.round(np.median(X[:, rot] - G[:, rot], axis=0) / (2.0 * math.pi))
+    if not np.any(k):
+        return X
+    X = X.copy()
+    X[:, rot] -= 2.0 * math.pi * k[None, :]
+    return X
+
+
+def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, early_give_up: bool = False,
+                   abandoned: Optional[list] = None):
+    """Damped Newton (natural monotonicity test); returns ``(X, history, ok, tangent)``.  When it stops
+    by the early give-up (:data:`EARLY_GIVE_UP_ITERATIONS`), ``(X, iterations)`` is appended to
+    ``abandoned`` (if given) so that the caller can resume it."""
     history: list = []
     qscale = max(1.0, float(np.max(np.abs(X[:, :col.n]))))
     solve = None
@@ -1064,7 +1164,9 @@ def _damped_newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations:
         if it > STAGNATION_ITERATIONS and res > history[0]:
             return X, history, False, tb
         if early_give_up and it > EARLY_GIVE_UP_ITERATIONS and res > EARLY_GIVE_UP_FACTOR * history[0]:
-            return X, history, False, tb  # no progress from this guess: continuation will do better
+            if abandoned is not None:
+                abandoned.append((X.copy(), it))
+            return X, history, False, tb  # no progress from this guess: continuation may do better
         if solve is None or len(history) < 2 or history[-1] > 0.5 * history[-2]:
             solve, tb = col.newton_solver(X)
         dX = solve(-out.reshape(-1)).reshape(X.shape)
@@ -1604,9 +1706,11 @@ def find_orbit(
         X = _guess(col, definition)
     lap("guess")
     at_target = list(history)  # residuals at omega itself (continuation steps at other omegas apart)
+    abandoned: list = []
+    col_target = col
     if not ok:
         X, h1, ok, tb = _newton(col, X, tol, max_iterations, early_give_up=continuation,
-                                second_guess=_quasi_static_guess)
+                                second_guess=_quasi_static_guess, abandoned=abandoned)
         history += h1
         at_target += h1
     if not ok:
@@ -1625,7 +1729,26 @@ def find_orbit(
                                                               max_iterations, X, solver, shift, col.system.charts)
         history += h2
         at_target += h_target
+    if not ok and abandoned:
+        # the damped Newton given up early for the continuation, resumed where it stopped, without the
+        # give-up, for the rest of its iteration limit
+        X0, used = abandoned[0]
+        logger.info("orbit: continuation failed; the damped Newton from the simulated guess resumed")
+        X1, h3, ok1, tb1 = _damped_newton(col_target, X0, tol, max(1, max_iterations - used))
+        history += h3
+        at_target += h3
+        if ok1:
+            X, ok, col, tb = X1, True, col_target, tb1
     lap("newton")
+    if ok:  # (continuation ends at omega on the same samples: compared with the guess at omega)
+        X = _whole_turns_to_guess(col_target, X)
+        far = _far_from_guess(col_target, X)
+    else:
+        far = col_target.far_orbit
+    if far:  # an orbit far from the one the model file sets up answers another question
+        raise OrbitConvergenceError(
+            f"periodic orbit of {definition.name} at omega = {float(omega):.6g}: Newton found no orbit near "
+            f"the model's initial state, only one where {far}", history)
     if not ok:
         best = min(at_target) if at_target else math.nan
         cont = ""

@@ -217,7 +217,7 @@ def test_an_orbit_at_an_intermediate_continuation_omega_is_never_reported_as_bes
 
     real = po._newton
 
-    def failing_at_target(col, X, tol, max_iterations, early_give_up=False, second_guess=None):
+    def failing_at_target(col, X, tol, max_iterations, early_give_up=False, second_guess=None, abandoned=None):
         Xn, hist, ok, tb = real(col, X, tol, max_iterations, early_give_up, second_guess)
         if abs(col.built.omega - OMEGA) < 1e-12:  # fail at omega itself, after real iterations
             return Xn, [1e-2 + h for h in hist], False, tb
