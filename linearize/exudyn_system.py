@@ -259,30 +259,53 @@ def _chart_free(nodes: list, charts: tuple) -> list:
     return [(idx, ref) for idx, ref in nodes if int(idx[0]) not in first]
 
 
+def _exudyn_coordinates(charts: tuple, q: np.ndarray) -> np.ndarray:
+    """Exudyn's ODE2 coordinates of the package's ``q``: the same but for the nodes of ``charts``."""
+    out = np.array(q, dtype=float)
+    for c in charts:
+        out[c.indices] = c.exudyn_coordinates(out[c.indices])
+    return out
+
+
+def _chart_coordinates(charts: tuple, q_ex: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """The package's ``q`` of Exudyn's ODE2 coordinates, the angles of ``charts`` nearest to ``near``'s."""
+    out = np.array(q_ex, dtype=float)
+    for c in charts:
+        out[c.indices] = c.angles(out[c.indices], np.asarray(near, dtype=float)[c.indices])
+    return out
+
+
+def _exudyn_rates(nodes: list, charts: tuple, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Exudyn's velocity coordinates of ``(q, q')``: the rotation-vector nodes ``nodes`` in the
+    rotation-vector chart but those of ``charts``."""
+    w = to_exudyn_velocity(_chart_free(nodes, charts), q, v)
+    for c in charts:
+        w[c.indices] = c.rate_map(np.asarray(q, dtype=float)[c.indices]) @ np.asarray(v, dtype=float)[c.indices]
+    return w
+
+
+def _chart_rates(nodes: list, charts: tuple, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``q'`` from Exudyn's velocity coordinates ``w`` at the package's ``q`` (inverse of :func:`_exudyn_rates`)."""
+    v = from_exudyn_velocity(_chart_free(nodes, charts), q, w)
+    for c in charts:
+        v[c.indices] = np.linalg.solve(c.rate_map(np.asarray(q, dtype=float)[c.indices]),
+                                       np.asarray(w, dtype=float)[c.indices])
+    return v
+
+
 def to_exudyn_state(nodes: list, charts: tuple, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exudyn's ODE2 coordinates and velocity coordinates of the package's state ``(q, q')``: the
     rotation-vector nodes ``nodes`` (:func:`lie_group_nodes`) in the rotation-vector chart but those of
     ``charts`` (:class:`TurningChart`)."""
-    q_ex = np.array(q, dtype=float)
-    w = to_exudyn_velocity(_chart_free(nodes, charts), q, v)
-    for c in charts:
-        theta = np.asarray(q, dtype=float)[c.indices]
-        q_ex[c.indices] = c.exudyn_coordinates(theta)
-        w[c.indices] = c.rate_map(theta) @ np.asarray(v, dtype=float)[c.indices]
-    return q_ex, w
+    return _exudyn_coordinates(charts, q), _exudyn_rates(nodes, charts, q, v)
 
 
 def from_exudyn_state(nodes: list, charts: tuple, q_ex: np.ndarray, w: np.ndarray,
                       near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The package's ``(q, q')`` of Exudyn's state (inverse of :func:`to_exudyn_state`; the angles of
     ``charts`` nearest to those of ``near``)."""
-    q = np.array(q_ex, dtype=float)
-    for c in charts:
-        q[c.indices] = c.angles(q[c.indices], np.asarray(near, dtype=float)[c.indices])
-    v = from_exudyn_velocity(_chart_free(nodes, charts), q, w)
-    for c in charts:
-        v[c.indices] = np.linalg.solve(c.rate_map(q[c.indices]), np.asarray(w, dtype=float)[c.indices])
-    return q, v
+    q = _chart_coordinates(charts, q_ex, near)
+    return q, _chart_rates(nodes, charts, q, w)
 
 
 class ExudynSystem:
@@ -419,35 +442,20 @@ class ExudynSystem:
     def exudyn_coordinates(self, q: np.ndarray) -> np.ndarray:
         """Exudyn's ODE2 coordinates of the package's ``q`` (the same but for turning rotation-vector
         nodes, :meth:`TurningChart.exudyn_coordinates`)."""
-        if not self.charts:
-            return q
-        out = np.array(q, dtype=float)
-        for c in self.charts:
-            out[c.indices] = c.exudyn_coordinates(out[c.indices])
-        return out
+        return _exudyn_coordinates(self.charts, q) if self.charts else q
 
     def chart_coordinates(self, q_exudyn: np.ndarray, near: np.ndarray) -> np.ndarray:
         """The package's ``q`` of Exudyn's ODE2 coordinates, the angles of turning rotation-vector nodes
         nearest to those of ``near`` (:meth:`TurningChart.angles`)."""
-        out = np.array(q_exudyn, dtype=float)
-        for c in self.charts:
-            out[c.indices] = c.angles(out[c.indices], np.asarray(near, dtype=float)[c.indices])
-        return out
+        return _chart_coordinates(self.charts, q_exudyn, near)
 
     def exudyn_velocity(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Exudyn's velocity coordinates of the state ``(q, q')`` (:func:`to_exudyn_velocity`)."""
-        w = to_exudyn_velocity(self._lie, q, v)
-        for c in self.charts:
-            w[c.indices] = c.rate_map(np.asarray(q, dtype=float)[c.indices]) @ np.asarray(v, dtype=float)[c.indices]
-        return w
+        return _exudyn_rates(self._lie, self.charts, q, v)
 
     def chart_velocity(self, q: np.ndarray, w: np.ndarray) -> np.ndarray:
         """``q'`` from Exudyn's velocity coordinates ``w`` at ``q`` (:func:`from_exudyn_velocity`)."""
-        v = from_exudyn_velocity(self._lie, q, w)
-        for c in self.charts:
-            v[c.indices] = np.linalg.solve(c.rate_map(np.asarray(q, dtype=float)[c.indices]),
-                                           np.asarray(w, dtype=float)[c.indices])
-        return v
+        return _chart_rates(self._lie, self.charts, q, w)
 
     def _velocity_map_rate(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """``P'(q, q') q'`` (complex-step derivative of :func:`tangent_operator` or
