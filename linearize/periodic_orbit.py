@@ -53,11 +53,10 @@ from typing import Any, Optional
 
 import numpy as np
 import scipy.linalg
-from scipy.spatial.transform import Rotation
 
 from linearize import collocation_solver as structured
-from linearize.exudyn_system import (ExudynSystem, from_exudyn_state, lie_group_nodes, to_exudyn_state,
-                                     turning_chart)
+from linearize.exudyn_system import (ExudynSystem, from_exudyn_state, lie_group_nodes, rotation_matrix,
+                                     rotation_vector, to_exudyn_state, turning_chart)
 from linearize.finite_difference import CENTRAL_DIFFERENCE_STEP, fd_steps
 from linearize.fourier import (antiperiodic_differentiation_matrices, antiperiodic_interpolate, differentiation_matrices,
                                sample_times, trig_interpolate)
@@ -1051,8 +1050,9 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, e
     from the simulated guess (:func:`_far_from_guess`) counts as a failure.  ``abandoned``: see
     :func:`_damped_newton`."""
     Xf, history, ok, tb = _full_step_newton(col, X, tol, max_iterations)
-    if ok and _far_from_guess(col, Xf):
-        col.far_orbit = _far_from_guess(col, Xf)
+    far = _far_from_guess(col, Xf) if ok else ""
+    if far:
+        col.far_orbit = far
         logger.info("orbit: full-step Newton converged to an orbit away from the simulated guess (%s); "
                     "damped Newton", col.far_orbit)
         ok = False
@@ -1070,8 +1070,9 @@ def _newton(col: _Collocation, X: np.ndarray, tol: float, max_iterations: int, e
     logger.debug("orbit: full-step Newton stopped at %.2e; damped Newton from the guess",
                  history[-1] if history else math.nan)
     X, h2, ok, tb = _damped_newton(col, X, tol, max_iterations, early_give_up, abandoned)
-    if ok and _far_from_guess(col, X):
-        col.far_orbit = _far_from_guess(col, X)
+    far = _far_from_guess(col, X) if ok else ""
+    if far:
+        col.far_orbit = far
         logger.info("orbit: damped Newton converged to an orbit away from the simulated guess (%s)",
                     col.far_orbit)
         ok = False
@@ -1347,10 +1348,10 @@ def _turning_charts(system: ExudynSystem, rows: np.ndarray) -> tuple:
     its start the node's rotation at the first sample.  Samples must be less than half a turn apart."""
     charts = []
     for idx, ref in lie_group_nodes(system.mbs):
-        R = Rotation.from_rotvec(rows[:, idx] + ref)
-        turned = (R[1:] * R[:-1].inv()).as_rotvec().sum(axis=0)  # R_{k+1} R_k^T, inertial increments
+        R = [rotation_matrix(row[idx] + ref) for row in rows]
+        turned = sum(rotation_vector(b @ a.T) for a, b in zip(R[:-1], R[1:]))  # R_{k+1} R_k^T: inertial increments
         if float(np.linalg.norm(turned)) >= TURNING_ANGLE:
-            charts.append(turning_chart(idx, ref, turned, R[0].as_matrix()))
+            charts.append(turning_chart(idx, ref, turned, R[0]))
             logger.info("rotation-vector node at %s turns by %.3g turns per period: Tait-Bryan chart about %s",
                         idx.tolist(), float(np.linalg.norm(turned)) / (2 * math.pi),
                         np.round(turned / np.linalg.norm(turned), 6).tolist())
