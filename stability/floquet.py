@@ -640,14 +640,18 @@ def _two_term_error(Ns: Sequence[int], s1: np.ndarray, s2: np.ndarray, p: float)
     them), the one-term extrapolation of the last change under-estimates the finest error and this
     does not; elsewhere it is at most the one-term value and the larger of the two is kept.
     """
+    c1, c2 = _two_term_weights(Ns, p)
+    return np.abs(c1 * s1 + c2 * s2)
+
+
+def _two_term_weights(Ns: Sequence[int], p: float) -> tuple[float, float]:
+    """``(c1, c2)`` with ``e(Nc) = x + y = c1 s1 + c2 s2`` in :func:`_two_term_error` (Cramer's rule)."""
     Na, Nb, Nc = (float(N) for N in Ns)
     A, B = Nc / Na, Nc / Nb
     a11, a12 = A**p - B**p, A ** (p + 2) - B ** (p + 2)
     a21, a22 = B**p - 1.0, B ** (p + 2) - 1.0
     det = a11 * a22 - a12 * a21
-    x = (s1 * a22 - a12 * s2) / det
-    y = (a11 * s2 - a21 * s1) / det
-    return np.abs(x + y)
+    return (a22 - a21) / det, (a11 - a12) / det
 
 
 def _extrapolated_estimate(Ns: Sequence[int], d1: Optional[np.ndarray], d2: np.ndarray, p: float,
@@ -996,9 +1000,7 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
     if not all(finite(x) for x in lf + lm + lc):
         return None
     Na, Nb, Nc = (lv.n_steps for lv in levels[-3:])
-    norm = _fro(fine.monodromy)
-    scale = 10.0 * math.sqrt(max(Nc, 1)) * _EPS * norm
-    noise = [scale * math.exp(-x) for x in lf]
+    noise = _rounding_levels(spec, _fro(fine.monodromy), Nc).tolist()
     change, m2, m1, floor = _matrix_changes(levels)
     both_phases = accuracy not in ("moduli", "dominant")
     rows = []  # per multiplier: signed changes (fine - mid, mid - coarse) of the modulus and the phase
@@ -1009,10 +1011,7 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
         return None
     log_r = math.log(Nb / Na)
     r = Nc / Nb
-    # the two-term model of :func:`_two_term_error` for the ratios (r^2, r)
-    A, B = r * r, r
-    a11, a12, a21, a22 = A**p - B**p, A ** (p + 2) - B ** (p + 2), B**p - 1.0, B ** (p + 2) - 1.0
-    det = a11 * a22 - a12 * a21
+    w1, w2 = _two_term_weights((Na, Nb, Nc), p)  # the two-term model of :func:`_two_term_error`
 
     def extrapolate(s2: float, s1: float, level: float, signed: bool = True) -> tuple[float, float]:
         """:func:`_extrapolated_estimate` of one change (equal ratios ``r``): ``(estimate, observed order)``."""
@@ -1029,7 +1028,7 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
         if informative and q_obs > p + ACCIDENTAL_ORDER_EXCESS:
             last = max(last, d1 / ((rq - 1.0) * rq))
         if signed and informative and q >= LOW_ORDER_FRACTION * p:
-            two = abs((s1 * a22 - a12 * s2) / det + (a11 * s2 - a21 * s1) / det)
+            two = abs(w1 * s1 + w2 * s2)
             last = max(last, two)
         return ESTIMATE_SAFETY * last, (q_obs if informative else math.nan)
 
