@@ -1,6 +1,7 @@
 """One call from a model to labelled Floquet multipliers: orbit -> linearisation -> Floquet."""
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import warnings
@@ -190,7 +191,7 @@ class ModelFloquetResult:
         return judge_floquet(self.floquet, labels=[m.mode for m in self.modes],
                              frequencies=[m.frequency_hz for m in self.modes], structural=self.structural)
 
-    @property
+    @functools.cached_property
     def structural(self) -> tuple:
         """Indices of the structural multipliers: on an autonomous orbit (its phase free), the multiplier
         nearest 1, which the verdict leaves out (the verdict is then one of orbital stability) -- only when

@@ -70,7 +70,7 @@ def test_structural_multiplier_must_be_one_within_its_error():
         ns = types.SimpleNamespace(orbit=types.SimpleNamespace(autonomous=autonomous),
                                    floquet=types.SimpleNamespace(multipliers=np.array(mus, complex),
                                                                  reliable_digits=np.array(digits, float)))
-        return ModelFloquetResult.structural.fget(ns)
+        return ModelFloquetResult.structural.func(ns)
 
     assert structural([0.5, 1.0 + 1e-9, 0.2], [10, 8, 10]) == (1,)
     assert structural([0.5, 1.0 + 3e-4, 0.2], [10, 4, 10]) == (1,)  # a defective 1: sqrt-level error
