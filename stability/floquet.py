@@ -1496,6 +1496,10 @@ def _magnus_solves_small(
     else:
         Pg[...] = wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0)
     h = _step_lengths(period, tuple(Ns))
+    if scheme.order == 6 and not keep_factors:
+        compiled = _compiled_levels(Pg, h, Ns, strict, optional_first, scheme)
+        if compiled is not None:
+            return compiled
     with np.errstate(over="ignore", invalid="ignore"):
         Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
@@ -1507,11 +1511,7 @@ def _magnus_solves_small(
                 Ns = Ns[1:]
             corr = float(column.max())
             if not corr <= COMMUTATOR_LIMIT:
-                raise _Unresolved(
-                    f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
-                    f"with {'/'.join(str(N) for N in Ns)} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
-                    f"the steps do not resolve P"
-                )
+                raise _unresolved_steps(scheme, corr, Ns)
         E = expm_soa(Om)
         products = _level_products(E, Ns)
         # the diagonals as a strided view of the (n n, N) rows
@@ -1524,14 +1524,53 @@ def _magnus_solves_small(
             # a non-finite factor makes the product non-finite
             Phi = products[i]
             if not np.isfinite(Phi).all():
-                raise _Unresolved(
-                    f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
-                    f"grow beyond 1e308 within one period, h*||P|| up to "
-                    f"{float(np.abs(Om[:, :, block]).sum(axis=0).max()):.3g})",
-                    genuine_overflow=True,
-                )
+                raise _overflowed(scheme, N, float(np.abs(Om[:, :, block]).sum(axis=0).max()))
             factors = np.ascontiguousarray(E[:, :, block].transpose(2, 0, 1)) if keep_factors else None
             out.append(_Solve(N, Phi, _spectrum(Phi), float(traces[i]), factors))
+    return out
+
+
+def _unresolved_steps(scheme: MagnusScheme, corr: float, Ns: Sequence[int]) -> _Unresolved:
+    return _Unresolved(
+        f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
+        f"with {'/'.join(str(N) for N in Ns)} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
+        f"the steps do not resolve P"
+    )
+
+
+def _overflowed(scheme: MagnusScheme, N: int, size: float) -> _Unresolved:
+    return _Unresolved(
+        f"{scheme.name}: the monodromy matrix overflowed with {N} sub-intervals (solutions "
+        f"grow beyond 1e308 within one period, h*||P|| up to {size:.3g})",
+        genuine_overflow=True,
+    )
+
+
+def _compiled_levels(Pg: np.ndarray, h: Any, Ns: list[int], strict: bool, optional_first: bool,
+                     scheme: MagnusScheme) -> Optional[list[_Solve]]:
+    """:func:`_magnus_solves_small`'s Magnus-6 batch by the compiled kernel
+    (:mod:`stability._compiled`), with the same checks; None where that kernel is not available."""
+    from stability import _compiled
+
+    if len(Ns) == 1:
+        h = np.full(Ns[0], h)
+    done = _compiled.magnus6_levels(Pg, h, Ns)
+    if done is None:
+        return None
+    phis, stats = done
+    first = 0
+    if strict:
+        if optional_first and len(Ns) > 1 and not float(stats[0, 1]) <= COMMUTATOR_LIMIT:
+            first = 1  # the coarsest level does not resolve P: dropped (the caller refines further)
+        corr = float(stats[first:, 1].max())
+        if not corr <= COMMUTATOR_LIMIT:
+            raise _unresolved_steps(scheme, corr, Ns[first:])
+    out = []
+    for i in range(first, len(Ns)):
+        Phi = phis[i]
+        if not np.isfinite(Phi).all():
+            raise _overflowed(scheme, Ns[i], float(stats[i, 2]))
+        out.append(_Solve(Ns[i], Phi, _spectrum(Phi), float(stats[i, 0]), None))
     return out
 
 

@@ -28,3 +28,17 @@ def load_benchmark():
     yield load
     for name in loaded:
         sys.modules.pop(name, None)
+
+
+@pytest.fixture(params=["compiled", "numpy"])
+def magnus_path(request, monkeypatch):
+    """Runs a test on both implementations of the small-system Magnus-6 batch: the compiled kernel
+    (:mod:`stability._compiled`) and the numpy stacks (the kernel switched off for the test)."""
+    from stability import _compiled
+
+    if request.param == "compiled":
+        if not _compiled.available():
+            pytest.fail("the compiled Magnus kernel is not available (numba is a dependency)")
+    else:
+        monkeypatch.setitem(_compiled._state, "kernel", None)
+    return request.param

@@ -128,7 +128,7 @@ def _constant_P_setup(case):
 
 @pytest.mark.parametrize("method", ["magnus6", "magnus4"])
 @pytest.mark.parametrize("case", sorted(CONSTANT_CASES))
-def test_constant_P(case, method):
+def test_constant_P(case, method, magnus_path):
     eigs, T, verdict, A, condV = _constant_P_setup(case)
     res = floquet(lambda t: A, period=T, method=method)
     Phi = expm(A * T)
@@ -273,7 +273,7 @@ class _Transformed:
         ([-0.5 + 4.0j, -0.5 - 4.0j, -0.1 + 1.0j, -0.1 - 1.0j], 1.0),  # stable, complex
     ],
 )
-def test_periodic_similarity_transform(eigs, T, method):
+def test_periodic_similarity_transform(eigs, T, method, magnus_path):
     eigs = np.array(eigs, dtype=complex)
     A, _ = _real_matrix_with_eigenvalues(eigs, seed=11)
     P = _Transformed(A, T)
@@ -429,7 +429,7 @@ def test_mathieu_verdicts(q, a, verdict, sign):
 
 @pytest.mark.parametrize("q", [1.0, 2.0])
 @pytest.mark.parametrize("kind, r", [("a", 0), ("a", 1), ("b", 1), ("a", 2), ("b", 2)])
-def test_mathieu_on_transition_curves(q, kind, r):
+def test_mathieu_on_transition_curves(q, kind, r, magnus_path):
     """On a_r(q), b_r(q) the Hill discriminant tr Phi(pi) equals 2 (-1)^r."""
     a = float((mathieu_a if kind == "a" else mathieu_b)(r, q))
     # fixed N = 512 (h = pi/512, ||P|| <= 7: magnus6 error ~1e-14); the adaptive default is
@@ -439,7 +439,7 @@ def test_mathieu_on_transition_curves(q, kind, r):
     assert np.trace(res.monodromy) == pytest.approx(2.0 * (-1) ** r, abs=1e-7)
 
 
-def test_mathieu_on_transition_curve_is_a_named_defective_pair_and_its_bound_covers():
+def test_mathieu_on_transition_curve_is_a_named_defective_pair_and_its_bound_covers(magnus_path):
     """On a_0(q) the multiplier +1 is double and defective (a Jordan block): its error is the square
     root of the monodromy error.  The default names the pair in a warning, and the estimate (the
     Henrici square-root bound) covers the true error; the first-order Richardson estimate of the
@@ -485,7 +485,7 @@ def smooth_reference():
 
 
 @pytest.mark.parametrize("method, order, Ns", [("magnus6", 6, [8, 16, 32, 64]), ("magnus4", 4, [16, 32, 64, 128, 256])])
-def test_convergence_order(method, order, Ns, smooth_reference):
+def test_convergence_order(method, order, Ns, smooth_reference, magnus_path):
     ref = smooth_reference
     errs = []
     for N in Ns:
