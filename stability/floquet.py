@@ -1800,6 +1800,12 @@ def _start_steps(scheme: MagnusScheme, wrapped: PeriodicMatrixFunction, period: 
 
 def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     """``max_k ||Omega_k - h Pbar_k||_1`` over the sub-intervals of ``Pg`` (shape ``(m, q, n, n)``)."""
+    if scheme.order == 6 and Pg.shape[-1] <= SMALL_N:
+        from stability import _compiled
+
+        done = _compiled.magnus6_levels(Pg.transpose(1, 2, 3, 0), np.full(Pg.shape[0], h), [Pg.shape[0]])
+        if done is not None:
+            return float(done[1][0, 1])
     with np.errstate(over="ignore", invalid="ignore"):
         _, C = magnus_exponents(scheme, Pg, h, split=True)
         return float(np.max(np.sum(np.abs(C), axis=1)))

@@ -173,3 +173,15 @@ def test_switching_the_kernel_off():
     flag, rho = out.stdout.split()
     assert flag == "False"
     assert float(rho) == pytest.approx(math.exp(-0.05), rel=1e-9)
+
+
+def test_start_probe_commutator_size_equals_the_numpy_rule(monkeypatch):
+    """The start rule's commutator size (:func:`stability.floquet._commutator_size`) from the kernel
+    equals the ``(m, q, n, n)`` numpy computation of the same quantity."""
+    _, _, levels = _random_stack(4, [8], seed=3, scale=3.0)
+    probe = levels[0]
+    compiled = F._commutator_size(MAGNUS6, probe, 0.125)
+    monkeypatch.setitem(_compiled._state, "kernel", None)
+    plain = F._commutator_size(MAGNUS6, probe, 0.125)
+    assert compiled == pytest.approx(plain, rel=1e-12)
+    assert compiled > 0.0
