@@ -63,9 +63,9 @@ def _jit(func):
     if numba is None:
         return func
     try:
-        return numba.njit(cache=True, boundscheck=False)(func)
+        return numba.njit(cache=True, boundscheck=False, error_model="numpy")(func)
     except RuntimeError:  # pragma: no cover - no writable cache directory: compiled in every process
-        return numba.njit(cache=False, boundscheck=False)(func)
+        return numba.njit(cache=False, boundscheck=False, error_model="numpy")(func)
 
 
 @_jit
@@ -236,10 +236,8 @@ def _levels(Pg, hs, bounds, phis, stats):  # pragma: no cover - compiled by numb
                     x[k] = y[k] + e1 * o[k] + e2 * y2[k] + e3 * y3[k] + diag
         for _ in range(sq):
             _mm(X, X, Y, k0, k1)
-            for r in range(mn):
-                x, y = Xf[r], Yf[r]
-                for k in range(k0, k1):
-                    x[k] = y[k]
+            X, Y = Y, X  # the square is the new X (no copy)
+            Xf, Yf = Yf, Xf
         phi = phis[lev]
         phi[:, :] = 0.0
         for i in range(n):
