@@ -37,6 +37,7 @@ Usage::
     python benchmarks/floquet_speed.py            # full run (~5-10 min: references and baselines)
     python benchmarks/floquet_speed.py --quick    # 2 cases, 2 tolerances, DOP853 reference
     python benchmarks/floquet_speed.py --out results
+    FLEXSTAB_NUMBA=0 python benchmarks/floquet_speed.py   # the numpy path of small systems
 
 Writes ``<out>/floquet_speed.json`` (default ``results/``).
 """
@@ -310,7 +311,7 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         ))
     timed = [r for r in results if r.best_ms is not None]
     total_ratio = (sum(r.best_ms for r in timed) / sum(r.default_ms for r in timed)) if timed else None
-    table = _table(results, total_ratio)
+    table = _table(results, total_ratio) + f"\nsmall-system Magnus kernel: {_kernel_name()}"
     print(table)
     payload = {
         "quick": quick,
@@ -320,6 +321,7 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         "rtols": rtols,
         "methods": IVP_METHODS,
         "total_ratio": total_ratio,
+        "kernel": _kernel_name(),
         "clock": CLOCK_NAME,
         "cases": [asdict(r) for r in results],
         "platform": {"python": platform.python_version(), "numpy": np.__version__,
@@ -329,6 +331,14 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
     out.mkdir(parents=True, exist_ok=True)
     (out / "floquet_speed.json").write_text(json.dumps(payload, indent=2))
     return payload
+
+
+def _kernel_name() -> str:
+    """Which implementation of the small-system Magnus batch ran: the compiled (numba) kernel, or the
+    numpy stacks (numba missing, or ``FLEXSTAB_NUMBA=0``: run it so to measure that path)."""
+    from stability import _compiled
+
+    return "compiled (numba)" if _compiled.available() else "numpy (no numba, or FLEXSTAB_NUMBA=0)"
 
 
 def _table(results, total_ratio) -> str:
