@@ -21,7 +21,7 @@ the loops over the stack innermost (contiguous, vectorised by LLVM):
 Used when ``numba`` can be imported (it is a dependency of the package) and the
 environment variable ``FLEXSTAB_NUMBA`` is not ``0``; otherwise, and for the
 other schemes, the numpy path runs (same method, same accuracy; the test suite
-checks both).  The machine code is compiled on first use (~8 s) and cached on
+checks both).  The machine code is compiled on first use (10-25 s) and cached on
 disk by numba.
 """
 from __future__ import annotations
@@ -34,15 +34,15 @@ from typing import Any, Optional
 
 import numpy as np
 
+# the Taylor coefficients 1/k! and the largest alpha_3 at which the degree-16 polynomial is exact to
+# double precision; the Magnus-6 constant sqrt(15)/3 (the same names as the numpy path)
+from stability.expm import _TAYLOR, THETA_TAYLOR as _THETA
+from stability.magnus import _K15
+
 __all__ = ["available", "magnus6_levels"]
 
 logger = logging.getLogger(__name__)
 
-#: Taylor coefficients ``1/k!``, ``k = 0..16``, and the largest ``alpha_3`` at which the
-#: degree-16 polynomial is exact to double precision (the constants of :mod:`stability.expm`).
-_TAYLOR = np.array([1.0 / math.factorial(k) for k in range(17)])
-_THETA = 0.82
-_K15 = math.sqrt(15.0) / 3.0
 
 def _enabled() -> bool:
     return os.environ.get("FLEXSTAB_NUMBA", "1").strip().lower() not in ("0", "false", "no", "off")
@@ -176,8 +176,9 @@ def _levels(Pg, hs, bounds, phis, stats):  # pragma: no cover - compiled by numb
                 col[3, k] += abs(omf[r, k])
         for d in range(4):
             for k in range(nt):
-                if not col[d, k] <= big[d, k]:  # NaN propagates
-                    big[d, k] = col[d, k]
+                v = col[d, k]
+                if v > big[d, k] or v != v:  # a NaN stays (no later number replaces it)
+                    big[d, k] = v
     cs = np.empty(17)
     tmp = np.empty((n, n))
     for lev in range(bounds.shape[0] - 1):
@@ -187,15 +188,19 @@ def _levels(Pg, hs, bounds, phis, stats):  # pragma: no cover - compiled by numb
         corr = 0.0
         size = 0.0
         trace = 0.0
-        for k in range(k0, k1):
-            if not big[0, k] <= n3:
-                n3 = big[0, k]
-            if not big[1, k] <= n4:
-                n4 = big[1, k]
-            if not big[2, k] <= corr:
-                corr = big[2, k]
-            if not big[3, k] <= size:
-                size = big[3, k]
+        for k in range(k0, k1):  # the level's maxima; a NaN stays
+            v = big[0, k]
+            if v > n3 or v != v:
+                n3 = v
+            v = big[1, k]
+            if v > n4 or v != v:
+                n4 = v
+            v = big[2, k]
+            if v > corr or v != v:
+                corr = v
+            v = big[3, k]
+            if v > size or v != v:
+                size = v
             for i in range(n):
                 trace += omf[i * n + i, k]
         stats[lev, 0] = trace
@@ -301,5 +306,7 @@ def magnus6_levels(Pg: np.ndarray, h: np.ndarray, Ns: list[int]) -> Optional[tup
     bounds = np.array([0, *itertools.accumulate(Ns)], dtype=np.int64)  # (np.cumsum costs more on a short list)
     phis = np.empty((len(Ns), n, n))
     stats = np.empty((len(Ns), 3))
-    kernel(np.ascontiguousarray(Pg, dtype=np.float64), np.ascontiguousarray(h, dtype=np.float64), bounds, phis, stats)
+    # writable C arrays only (a read-only one, such as the cached step lengths, is another numba type:
+    # a second compilation)
+    kernel(np.require(Pg, np.float64, ["C", "W"]), np.require(h, np.float64, ["C", "W"]), bounds, phis, stats)
     return phis, stats
