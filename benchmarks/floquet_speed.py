@@ -278,9 +278,6 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
     rtols = QUICK_RTOLS if quick else RTOLS
     reference = reference or ("dop853" if quick else "paper")
     log(f"timing: {CLOCK_NAME}")
-    # a process switches to the compiled small-system kernel after stability._compiled.COMPILED_AFTER
-    # batches (a tuning loop or a chart gets there); the benchmark measures that state from its first call
-    log(f"small-system Magnus kernel: {_kernel_name()}")
     results = []
     for label, k, kp, kd in cases:
         model = ReducedModel(k * math.pi, kp, kd)

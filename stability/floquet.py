@@ -1554,7 +1554,7 @@ def _compiled_levels(Pg: np.ndarray, h: Any, Ns: list[int], strict: bool, option
 
     if len(Ns) == 1:
         h = np.full(Ns[0], h)
-    done = _compiled.batch(Pg, h, Ns)
+    done = _compiled.magnus6_levels(Pg, h, Ns)
     if done is None:
         return None
     phis, stats = done
@@ -1803,7 +1803,7 @@ def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     if scheme.order == 6 and Pg.shape[-1] <= SMALL_N:
         from stability import _compiled
 
-        done = _compiled.batch(Pg.transpose(1, 2, 3, 0), np.full(Pg.shape[0], h), [Pg.shape[0]])
+        done = _compiled.magnus6_levels(Pg.transpose(1, 2, 3, 0), np.full(Pg.shape[0], h), [Pg.shape[0]])
         if done is not None:
             return float(done[1][0, 1])
     with np.errstate(over="ignore", invalid="ignore"):
