@@ -183,26 +183,16 @@ def _levels(Pg, hs, bounds, phis, stats):  # pragma: no cover - compiled by numb
     tmp = np.empty((n, n))
     for lev in range(bounds.shape[0] - 1):
         k0, k1 = bounds[lev], bounds[lev + 1]
-        n3 = 0.0
-        n4 = 0.0
-        corr = 0.0
-        size = 0.0
+        top = np.zeros(4)  # the level's largest |A^3|, |A^4|, |C|, |Omega| column sums; a NaN stays
         trace = 0.0
-        for k in range(k0, k1):  # the level's maxima; a NaN stays
-            v = big[0, k]
-            if v > n3 or v != v:
-                n3 = v
-            v = big[1, k]
-            if v > n4 or v != v:
-                n4 = v
-            v = big[2, k]
-            if v > corr or v != v:
-                corr = v
-            v = big[3, k]
-            if v > size or v != v:
-                size = v
+        for k in range(k0, k1):
+            for d in range(4):
+                v = big[d, k]
+                if v > top[d] or v != v:
+                    top[d] = v
             for i in range(n):
                 trace += omf[i * n + i, k]
+        n3, n4, corr, size = top[0], top[1], top[2], top[3]
         stats[lev, 0] = trace
         stats[lev, 1] = corr
         stats[lev, 2] = size
