@@ -1504,14 +1504,11 @@ def _magnus_solves_small(
         Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
             column = np.abs(C).sum(axis=0).max(axis=0)  # per sub-interval
-            if optional_first and len(Ns) > 1 and not float(column[:Ns[0]].max()) <= COMMUTATOR_LIMIT:
-                # the coarsest level does not resolve P: drop it (the caller refines further)
-                keep = slice(Ns[0], Ntot)
-                Om, column, h = Om[:, :, keep], column[keep], h[keep]
+            levels = np.maximum.reduceat(column, [0, *itertools.accumulate(Ns[:-1])])
+            if _first_resolved_level(scheme, levels, Ns, optional_first):
+                keep = slice(Ns[0], Ntot)  # the coarsest level dropped
+                Om, h = Om[:, :, keep], h[keep]
                 Ns = Ns[1:]
-            corr = float(column.max())
-            if not corr <= COMMUTATOR_LIMIT:
-                raise _unresolved_steps(scheme, corr, Ns)
         E = expm_soa(Om)
         products = _level_products(E, Ns)
         # the diagonals as a strided view of the (n n, N) rows
@@ -1530,12 +1527,21 @@ def _magnus_solves_small(
     return out
 
 
-def _unresolved_steps(scheme: MagnusScheme, corr: float, Ns: Sequence[int]) -> _Unresolved:
-    return _Unresolved(
-        f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
-        f"with {'/'.join(str(N) for N in Ns)} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
-        f"the steps do not resolve P"
-    )
+def _first_resolved_level(scheme: MagnusScheme, level_corr: np.ndarray, Ns: Sequence[int],
+                          optional_first: bool) -> int:
+    """The commutator test of a batch of levels: ``level_corr[i]`` is the largest commutator part
+    ``||Omega_k - h Pbar_k||_1`` of level ``i``.  Returns 1 when the coarsest level does not resolve
+    ``P`` and may be dropped (``optional_first``; the caller refines further), else 0; raises
+    :class:`_Unresolved` when a kept level does not resolve it (a NaN does not)."""
+    first = int(optional_first and len(Ns) > 1 and not float(level_corr[0]) <= COMMUTATOR_LIMIT)
+    corr = float(np.max(level_corr[first:]))
+    if not corr <= COMMUTATOR_LIMIT:
+        raise _Unresolved(
+            f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
+            f"with {'/'.join(str(N) for N in Ns[first:])} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
+            f"the steps do not resolve P"
+        )
+    return first
 
 
 def _overflowed(scheme: MagnusScheme, N: int, size: float) -> _Unresolved:
@@ -1558,13 +1564,7 @@ def _compiled_levels(Pg: np.ndarray, h: Any, Ns: list[int], strict: bool, option
     if done is None:
         return None
     phis, stats = done
-    first = 0
-    if strict:
-        if optional_first and len(Ns) > 1 and not float(stats[0, 1]) <= COMMUTATOR_LIMIT:
-            first = 1  # the coarsest level does not resolve P: dropped (the caller refines further)
-        corr = float(stats[first:, 1].max())
-        if not corr <= COMMUTATOR_LIMIT:
-            raise _unresolved_steps(scheme, corr, Ns[first:])
+    first = _first_resolved_level(scheme, stats[:, 1], Ns, optional_first) if strict else 0
     out = []
     for i in range(first, len(Ns)):
         Phi = phis[i]
