@@ -431,7 +431,7 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     the distance between two different multipliers.  The pairing here minimises the total
     distance in the complex logarithm, ``sum_i |log a_i - log b_(pi i)|`` (relative distance in
     modulus and phase, the phase difference wrapped to ``(-pi, pi]``), by the Hungarian algorithm
-    (``scipy.optimize.linear_sum_assignment``).
+    (:func:`stability.assignment.linear_assignment`).
     """
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
@@ -460,9 +460,9 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
         if cols == list(range(n)):
             return b
     else:
-        from scipy.optimize import linear_sum_assignment
+        from stability.assignment import linear_assignment
 
-        _, cols = linear_sum_assignment(np.asarray(cost))
+        cols = linear_assignment(np.asarray(cost)).tolist()
     return _Spectrum(b.values[cols], b.log_moduli[cols])
 
 
