@@ -245,10 +245,10 @@ def _transport(C_all: np.ndarray, times: np.ndarray, period: float, signs: "np.n
         if np.linalg.det(H) < 0:
             raise ConstraintBasisError("the constraint tangent space is not orientable along the orbit "
                                        "(holonomy with det -1): no periodic basis")
-        G = np.real(scipy.linalg.logm(H))
+        # the principal logarithm where it is real; half turns (eigenvalues -1, e.g. Euler parameters)
+        # as +-pi rotations (real Schur form: no scipy.linalg.logm, whose import costs ~40 ms)
+        G = _rotation_log(H)
         G = 0.5 * (G - G.T)
-        if not np.allclose(scipy.linalg.expm(G), H, atol=1e-10):
-            G = _rotation_log(H)  # eigenvalues -1 (a half turn, e.g. Euler parameters): not the principal log
         if not np.allclose(scipy.linalg.expm(G), H, atol=1e-10):
             raise ConstraintBasisError("no real logarithm of the holonomy of the constraint tangent space")
         for k in range(Kn):
@@ -257,8 +257,9 @@ def _transport(C_all: np.ndarray, times: np.ndarray, period: float, signs: "np.n
 
 
 def _rotation_log(H: np.ndarray) -> np.ndarray:
-    """A real skew logarithm of a rotation ``H`` (orthogonal, ``det H = 1``) whose eigenvalues -1 (half
-    turns) the principal ``logm`` leaves complex.
+    """A real skew logarithm of a rotation ``H`` (orthogonal, ``det H = 1``): the principal one
+    (angles in ``(-pi, pi)``) where no eigenvalue is -1, and half turns for the eigenvalues -1 that
+    the principal ``logm`` leaves complex.
 
     Maths: the real Schur form of the normal matrix ``H`` is ``Z T Z^T`` with ``T`` block diagonal, 2 x 2
     blocks ``[[c, s], [-s, c]] = expm(a [[0, 1], [-1, 0]])`` (``a = atan2(s, c)``) and 1 x 1 blocks
