@@ -72,9 +72,13 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: Collocation unknowns ``K (n + m + d)`` from which :mod:`linearize.periodic_orbit`
-#: uses this module: below, the dense LU of a ``2000 x 2000`` matrix (0.3 s) is
-#: cheaper than building a sparse one.
-STRUCTURED_THRESHOLD = 2000
+#: uses this module: below, the dense Newton (one LU of the whole matrix per
+#: factorisation) is as cheap as building the sparse one.  Measured (whole
+#: ``find_orbit``, seconds, dense / structured, 32 samples, one core): single link 4
+#: elements (928 unknowns) 0.27-0.40 / 0.29-0.46, 6 elements (1184) 0.45-0.52 /
+#: 0.39-0.53, 8 elements (1440) 0.54-0.62 / 0.41-0.44, 12 elements 1.18-1.29 /
+#: 0.51-0.64; the two-link robot (1536) 0.53-0.70 / 0.45-0.46.
+STRUCTURED_THRESHOLD = 1200
 
 #: SuperLU's column ordering of the Newton matrix.  Measured on the single link
 #: (32 samples, CPU s per factorisation, same fill within 5 %): 32 elements (4512
