@@ -10,9 +10,15 @@ few dozen states.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["linear_assignment"]
+
+#: Up to this size the same algorithm runs on Python lists (a few microseconds; numpy's per-call
+#: overhead would dominate): the Floquet engine pairs the spectra of small systems on every solve.
+SMALL = 12
 
 
 def linear_assignment(cost: np.ndarray) -> np.ndarray:
@@ -42,12 +48,18 @@ def linear_assignment(cost: np.ndarray) -> np.ndarray:
     column, then flips the path.  The potentials stay dual feasible, so the final assignment is
     optimal (complementary slackness).  Ties are broken by the lowest column index.
     """
+    if isinstance(cost, list) and len(cost) <= SMALL and all(isinstance(r, list) and len(r) == len(cost) for r in cost):
+        if not all(math.isfinite(x) for row in cost for x in row):
+            raise ValueError("the cost matrix has non-finite entries")
+        return np.array(_small_assignment(cost), dtype=np.intp)
     C = np.asarray(cost, dtype=float)
     if C.ndim != 2 or C.shape[0] != C.shape[1]:
         raise ValueError(f"the cost matrix must be square, got shape {C.shape}")
     if not np.isfinite(C).all():
         raise ValueError("the cost matrix has non-finite entries")
     n = C.shape[0]
+    if n <= SMALL:
+        return np.array(_small_assignment(C.tolist()), dtype=np.intp)
     # 1-based columns as in the textbook form: column 0 is the virtual root of each tree
     u = np.zeros(n + 1)
     v = np.zeros(n + 1)
@@ -90,4 +102,59 @@ def linear_assignment(cost: np.ndarray) -> np.ndarray:
             j0 = j1
     cols = np.empty(n, dtype=np.intp)
     cols[row_of[1:] - 1] = np.arange(n)
+    return cols
+
+
+def _small_assignment(C: list) -> list:
+    """:func:`linear_assignment` of a small square cost matrix given as lists (same algorithm, same
+    ties)."""
+    n = len(C)
+    if n == 0:
+        return []
+    inf = math.inf
+    u = [0.0] * (n + 1)
+    v = [0.0] * (n + 1)
+    row_of = [0] * (n + 1)
+    way = [0] * (n + 1)
+    pending = []
+    for i, row in enumerate(C, start=1):
+        j = min(range(n), key=row.__getitem__)
+        u[i] = row[j]
+        if row_of[j + 1] == 0:
+            row_of[j + 1] = i
+        else:
+            pending.append(i)
+    for i in pending:
+        row_of[0] = i
+        j0 = 0
+        minv = [inf] * (n + 1)
+        used = [False] * (n + 1)
+        while True:
+            used[j0] = True
+            i0 = row_of[j0]
+            row, ui = C[i0 - 1], u[i0]
+            delta, j1 = inf, 0
+            for j in range(1, n + 1):
+                if not used[j]:
+                    cur = row[j - 1] - ui - v[j]
+                    if cur < minv[j]:
+                        minv[j], way[j] = cur, j0
+                    if minv[j] < delta:
+                        delta, j1 = minv[j], j
+            for j in range(n + 1):
+                if used[j]:
+                    u[row_of[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if row_of[j0] == 0:
+                break
+        while j0:
+            j1 = way[j0]
+            row_of[j0] = row_of[j1]
+            j0 = j1
+    cols = [0] * n
+    for j in range(1, n + 1):
+        cols[row_of[j] - 1] = j - 1
     return cols

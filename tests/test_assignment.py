@@ -1,4 +1,6 @@
 """The linear assignment solver of the Floquet engine against scipy.optimize.linear_sum_assignment."""
+import math
+
 import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
@@ -41,3 +43,18 @@ def test_empty_and_bad_input():
         linear_assignment(np.zeros((2, 3)))
     with pytest.raises(ValueError, match="non-finite"):
         linear_assignment(np.array([[0.0, np.nan], [1.0, 0.0]]))
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 6, 8, 12])
+def test_small_lists_equal_scipy(n):
+    """The list path of small systems (the Floquet engine's small-system pairing) is optimal too."""
+    rng = np.random.default_rng(100 + n)
+    for trial in range(30):
+        C = rng.random((n, n)) if trial % 2 else rng.integers(0, 3, (n, n)).astype(float)
+        cols = linear_assignment(C.tolist())
+        assert sorted(cols.tolist()) == list(range(n))
+        r, c = linear_sum_assignment(C)
+        assert _total(C, cols) == pytest.approx(_total(C, c[np.argsort(r)]), rel=1e-12, abs=1e-12)
+    assert linear_assignment([[1.0, 2.0], [1.0, 10.0]]).tolist() == [1, 0]
+    with pytest.raises(ValueError, match="non-finite"):
+        linear_assignment([[0.0, math.inf], [1.0, 0.0]])

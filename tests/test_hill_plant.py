@@ -293,7 +293,7 @@ def test_modal_fallback_meets_the_budget_or_fails_the_run(arm, monkeypatch):
 
 def test_early_stopped_pair_is_flagged_on_the_arm(arm, monkeypatch):
     """On the two-link arm (gains GAINS, H = 16, the 8 largest magnus2 targets) converged pairs read
-    ~eps in the residual's scaling, and pairs whose inverse iteration is stopped at a 1e-3 change are flagged
+    ~eps in the residual's scaling, and pairs whose inverse iteration is stopped at a 1e-2 change are flagged
     ``unconverged`` whenever they are off by more than 1e-6 (errors against the converged run; the former scaling
     passed a pair off by 7.7e-5)."""
     import stability.hill as hill_mod
@@ -305,7 +305,7 @@ def test_early_stopped_pair_is_flagged_on_the_arm(arm, monkeypatch):
     targets = np.asarray(res.multipliers)[:8]
     good = hill_mod.hill_multipliers(lg.M, lg.C, lg.K, lg.period, targets, harmonics=16, error_estimate=False)
     assert not np.any(good.unconverged) and np.all(good.residual < 1e2 * np.finfo(float).eps)
-    monkeypatch.setattr(hill_mod, "EIG_RTOL", 1e-3)
+    monkeypatch.setattr(hill_mod, "EIG_RTOL", 1e-2)
     early = hill_mod.hill_multipliers(lg.M, lg.C, lg.K, lg.period, targets, harmonics=16, error_estimate=False)
     err = np.abs(early.multipliers - good.multipliers) / np.abs(good.multipliers)
     assert np.max(err) > 1e-5  # the construction does stop some pair early
