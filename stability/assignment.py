@@ -48,10 +48,6 @@ def linear_assignment(cost: np.ndarray) -> np.ndarray:
     column, then flips the path.  The potentials stay dual feasible, so the final assignment is
     optimal (complementary slackness).  Ties are broken by the lowest column index.
     """
-    if isinstance(cost, list) and len(cost) <= SMALL and all(isinstance(r, list) and len(r) == len(cost) for r in cost):
-        if not all(math.isfinite(x) for row in cost for x in row):
-            raise ValueError("the cost matrix has non-finite entries")
-        return np.array(_small_assignment(cost), dtype=np.intp)
     C = np.asarray(cost, dtype=float)
     if C.ndim != 2 or C.shape[0] != C.shape[1]:
         raise ValueError(f"the cost matrix must be square, got shape {C.shape}")
@@ -65,8 +61,6 @@ def linear_assignment(cost: np.ndarray) -> np.ndarray:
     v = np.zeros(n + 1)
     row_of = np.zeros(n + 1, dtype=np.intp)  # row_of[j]: row (1-based) assigned to column j, 0 = free
     way = np.zeros(n + 1, dtype=np.intp)
-    if n == 0:
-        return np.zeros(0, dtype=np.intp)
     # start: u = row minima (dual feasible with v = 0), each row on its cheapest column where that
     # column is not taken by an earlier row (tight edges); only the other rows are augmented
     nearest = C.argmin(axis=1)

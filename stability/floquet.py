@@ -462,7 +462,7 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     else:
         from stability.assignment import linear_assignment
 
-        cols = linear_assignment(cost).tolist()  # the small path's lists as they are
+        cols = linear_assignment(cost).tolist()
     return _Spectrum(b.values[cols], b.log_moduli[cols])
 
 
