@@ -376,11 +376,12 @@ class ReducedModel:
         """
         times = np.atleast_1d(np.asarray(times, dtype=float))
         motion = _DEFAULT_MOTION  # q_a^R = mean + amplitude sin(omega t), the paper's pi/2 + pi/2 sin
-        wt = self.omega * times
+        sin_wt = np.sin(self.omega * times)
         coef = np.empty(times.shape + (3,))
         coef[..., 0] = 1.0
-        coef[..., 1] = np.sin(motion.mean + motion.amplitude * np.sin(wt))
-        coef[..., 2] = (motion.amplitude * self.omega * np.cos(wt)) ** 2
+        coef[..., 1] = np.sin(motion.mean + motion.amplitude * sin_wt)
+        # (dq_a^R/dt)^2 = (amplitude omega cos wt)^2, with cos^2 = 1 - sin^2 (one transcendental less)
+        coef[..., 2] = (motion.amplitude * self.omega) ** 2 * (1.0 - sin_wt * sin_wt)
         n = self._affine[0].shape[0]  # type: ignore[attr-defined]
         return (coef @ self._affine_rows).reshape(times.shape + (n, n))  # type: ignore[attr-defined]
 

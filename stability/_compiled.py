@@ -108,17 +108,25 @@ def _comm(A, B, out, work):  # pragma: no cover - compiled by numba
 
 
 @_jit
-def _levels(Pg, hs, bounds, phis, stats):  # pragma: no cover - compiled by numba
+def _levels(P, ratio, hs, bounds, phis, stats):  # pragma: no cover - compiled by numba
     """The kernel (see the module notes).
 
-    ``Pg`` ``(3, n, n, Ntot)`` matrix-major, ``P`` at the Gauss nodes; ``hs`` ``(Ntot,)`` the step
-    lengths; ``bounds`` ``(L + 1,)`` the level boundaries along the stack.  Outputs: ``phis``
-    ``(L, n, n)`` the level products; ``stats`` ``(L, 3)`` per level: ``sum_k tr Omega_k``, the
-    largest column sum of ``|Omega_k - h Pbar_k|`` and of ``|Omega_k|`` (NaN propagates).
+    ``P`` ``(Ntot, 3, n, n)``, ``P`` at the Gauss nodes of every sub-interval, and ``ratio``
+    ``(n, n)`` a factor on every entry (the balancing ``D^-1 P D``, ones without it), taken into
+    the matrix-major stack ``Pg`` ``(3, n, n, Ntot)``; ``hs`` ``(Ntot,)`` the step lengths;
+    ``bounds`` ``(L + 1,)`` the level boundaries along the stack.  Outputs: ``phis`` ``(L, n, n)``
+    the level products; ``stats`` ``(L, 3)`` per level: ``sum_k tr Omega_k``, the largest column
+    sum of ``|Omega_k - h Pbar_k|`` and of ``|Omega_k|`` (NaN propagates).
     """
-    n = Pg.shape[1]
-    nt = Pg.shape[3]
+    nt = P.shape[0]
+    n = P.shape[2]
     mn = n * n
+    Pg = np.empty((3, n, n, nt))
+    for k in range(nt):
+        for g in range(3):
+            for i in range(n):
+                for j in range(n):
+                    Pg[g, i, j, k] = P[k, g, i, j] * ratio[i, j]
     a1 = np.empty((n, n, nt))
     a2 = np.empty((n, n, nt))
     a3 = np.empty((n, n, nt))
@@ -256,7 +264,7 @@ def _kernel() -> Optional[Any]:
         kernel = None
         if numba is not None:
             try:  # compile (or load from the cache) on a tiny problem, once per process
-                _levels(np.zeros((3, 1, 1, 1)), np.ones(1), np.array([0, 1], dtype=np.int64),
+                _levels(np.zeros((1, 3, 1, 1)), np.ones((1, 1)), np.ones(1), np.array([0, 1], dtype=np.int64),
                         np.empty((1, 1, 1)), np.empty((1, 3)))
                 kernel = _levels
             except Exception as exc:  # pragma: no cover - a broken numba installation
@@ -270,17 +278,21 @@ def available() -> bool:
     return _kernel() is not None
 
 
-def magnus6_levels(Pg: np.ndarray, h: np.ndarray, Ns: list[int]) -> Optional[tuple[np.ndarray, np.ndarray]]:
-    """Magnus-6 level products of a matrix-major batch by the compiled kernel.
+def magnus6_levels(P: np.ndarray, h: np.ndarray, Ns: list[int],
+                   ratio: Optional[np.ndarray] = None) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """Magnus-6 level products of a batch of sub-intervals by the compiled kernel.
 
     Parameters
     ----------
-    Pg : ndarray, shape (3, n, n, sum(Ns))
-        ``P`` at the three Gauss nodes of every sub-interval, the levels one after another.
+    P : ndarray, shape (sum(Ns), 3, n, n)
+        ``P`` at the three Gauss nodes of every sub-interval (as ``evaluate`` returns it for the
+        nodes in time order), the levels one after another.
     h : ndarray, shape (sum(Ns),)
         Step length of every sub-interval.
     Ns : list of int
         Sub-intervals of each level.
+    ratio : ndarray, shape (n, n), optional
+        Factor on every entry of ``P`` (the balancing ``D^-1 P D`` as ``d_j / d_i``); none by default.
 
     Returns
     -------
@@ -292,11 +304,13 @@ def magnus6_levels(Pg: np.ndarray, h: np.ndarray, Ns: list[int]) -> Optional[tup
     kernel = _kernel()
     if kernel is None:
         return None
-    n = Pg.shape[1]
+    n = P.shape[-1]
     bounds = np.array([0, *itertools.accumulate(Ns)], dtype=np.int64)  # (np.cumsum costs more on a short list)
     phis = np.empty((len(Ns), n, n))
     stats = np.empty((len(Ns), 3))
+    ratio = np.ones((n, n)) if ratio is None else ratio
     # writable C arrays only (a read-only one, such as the cached step lengths, is another numba type:
     # a second compilation)
-    kernel(np.require(Pg, np.float64, ["C", "W"]), np.require(h, np.float64, ["C", "W"]), bounds, phis, stats)
+    kernel(np.require(P, np.float64, ["C", "W"]), np.require(ratio, np.float64, ["C", "W"]),
+           np.require(h, np.float64, ["C", "W"]), bounds, phis, stats)
     return phis, stats

@@ -1489,17 +1489,19 @@ def _magnus_solves_small(
     n = wrapped.n
     times = _gauss_times(scheme.nodes, period, tuple(Ns))
     Ntot = sum(Ns)
-    Pg = np.empty((q, n, n, Ntot))  # matrix-major (q, n, n, Ntot)
-    if isinstance(wrapped, _Balanced):  # the balancing in the same pass as the transposition
-        np.multiply(wrapped.wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0),
-                    wrapped.ratio[None, :, :, None], out=Pg)
-    else:
-        Pg[...] = wrapped.evaluate(times).reshape(Ntot, q, n, n).transpose(1, 2, 3, 0)
+    balanced = isinstance(wrapped, _Balanced)  # then the balancing is applied with the transposition
+    raw = (wrapped.wrapped if balanced else wrapped).evaluate(times).reshape(Ntot, q, n, n)
+    ratio = wrapped.ratio if balanced else None
     h = _step_lengths(period, tuple(Ns))
     if scheme.order == 6 and not keep_factors:
-        compiled = _compiled_levels(Pg, h, Ns, strict, optional_first, scheme)
+        compiled = _compiled_levels(raw, ratio, h, Ns, strict, optional_first, scheme)
         if compiled is not None:
             return compiled
+    Pg = np.empty((q, n, n, Ntot))  # matrix-major (q, n, n, Ntot)
+    if balanced:
+        np.multiply(raw.transpose(1, 2, 3, 0), ratio[None, :, :, None], out=Pg)
+    else:
+        Pg[...] = raw.transpose(1, 2, 3, 0)
     with np.errstate(over="ignore", invalid="ignore"):
         Om, C = magnus_exponents_soa(scheme, Pg, h, split=True)
         if strict and scheme.order > 2:
@@ -1552,15 +1554,16 @@ def _overflowed(scheme: MagnusScheme, N: int, size: float) -> _Unresolved:
     )
 
 
-def _compiled_levels(Pg: np.ndarray, h: Any, Ns: list[int], strict: bool, optional_first: bool,
-                     scheme: MagnusScheme) -> Optional[list[_Solve]]:
+def _compiled_levels(P: np.ndarray, ratio: Optional[np.ndarray], h: Any, Ns: list[int], strict: bool,
+                     optional_first: bool, scheme: MagnusScheme) -> Optional[list[_Solve]]:
     """:func:`_magnus_solves_small`'s Magnus-6 batch by the compiled kernel
-    (:mod:`stability._compiled`), with the same checks; None where that kernel is not available."""
+    (:mod:`stability._compiled`; ``P`` ``(sum Ns, 3, n, n)`` unbalanced, ``ratio`` the balancing),
+    with the same checks; None where that kernel is not available."""
     from stability import _compiled
 
     if len(Ns) == 1:
         h = np.full(Ns[0], h)
-    done = _compiled.magnus6_levels(Pg, h, Ns)
+    done = _compiled.magnus6_levels(P, h, Ns, ratio)
     if done is None:
         return None
     phis, stats = done
@@ -1803,7 +1806,7 @@ def _commutator_size(scheme: MagnusScheme, Pg: np.ndarray, h: float) -> float:
     if scheme.order == 6 and Pg.shape[-1] <= SMALL_N:
         from stability import _compiled
 
-        done = _compiled.magnus6_levels(Pg.transpose(1, 2, 3, 0), np.full(Pg.shape[0], h), [Pg.shape[0]])
+        done = _compiled.magnus6_levels(Pg, np.full(Pg.shape[0], h), [Pg.shape[0]])
         if done is not None:
             return float(done[1][0, 1])
     with np.errstate(over="ignore", invalid="ignore"):

@@ -27,8 +27,7 @@ EPS = np.finfo(float).eps
 
 def _random_stack(n: int, Ns: list[int], seed: int, scale: float = 1.0):
     """A smooth 1-periodic ``P`` (random Fourier coefficients), at the Gauss nodes of ``Ns`` equal
-    sub-intervals of each level: ``(Pg (3, n, n, sum Ns) matrix-major, h (sum Ns,), per-level
-    (N, 3, n, n) stacks)``."""
+    sub-intervals of each level: ``(P (sum Ns, 3, n, n), h (sum Ns,), per-level (N, 3, n, n) stacks)``."""
     rng = np.random.default_rng(seed)
     C = scale * rng.standard_normal((3, n, n))
 
@@ -43,7 +42,7 @@ def _random_stack(n: int, Ns: list[int], seed: int, scale: float = 1.0):
         levels.append(P(times))  # (N, 3, n, n)
         hs.append(np.full(N, 1.0 / N))
     stacked = np.concatenate(levels)  # (sum Ns, 3, n, n)
-    return np.ascontiguousarray(stacked.transpose(1, 2, 3, 0)), np.concatenate(hs), levels
+    return stacked, np.concatenate(hs), levels
 
 
 def _reference_product(stack: np.ndarray, h: float) -> tuple[np.ndarray, float, float]:
@@ -90,11 +89,27 @@ def test_levels_with_different_scalings_equal_the_scipy_product():
         assert np.linalg.norm(phis[i] - ref, 1) <= tol
 
 
+def test_the_balancing_ratio_scales_every_entry():
+    """``ratio`` multiplies entry ``(i, j)`` of every ``P`` (the balancing ``D^-1 P D``): the kernel with
+    it equals the kernel on the scaled stack, to the bit (the same products), and a wrong entry order
+    (the transposed ratio) gives another monodromy matrix."""
+    Ns = [8, 16]
+    Pg, h, _ = _random_stack(3, Ns, seed=5)
+    d = np.array([1.0, 4.0, 0.25])
+    ratio = d[None, :] / d[:, None]
+    phis, stats = _compiled.magnus6_levels(Pg, h, Ns, ratio)
+    ref, ref_stats = _compiled.magnus6_levels(Pg * ratio, h, Ns)
+    np.testing.assert_array_equal(phis, ref)
+    np.testing.assert_array_equal(stats, ref_stats)
+    wrong, _ = _compiled.magnus6_levels(Pg * ratio.T, h, Ns)
+    assert np.abs(wrong - ref).max() > 1e-3 * np.abs(ref).max()
+
+
 def test_a_nan_in_the_first_sub_interval_is_not_lost():
     """The running maxima keep a NaN (the commutator check must see it, wherever it is)."""
     Ns = [8]
     Pg, h, _ = _random_stack(3, Ns, seed=2)
-    Pg[:, 0, 0, 0] = np.nan
+    Pg[0, :, 0, 0] = np.nan
     _, stats = _compiled.magnus6_levels(Pg, h, Ns)
     assert math.isnan(stats[0, 1]) and math.isnan(stats[0, 2])
 
@@ -182,7 +197,7 @@ def test_huge_scaling_keeps_the_exponential_finite():
     w = 5.0e9
     A = np.array([[0.0, w], [-w, 0.0]])
     exact = np.array([[math.cos(w), math.sin(w)], [-math.sin(w), math.cos(w)]])
-    Pg = np.repeat(A[None, :, :, None], 3, axis=0)
+    Pg = np.repeat(A[None, None], 3, axis=1)
     phis, stats = _compiled.magnus6_levels(Pg, np.ones(1), [1])
     assert np.all(np.isfinite(phis))
     assert np.abs(phis[0] - exact).max() <= 1e-5
