@@ -108,6 +108,42 @@ def _comm(A, B, out, work):  # pragma: no cover - compiled by numba
 
 
 @_jit
+def _chain4(X, k0, k1, out):  # pragma: no cover - compiled by numba
+    """``out = E_(k1-1) ... E_k0`` of the 4x4 stack ``X`` (matrix-major): the level product of
+    :func:`_levels` with the running product in scalars (registers), the same arithmetic in the
+    same order as its general loop (``sum_m X[i, m, k] phi[m, j]``, ``m`` ascending)."""
+    a00, a01, a02, a03 = 1.0, 0.0, 0.0, 0.0
+    a10, a11, a12, a13 = 0.0, 1.0, 0.0, 0.0
+    a20, a21, a22, a23 = 0.0, 0.0, 1.0, 0.0
+    a30, a31, a32, a33 = 0.0, 0.0, 0.0, 1.0
+    for k in range(k0, k1):
+        x00, x01, x02, x03 = X[0, 0, k], X[0, 1, k], X[0, 2, k], X[0, 3, k]
+        x10, x11, x12, x13 = X[1, 0, k], X[1, 1, k], X[1, 2, k], X[1, 3, k]
+        x20, x21, x22, x23 = X[2, 0, k], X[2, 1, k], X[2, 2, k], X[2, 3, k]
+        x30, x31, x32, x33 = X[3, 0, k], X[3, 1, k], X[3, 2, k], X[3, 3, k]
+        a00, a10, a20, a30 = (x00 * a00 + x01 * a10 + x02 * a20 + x03 * a30,
+                              x10 * a00 + x11 * a10 + x12 * a20 + x13 * a30,
+                              x20 * a00 + x21 * a10 + x22 * a20 + x23 * a30,
+                              x30 * a00 + x31 * a10 + x32 * a20 + x33 * a30)
+        a01, a11, a21, a31 = (x00 * a01 + x01 * a11 + x02 * a21 + x03 * a31,
+                              x10 * a01 + x11 * a11 + x12 * a21 + x13 * a31,
+                              x20 * a01 + x21 * a11 + x22 * a21 + x23 * a31,
+                              x30 * a01 + x31 * a11 + x32 * a21 + x33 * a31)
+        a02, a12, a22, a32 = (x00 * a02 + x01 * a12 + x02 * a22 + x03 * a32,
+                              x10 * a02 + x11 * a12 + x12 * a22 + x13 * a32,
+                              x20 * a02 + x21 * a12 + x22 * a22 + x23 * a32,
+                              x30 * a02 + x31 * a12 + x32 * a22 + x33 * a32)
+        a03, a13, a23, a33 = (x00 * a03 + x01 * a13 + x02 * a23 + x03 * a33,
+                              x10 * a03 + x11 * a13 + x12 * a23 + x13 * a33,
+                              x20 * a03 + x21 * a13 + x22 * a23 + x23 * a33,
+                              x30 * a03 + x31 * a13 + x32 * a23 + x33 * a33)
+    out[0, 0], out[0, 1], out[0, 2], out[0, 3] = a00, a01, a02, a03
+    out[1, 0], out[1, 1], out[1, 2], out[1, 3] = a10, a11, a12, a13
+    out[2, 0], out[2, 1], out[2, 2], out[2, 3] = a20, a21, a22, a23
+    out[3, 0], out[3, 1], out[3, 2], out[3, 3] = a30, a31, a32, a33
+
+
+@_jit
 def _levels(P, ratio, hs, bounds, phis, stats):  # pragma: no cover - compiled by numba
     """The kernel (see the module notes).
 
@@ -224,11 +260,12 @@ def _levels(P, ratio, hs, bounds, phis, stats):  # pragma: no cover - compiled b
         for d in range(17):
             cs[d] = _TAYLOR[d] * f**d
         # Paterson-Stockmeyer: X = c16 A4 + B3, then X = A4 X + B_j, j = 2, 1, 0
+        c12, c13, c14, c15, c16 = cs[12], cs[13], cs[14], cs[15], cs[16]
         for r in range(mn):
             x, o, y2, y3, y4 = Xf[r], omf[r], A2f[r], A3f[r], A4f[r]
-            diag = cs[12] if r % (n + 1) == 0 else 0.0
+            diag = c12 if r % (n + 1) == 0 else 0.0
             for k in range(k0, k1):
-                x[k] = cs[16] * y4[k] + cs[13] * o[k] + cs[14] * y2[k] + cs[15] * y3[k] + diag
+                x[k] = c16 * y4[k] + c13 * o[k] + c14 * y2[k] + c15 * y3[k] + diag
         for blk in range(2, -1, -1):
             _mm(A4, X, Y, k0, k1)
             e0, e1, e2, e3 = cs[4 * blk], cs[4 * blk + 1], cs[4 * blk + 2], cs[4 * blk + 3]
@@ -242,6 +279,9 @@ def _levels(P, ratio, hs, bounds, phis, stats):  # pragma: no cover - compiled b
             X, Y = Y, X  # the square is the new X (no copy)
             Xf, Yf = Yf, Xf
         phi = phis[lev]
+        if n == 4:
+            _chain4(X, k0, k1, phi)
+            continue
         phi[:, :] = 0.0
         for i in range(n):
             phi[i, i] = 1.0

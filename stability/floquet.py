@@ -1535,9 +1535,10 @@ def _first_resolved_level(scheme: MagnusScheme, level_corr: np.ndarray, Ns: Sequ
     ``||Omega_k - h Pbar_k||_1`` of level ``i``.  Returns 1 when the coarsest level does not resolve
     ``P`` and may be dropped (``optional_first``; the caller refines further), else 0; raises
     :class:`_Unresolved` when a kept level does not resolve it (a NaN does not)."""
-    first = int(optional_first and len(Ns) > 1 and not float(level_corr[0]) <= COMMUTATOR_LIMIT)
-    corr = float(np.max(level_corr[first:]))
-    if not corr <= COMMUTATOR_LIMIT:
+    corrs = level_corr.tolist()  # a handful of numbers
+    first = int(optional_first and len(Ns) > 1 and not corrs[0] <= COMMUTATOR_LIMIT)
+    if not all(c <= COMMUTATOR_LIMIT for c in corrs[first:]):  # (a NaN is not resolved)
+        corr = float(np.max(level_corr[first:]))
         raise _Unresolved(
             f"{scheme.name}: the commutator terms of the Magnus exponent reach {corr:.3g} "
             f"with {'/'.join(str(N) for N in Ns[first:])} sub-intervals (limit {COMMUTATOR_LIMIT:g}): "
@@ -1825,17 +1826,30 @@ def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
     Magnus-6 middle Gauss node is one of them).  Returns
     ``(probe (PROBE_INTERVALS, q, n, n) or None, samples (BALANCE_SAMPLES, n, n))``, unbalanced.
     """
-    h = period / INITIAL_STEPS
-    starts = np.arange(0, INITIAL_STEPS, INITIAL_STEPS // BALANCE_SAMPLES) * h
+    nodes = (0.0, 0.5) if scheme is None or scheme.order <= 2 else tuple(scheme.nodes)
+    times, picks, middle = _probe_grid(period, nodes)
+    P = wrapped.evaluate(times)
+    P = P.reshape(BALANCE_SAMPLES, -1, *P.shape[1:])
     if scheme is None or scheme.order <= 2:
         # the starts k T / 8 are evaluated too (and discarded) so that P's own input checks (a mass
         # matrix that vanishes at T/2, a NaN at t = 0) see the equispaced grid k T / 8 as well
-        both = wrapped.evaluate(np.concatenate([starts, starts + 0.5 * h]))
-        return None, both[len(starts):]
-    nodes = sorted(set(scheme.nodes) | {0.0, 0.5})
-    P = wrapped.evaluate((starts[:, None] + h * np.array(nodes)[None, :]).ravel())
-    P = P.reshape(len(starts), len(nodes), *P.shape[1:])
-    return P[:, [nodes.index(c) for c in scheme.nodes]], P[:, nodes.index(0.5)]
+        return None, P[:, middle]
+    return P[:, picks], P[:, middle]
+
+
+@functools.lru_cache(maxsize=64)
+def _probe_grid(period: float, nodes: tuple) -> tuple[np.ndarray, Any, int]:
+    """:func:`_probe_and_samples`' times (read-only; cached like :func:`_gauss_times`): the probe
+    sub-intervals' starts, ``nodes`` and midpoints in time order, interval by interval; with where
+    ``nodes`` (a slice when they are consecutive) and the midpoint are in each interval's row."""
+    h = period / INITIAL_STEPS
+    starts = np.arange(0, INITIAL_STEPS, INITIAL_STEPS // BALANCE_SAMPLES) * h
+    grid = sorted(set(nodes) | {0.0, 0.5})
+    times = (starts[:, None] + h * np.array(grid)[None, :]).ravel()
+    times.flags.writeable = False
+    index = [grid.index(c) for c in nodes]
+    picks = slice(index[0], index[-1] + 1) if index == list(range(index[0], index[-1] + 1)) else index
+    return times, picks, grid.index(0.5)
 
 
 def _adaptive(solve, solve_many, estimate, rtol: float, max_steps: int, scheme: MagnusScheme,
