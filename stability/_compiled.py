@@ -349,8 +349,14 @@ def magnus6_levels(P: np.ndarray, h: np.ndarray, Ns: list[int],
     phis = np.empty((len(Ns), n, n))
     stats = np.empty((len(Ns), 3))
     ratio = np.ones((n, n)) if ratio is None else ratio
-    # writable C arrays only (a read-only one, such as the cached step lengths, is another numba type:
-    # a second compilation)
-    kernel(np.require(P, np.float64, ["C", "W"]), np.require(ratio, np.float64, ["C", "W"]),
-           np.require(h, np.float64, ["C", "W"]), bounds, phis, stats)
+    kernel(_writable(P), _writable(ratio), _writable(h), bounds, phis, stats)
     return phis, stats
+
+
+def _writable(a: np.ndarray) -> np.ndarray:
+    """``a`` as a writable C-contiguous float64 array, the only kind the kernel is compiled for (a
+    read-only one, such as the cached step lengths, is another numba type: a second compilation);
+    ``a`` itself when it is one already (``np.require``'s checks cost more than these)."""
+    if a.dtype == np.float64 and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.require(a, np.float64, ["C", "W"])

@@ -1000,7 +1000,8 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
     if not all(finite(x) for x in lf + lm + lc):
         return None
     Na, Nb, Nc = (lv.n_steps for lv in levels[-3:])
-    noise = _rounding_levels(spec, _fro(fine.monodromy), Nc).tolist()
+    factor = 10.0 * math.sqrt(max(Nc, 1)) * _EPS * _fro(fine.monodromy)  # :func:`_rounding_levels`
+    noise = [v if finite(v) else math.inf for v in (factor * math.exp(-x) for x in lf)]
     change, m2, m1, floor = _matrix_changes(levels)
     both_phases = accuracy not in ("moduli", "dominant")
     rows = []  # per multiplier: signed changes (fine - mid, mid - coarse) of the modulus and the phase
@@ -1569,10 +1570,11 @@ def _compiled_levels(P: np.ndarray, ratio: Optional[np.ndarray], h: Any, Ns: lis
         return None
     phis, stats = done
     first = _first_resolved_level(scheme, stats[:, 1], Ns, optional_first) if strict else 0
+    finite = bool(np.isfinite(phis[first:]).all())
     out = []
     for i in range(first, len(Ns)):
         Phi = phis[i]
-        if not np.isfinite(Phi).all():
+        if not finite and not np.isfinite(Phi).all():
             raise _overflowed(scheme, Ns[i], float(stats[i, 2]))
         out.append(_Solve(Ns[i], Phi, _spectrum(Phi), float(stats[i, 0]), None))
     return out
@@ -1996,7 +1998,8 @@ def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
     if np.count_nonzero(A) == np.count_nonzero(np.diagonal(A)):
         return None  # diagonal (or zero): nothing to balance
     *_, scale, info = dgebal(A, scale=1, permute=0)
-    if info != 0 or not np.isfinite(scale).all() or np.all(scale == 1.0):
+    factors = scale.tolist()  # n numbers: plain Python is cheaper than two numpy reductions
+    if info != 0 or not all(map(math.isfinite, factors)) or all(f == 1.0 for f in factors):
         return None
     return np.asarray(scale, dtype=float)
 
@@ -2297,9 +2300,10 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
     the ``m``-th root one, and covered multipliers that miss ``rtol``.
     """
     n = spec.values.size
-    covered = spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)
+    covered = (spec.log_moduli >= spec.log_moduli[0] + math.log(ESTIMATE_FLOOR)).tolist()
+    phase_known = np.asarray(phase_known).tolist()  # (lists: the loops below index them per multiplier)
     reasons = [""] * n
-    certified = np.zeros(n, bool)
+    certified = [False] * n
     p = prop.scheme_order
     low = math.isfinite(p) and math.isfinite(prop.observed_order) and prop.observed_order < LOW_ORDER_FRACTION * p
     if low and adaptive:  # with a fixed n_steps the steps may simply be pre-asymptotic: reported, not warned
@@ -2321,10 +2325,11 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
                 f"defective or clustered (departure from normality {nu:.2g}): their error bound is the "
                 f"{'square' if len(idx) == 2 else f'{len(idx)}-th'}-root (Henrici) bound {rel:.1e} relative",
                 RuntimeWarning, stacklevel=4)
-    changes = prop.changes
-    mask = covered.copy()
+    changes = None if prop.changes is None else prop.changes.tolist()
+    noise_levels = None if prop.noise_levels is None else prop.noise_levels.tolist()
+    mask = covered
     if accuracy == "dominant" and changes is not None:
-        mask &= dominant_mask(spec.log_moduli, changes)
+        mask = [c and d for c, d in zip(covered, dominant_mask(spec.log_moduli, prop.changes).tolist())]
     for i in range(n):
         if not phase_known[i]:
             reasons[i] = _BELOW_FLOOR + ("" if covered[i] else "; " + _OUTSIDE)
@@ -2344,7 +2349,7 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
                            f"{', '.join(str(j + 1) for j in group_of[i][0] if j != i)}")
             if low:
                 why.append(f"observed order {prop.observed_order:.2g} (non-smooth P?)")
-            rounding = prop.noise_levels is not None and changes[i] <= ROUNDING_STOP * prop.noise_levels[i]
+            rounding = noise_levels is not None and changes[i] <= ROUNDING_STOP * noise_levels[i]
             if rounding:
                 why.append("the rounding level of the product of factors: more steps cannot lower it")
             elif prop.at_cap:
@@ -2358,8 +2363,8 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
               and not certified[i]]
     # a miss at the rounding level of a multiplier is logged, not warned about, while it is within the
     # accuracy the package promises for every covered multiplier (CONTRACT_RTOL)
-    quiet = [i for i in missed if prop.noise_levels is not None and changes[i] <= CONTRACT_RTOL
-             and changes[i] <= ROUNDING_STOP * prop.noise_levels[i]]
+    quiet = [i for i in missed if noise_levels is not None and changes[i] <= CONTRACT_RTOL
+             and changes[i] <= ROUNDING_STOP * noise_levels[i]]
     if quiet:
         logger.info("%s: multipliers %s at their rounding level (estimates %s) miss rtol %.1e", method,
                     ", ".join(str(i + 1) for i in quiet), ", ".join(f"{changes[i]:.1e}" for i in quiet), rtol)
@@ -2370,7 +2375,7 @@ def _certify(spec: _Spectrum, prop: _Propagation, rtol: float, accuracy: str, ph
             f"after {prop.n_steps} sub-intervals: multipliers {', '.join(str(i + 1) for i in missed)} are "
             f"not certified (FloquetResult.uncertified_reasons)",
             RuntimeWarning, stacklevel=4)
-    return certified, tuple(reasons)
+    return np.array(certified, dtype=bool), tuple(reasons)
 
 
 def recertify(result: FloquetResult, rtol: Optional[float] = None) -> FloquetResult:
@@ -2451,12 +2456,10 @@ def _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_s
     n = spec.values.size
     noise = float(n * _EPS * _norm2(prop.monodromy))
     moduli = np.exp(spec.log_moduli)
-    noise_digits = np.minimum(np.maximum(np.log10(moduli / noise), 0.0), 16.0)  # np.clip, cheaper
-    if prop.changes is not None:
-        refine_digits = np.minimum(np.maximum(-np.log10(np.maximum(prop.changes, 1e-16)), 0.0), 16.0)
-    else:
-        refine_digits = np.full(n, 16.0)
-    digits = np.minimum(noise_digits, refine_digits)
+    digits = np.log10(moduli / noise)  # the digits above the rounding floor ...
+    if prop.changes is not None:  # ... and those the refinement estimate leaves
+        digits = np.minimum(digits, -np.log10(np.maximum(prop.changes, 1e-16)))
+    digits = np.minimum(np.maximum(digits, 0.0), 16.0)  # np.clip, cheaper
     # the phase (for a real multiplier: the sign) of a multiplier below the rounding floor is noise,
     # whatever the QR sweeps make of its modulus
     phase_known = moduli > 100.0 * noise
