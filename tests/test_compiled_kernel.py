@@ -105,6 +105,25 @@ def test_the_balancing_ratio_scales_every_entry():
     assert np.abs(wrong - ref).max() > 1e-3 * np.abs(ref).max()
 
 
+def test_the_4x4_specialisation_equals_the_general_loops():
+    """The kernel's 4x4 paths (matrix products, the level product in registers) against its general
+    loops: a 4x4 system padded with a decoupled zero state (n = 5, the general loops) gives the same
+    4x4 block to the bit (the padding only adds exact zeros to every sum); a perturbed padding
+    (coupling the fifth state) does not."""
+    Ns = [16, 32]
+    P4, h, _ = _random_stack(4, Ns, seed=11, scale=2.0)
+    P5 = np.zeros(P4.shape[:2] + (5, 5))
+    P5[..., :4, :4] = P4
+    phi4, stats4 = _compiled.magnus6_levels(P4, h, Ns)
+    phi5, stats5 = _compiled.magnus6_levels(P5, h, Ns)
+    np.testing.assert_array_equal(phi5[:, :4, :4], phi4)
+    np.testing.assert_array_equal(stats5, stats4)
+    P5[..., 4, 0] = 1e-3
+    P5[..., 0, 4] = 1e-3
+    coupled, _ = _compiled.magnus6_levels(P5, h, Ns)
+    assert np.abs(coupled[:, :4, :4] - phi4).max() > 1e-9
+
+
 def test_a_nan_in_the_first_sub_interval_is_not_lost():
     """The running maxima keep a NaN (the commutator check must see it, wherever it is)."""
     Ns = [8]
