@@ -405,6 +405,8 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
     return _Spectrum(vals[order], logs[order])
 
 
+_LOG_EPS = math.log(_EPS)
+
 #: Largest system whose spectra are paired between refinement levels by an assignment
 #: (:func:`_match`, ``O(n^3)``); larger ones are paired by sort order.
 MATCH_MAX_N = 1500
@@ -412,8 +414,17 @@ MATCH_MAX_N = 1500
 
 def _sort_order_pairs(av: list, bv: list, la: list, lb: list) -> bool:
     """Whether ``bv[i]`` is the nearest of ``bv`` to ``av[i]`` for every ``i`` and the log moduli agree
-    to 0.5 (plain Python: a handful of numbers)."""
+    to 0.5 (plain Python: a handful of numbers), places where both multipliers are below
+    ``eps`` times their spectrum's largest left out.
+
+    Those are beneath the rounding floor of the formed product (``n eps ||Phi|| >= n eps rho``):
+    modulus and phase are rounding noise, their rounding level (:func:`_rounding_levels`, at least
+    ``10 sqrt(N)`` relative) caps their estimates at no digit, and their sort-order places pair
+    them as well as any assignment would."""
+    ta, tb = la[0] + _LOG_EPS, lb[0] + _LOG_EPS  # (NaN: nothing left out)
     for x, y, lx, ly in zip(av, bv, la, lb):
+        if lx < ta and ly < tb:
+            continue
         if not abs(lx - ly) < 0.5:
             return False
         d = abs(x - y)
@@ -431,7 +442,9 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
     the distance between two different multipliers.  The pairing here minimises the total
     distance in the complex logarithm, ``sum_i |log a_i - log b_(pi i)|`` (relative distance in
     modulus and phase, the phase difference wrapped to ``(-pi, pi]``), by the Hungarian algorithm
-    (:func:`stability.assignment.linear_assignment`).
+    (:func:`stability.assignment.linear_assignment`).  Sort order stands when it pairs every
+    multiplier with its nearest counterpart, leaving out places where both are below ``eps`` times
+    their spectrum's largest (rounding noise, see :func:`_sort_order_pairs`).
     """
     n = a.values.size
     if n < 2 or n != b.values.size or n > MATCH_MAX_N:
@@ -441,7 +454,9 @@ def _match(a: _Spectrum, b: _Spectrum) -> _Spectrum:
             return b
     else:
         near = np.abs(a.values[:, None] - b.values[None, :]).argmin(axis=1)
-        if np.array_equal(near, np.arange(n)) and np.all(np.abs(a.log_moduli - b.log_moduli) < 0.5):
+        # (as in :func:`_sort_order_pairs`: places where both are below eps of the largest left out)
+        noise = ((a.log_moduli < a.log_moduli[0] + _LOG_EPS) & (b.log_moduli < b.log_moduli[0] + _LOG_EPS))
+        if np.all((near == np.arange(n)) | noise) and np.all((np.abs(a.log_moduli - b.log_moduli) < 0.5) | noise):
             return b  # sort order pairs every multiplier with its nearest (and moduli agree to 50 %)
     if n <= SMALL_N:
         cost = _log_distances(a.values.tolist(), b.values.tolist(), a.log_moduli.tolist(), b.log_moduli.tolist())

@@ -252,6 +252,27 @@ def test_hamiltonian_phases_are_paired_by_matching_not_sort_order():
     assert by_sort > 1e3 * res.phase_error_estimate
 
 
+def test_rounding_noise_multipliers_keep_their_sort_order_places():
+    """Two refinements whose two smallest multipliers are ~1e-18, far below eps times the largest (0.3):
+    the beneath-the-floor pair keeps its sort-order places (rounding noise; their estimates are capped at
+    no digit by their rounding level whatever they are paired with).  The same spectra with the pair at
+    1e-10, above that level, are paired by the assignment: the nearer counterpart is swapped in."""
+    import importlib
+
+    F = importlib.import_module("stability.floquet")
+
+    def spectrum(values):
+        v = np.asarray(values, complex)
+        return F._Spectrum(v, np.log(np.abs(v)))
+
+    for scale, swapped in ((1e-18, False), (1e-10, True)):
+        a = spectrum([0.3, 0.01, 2.0 * scale, -1.0 * scale])
+        b = spectrum([0.3 + 1e-12, 0.01, -1.5 * scale, 1.4 * scale])  # 1.4 is the nearer to 2.0 in log distance
+        paired = F._match(a, b)
+        assert bool(paired.values[2] == 1.4 * scale) is swapped
+        assert paired.values[0] == b.values[0] and paired.values[1] == b.values[1]
+
+
 def test_recertify_marks_by_the_estimates():
     P, _ = _damped_mathieu_on_a1(q=0.5, c=0.5)
     res = floquet(P, period=math.pi, rtol=1e-6)
