@@ -108,35 +108,34 @@ def _comm(A, B, out, work):  # pragma: no cover - compiled by numba
 
 
 @_jit
+def _column4(r0, r1, r2, r3, c0, c1, c2, c3):  # pragma: no cover - compiled by numba
+    """The 4x4 matrix with rows ``r0 .. r3`` times the column ``(c0, c1, c2, c3)``, each entry summed
+    left to right (``sum_m X[i, m] c_m``, ``m`` ascending)."""
+    return (r0[0] * c0 + r0[1] * c1 + r0[2] * c2 + r0[3] * c3,
+            r1[0] * c0 + r1[1] * c1 + r1[2] * c2 + r1[3] * c3,
+            r2[0] * c0 + r2[1] * c1 + r2[2] * c2 + r2[3] * c3,
+            r3[0] * c0 + r3[1] * c1 + r3[2] * c2 + r3[3] * c3)
+
+
+@_jit
 def _chain4(X, k0, k1, out):  # pragma: no cover - compiled by numba
     """``out = E_(k1-1) ... E_k0`` of the 4x4 stack ``X`` (matrix-major): the level product of
     :func:`_levels` with the running product in scalars (registers), the same arithmetic in the
-    same order as its general loop (``sum_m X[i, m, k] phi[m, j]``, ``m`` ascending)."""
+    same order as its general loop (``sum_m X[i, m, k] phi[m, j]``, ``m`` ascending); each column
+    of the product depends on the same column only."""
     a00, a01, a02, a03 = 1.0, 0.0, 0.0, 0.0
     a10, a11, a12, a13 = 0.0, 1.0, 0.0, 0.0
     a20, a21, a22, a23 = 0.0, 0.0, 1.0, 0.0
     a30, a31, a32, a33 = 0.0, 0.0, 0.0, 1.0
     for k in range(k0, k1):
-        x00, x01, x02, x03 = X[0, 0, k], X[0, 1, k], X[0, 2, k], X[0, 3, k]
-        x10, x11, x12, x13 = X[1, 0, k], X[1, 1, k], X[1, 2, k], X[1, 3, k]
-        x20, x21, x22, x23 = X[2, 0, k], X[2, 1, k], X[2, 2, k], X[2, 3, k]
-        x30, x31, x32, x33 = X[3, 0, k], X[3, 1, k], X[3, 2, k], X[3, 3, k]
-        a00, a10, a20, a30 = (x00 * a00 + x01 * a10 + x02 * a20 + x03 * a30,
-                              x10 * a00 + x11 * a10 + x12 * a20 + x13 * a30,
-                              x20 * a00 + x21 * a10 + x22 * a20 + x23 * a30,
-                              x30 * a00 + x31 * a10 + x32 * a20 + x33 * a30)
-        a01, a11, a21, a31 = (x00 * a01 + x01 * a11 + x02 * a21 + x03 * a31,
-                              x10 * a01 + x11 * a11 + x12 * a21 + x13 * a31,
-                              x20 * a01 + x21 * a11 + x22 * a21 + x23 * a31,
-                              x30 * a01 + x31 * a11 + x32 * a21 + x33 * a31)
-        a02, a12, a22, a32 = (x00 * a02 + x01 * a12 + x02 * a22 + x03 * a32,
-                              x10 * a02 + x11 * a12 + x12 * a22 + x13 * a32,
-                              x20 * a02 + x21 * a12 + x22 * a22 + x23 * a32,
-                              x30 * a02 + x31 * a12 + x32 * a22 + x33 * a32)
-        a03, a13, a23, a33 = (x00 * a03 + x01 * a13 + x02 * a23 + x03 * a33,
-                              x10 * a03 + x11 * a13 + x12 * a23 + x13 * a33,
-                              x20 * a03 + x21 * a13 + x22 * a23 + x23 * a33,
-                              x30 * a03 + x31 * a13 + x32 * a23 + x33 * a33)
+        r0 = (X[0, 0, k], X[0, 1, k], X[0, 2, k], X[0, 3, k])
+        r1 = (X[1, 0, k], X[1, 1, k], X[1, 2, k], X[1, 3, k])
+        r2 = (X[2, 0, k], X[2, 1, k], X[2, 2, k], X[2, 3, k])
+        r3 = (X[3, 0, k], X[3, 1, k], X[3, 2, k], X[3, 3, k])
+        a00, a10, a20, a30 = _column4(r0, r1, r2, r3, a00, a10, a20, a30)
+        a01, a11, a21, a31 = _column4(r0, r1, r2, r3, a01, a11, a21, a31)
+        a02, a12, a22, a32 = _column4(r0, r1, r2, r3, a02, a12, a22, a32)
+        a03, a13, a23, a33 = _column4(r0, r1, r2, r3, a03, a13, a23, a33)
     out[0, 0], out[0, 1], out[0, 2], out[0, 3] = a00, a01, a02, a03
     out[1, 0], out[1, 1], out[1, 2], out[1, 3] = a10, a11, a12, a13
     out[2, 0], out[2, 1], out[2, 2], out[2, 3] = a20, a21, a22, a23
