@@ -595,8 +595,13 @@ def _rounding_levels(spec: _Spectrum, norm: float, steps: int) -> np.ndarray:
     """Relative rounding level of each multiplier of a product of ``steps`` factors:
     ``10 sqrt(steps) eps ||Phi|| / |rho_i|`` (random accumulation of one rounding per factor,
     relative to the multiplier; the absolute floor of a small multiplier is set by ``||Phi||``)."""
-    level = 10.0 * math.sqrt(max(steps, 1)) * _EPS * norm * np.exp(-spec.log_moduli)
+    level = _rounding_factor(norm, steps) * np.exp(-spec.log_moduli)
     return np.where(np.isfinite(level), level, np.inf)
+
+
+def _rounding_factor(norm: float, steps: int) -> float:
+    """``10 sqrt(steps) eps ||Phi||``: :func:`_rounding_levels` times a multiplier's modulus."""
+    return 10.0 * math.sqrt(max(steps, 1)) * _EPS * norm
 
 
 def _observed_order(Ns: Sequence[int], d1: np.ndarray, d2: np.ndarray, p: float) -> np.ndarray:
@@ -1015,7 +1020,7 @@ def _level_estimates_plain(levels: Sequence["_Solve"], p: float, accuracy: str) 
     if not all(finite(x) for x in lf + lm + lc):
         return None
     Na, Nb, Nc = (lv.n_steps for lv in levels[-3:])
-    factor = 10.0 * math.sqrt(max(Nc, 1)) * _EPS * _fro(fine.monodromy)  # :func:`_rounding_levels`
+    factor = _rounding_factor(_fro(fine.monodromy), Nc)  # :func:`_rounding_levels` on a list
     noise = [v if finite(v) else math.inf for v in (factor * math.exp(-x) for x in lf)]
     change, m2, m1, floor = _matrix_changes(levels)
     both_phases = accuracy not in ("moduli", "dominant")
