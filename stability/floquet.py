@@ -2024,14 +2024,18 @@ def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
     return np.asarray(scale, dtype=float)
 
 
-def _check_period_scale(samples: np.ndarray, period: float, scale: Optional[np.ndarray]) -> float:
+def _check_period_scale(samples: np.ndarray, period: float, scale: Optional[np.ndarray],
+                        ratio: Optional[np.ndarray] = None) -> float:
     """Reject periods too long for double precision (see :data:`PERIOD_SCALE_LIMIT`); return ``T max||P||``.
 
     ``||P||`` is the 1-norm of the balanced samples (``D^-1 P D``), within a small
-    factor of the spectral radius for the balanced matrices met here.
+    factor of the spectral radius for the balanced matrices met here.  ``ratio``: the balancing's
+    ``d_j / d_i`` when the caller has it.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        balanced = samples if scale is None else samples * (scale[None, :] / scale[:, None])
+        if scale is not None and ratio is None:
+            ratio = scale[None, :] / scale[:, None]
+        balanced = samples if scale is None else samples * ratio
         scale_ = period * float(np.abs(balanced).sum(axis=1).max())
     if not scale_ <= PERIOD_SCALE_LIMIT:
         raise ValueError(
@@ -2263,12 +2267,13 @@ def floquet(
     scheme = _SCHEMES.get(method) if n_steps is None else None
     probe, samples = _probe_and_samples(wrapped, T, scheme)
     scale = _balancing_scale(samples) if balance else None
-    time_scale = _check_period_scale(samples, T, scale)
     target = wrapped if scale is None else _Balanced(wrapped, scale)
+    ratio = None if scale is None else target.ratio
+    time_scale = _check_period_scale(samples, T, scale, ratio)
     if expm_blocks is not None:  # a diagonal scaling keeps the block structure
         target = _BlockExpmTarget(target, expm_blocks)
     if probe is not None and scale is not None:
-        probe = probe * (scale[None, :] / scale[:, None])
+        probe = probe * ratio
     # overflow, 0 * inf, log 0 and underflow are all detected and handled explicitly below
     with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
         return _floquet_body(P, method, n_steps, rtol, stability_tol, error_estimate, max_steps, reference,
