@@ -25,7 +25,9 @@ fastest one found; the timed runs use a plain right-hand side, the clock is read
 only in the search), one sample per side and round (the default's is the mean of a
 batch of calls), and each side's figure is the minimum of its samples (the usual
 estimator for deterministic CPU-bound code: noise only adds time), so a slow spell
-of the machine hits both sides alike and both have the same number of samples.  Accuracy is checked against a
+of the machine hits both sides alike and both have the same number of samples (at least
+7 rounds a case, more until they span 1.5 CPU seconds: a cheap case's rounds would
+otherwise fit inside one slow spell).  Accuracy is checked against a
 reference computed once per case, independent of the package's Floquet code: the
 lean ``P(t)`` integrated by DOP853 at rtol 1e-13, atol 1e-16 (default), or with
 ``--reference paper`` the paper's procedure at rtol 1e-11 (DOP853, or Radau where
@@ -92,8 +94,11 @@ FIRST_RUN_CAP = 300.0
 #: Accepted baselines within this factor of the fastest one found in the search are all re-timed
 #: in the interleaved rounds (a single search run can be slowed by the machine).
 FINALIST_FACTOR = 1.5
-#: Interleaved timing rounds (full run / --quick) and default calls per round.
+#: Interleaved timing rounds (full run / --quick) and default calls per round: at least this many,
+#: and in a full run more until the rounds of a case span MIN_SPAN CPU seconds (at most MAX_ROUNDS),
+#: so that a slow spell of a shared machine does not cover every round of a cheap case.
 ROUNDS, QUICK_ROUNDS = 7, 3
+MIN_SPAN, MAX_ROUNDS = 1.5, 200
 DEFAULT_BATCH = 15
 #: Both sides are timed in CPU seconds of this (single-threaded) process: on a
 #: shared machine wall time mostly measures the other tenants.
@@ -251,16 +256,19 @@ def _search_baseline(model, ref, methods, rtols, log):
     return [a for a in accepted if a[0] <= FINALIST_FACTOR * accepted[0][0]], tried
 
 
-def _interleaved(model, finalists, rounds: int, **options):
+def _interleaved(model, finalists, rounds: int, span: float = 0.0, **options):
     """CPU time of ``floquet(model, **options)`` and of each baseline finalist, timed in ``rounds``
     interleaved rounds: one sample per side and round (for the default the mean of a batch of
     :data:`DEFAULT_BATCH` calls, a run of its own length comparable to one baseline run), each side's
-    figure the minimum of its ``rounds`` samples.  Returns ``(default seconds, default calls, last
-    result, [finalist seconds])``."""
+    figure the minimum of its samples; ``rounds`` rounds at least, more (up to :data:`MAX_ROUNDS`)
+    until they span ``span`` CPU seconds.  Returns ``(default seconds, default calls, last result,
+    [finalist seconds])``."""
     res = floquet(model, **options)  # warm-up
     default, calls = math.inf, 0
     base = [math.inf] * len(finalists)
-    for _ in range(rounds):
+    start, done = CLOCK(), 0
+    while done < rounds or (CLOCK() - start < span and done < MAX_ROUNDS):
+        done += 1
         t0 = CLOCK()
         for _ in range(DEFAULT_BATCH):
             res = floquet(model, **options)
@@ -288,9 +296,10 @@ def run(quick: bool = False, out: Path = Path("results"), reference: Optional[st
         ref = _reference(model, reference)
         ref_s = CLOCK() - t0
         finalists, tried = _search_baseline(model, ref, IVP_METHODS, rtols, log)
-        d_s, d_rep, d_res, base = _interleaved(model, finalists, QUICK_ROUNDS if quick else ROUNDS)
+        d_s, d_rep, d_res, base = _interleaved(model, finalists, QUICK_ROUNDS if quick else ROUNDS,
+                                               0.0 if quick else MIN_SPAN)
         d_err = _max_rel_error(d_res.moduli, np.abs(ref))
-        m_s, _, m_res, _ = _interleaved(model, [], 1, accuracy="multipliers")
+        m_s, _, m_res, _ = _interleaved(model, [], 1, 0.0 if quick else MIN_SPAN, accuracy="multipliers")
         m_err = _max_rel_multiplier_error(m_res.multipliers, ref)
         log(f"  default magnus6: {d_s * 1e3:.3f} ms (N={d_res.n_steps}, moduli err={d_err:.1e}, "
             f"est={d_res.error_estimate:.1e}); accuracy='multipliers': {m_s * 1e3:.3f} ms "
