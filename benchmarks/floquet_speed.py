@@ -31,14 +31,14 @@ otherwise fit inside one slow spell).  Accuracy is checked against a
 reference computed once per case, independent of the package's Floquet code: the
 lean ``P(t)`` integrated by DOP853 at rtol 1e-13, atol 1e-16 (default), or with
 ``--reference paper`` the paper's procedure at rtol 1e-11 (DOP853, or Radau where
-P is stiff), whose own error (~1e-11 on the uncontrolled cases) is then larger
-than the default's, so that the error column shows the reference, not the method.  A baseline run already slower than
+P is stiff), whose own error (~1e-11 on the uncontrolled cases) exceeds the
+default's: the error column then shows the reference's error, not the method's.  A baseline run already slower than
 ``FINALIST_FACTOR`` times the best accepted one is abandoned (tighter tolerances
 are only slower), which keeps the search affordable without changing its outcome.
 
 Usage::
 
-    python benchmarks/floquet_speed.py            # full run (~5-10 min: references and baselines)
+    python benchmarks/floquet_speed.py            # full run (~1 min: references, baselines, timing rounds)
     python benchmarks/floquet_speed.py --quick    # 2 cases, 2 tolerances
     python benchmarks/floquet_speed.py --out results
     FLEXSTAB_NUMBA=0 python benchmarks/floquet_speed.py   # the numpy path of small systems

@@ -405,6 +405,7 @@ def _spectrum(Phi: np.ndarray) -> _Spectrum:
     return _Spectrum(vals[order], logs[order])
 
 
+#: ``ln eps``: multipliers below ``eps`` times the largest are rounding noise (:func:`_sort_order_pairs`).
 _LOG_EPS = math.log(_EPS)
 
 #: Largest system whose spectra are paired between refinement levels by an assignment
@@ -1848,11 +1849,11 @@ def _probe_and_samples(wrapped: PeriodicMatrixFunction, period: float,
     Magnus-6 middle Gauss node is one of them).  Returns
     ``(probe (PROBE_INTERVALS, q, n, n) or None, samples (BALANCE_SAMPLES, n, n))``, unbalanced.
     """
-    nodes = (0.0, 0.5) if scheme is None or scheme.order <= 2 else tuple(scheme.nodes)
-    times, picks, middle = _probe_grid(period, nodes)
+    probed = scheme is not None and scheme.order > 2  # (the start rule of lower orders needs no probe)
+    times, picks, middle = _probe_grid(period, tuple(scheme.nodes) if probed else (0.0, 0.5))
     P = wrapped.evaluate(times)
     P = P.reshape(BALANCE_SAMPLES, -1, *P.shape[1:])
-    if scheme is None or scheme.order <= 2:
+    if not probed:
         # the starts k T / 8 are evaluated too (and discarded) so that P's own input checks (a mass
         # matrix that vanishes at T/2, a NaN at t = 0) see the equispaced grid k T / 8 as well
         return None, P[:, middle]
@@ -2024,18 +2025,15 @@ def _balancing_scale(samples: np.ndarray) -> Optional[np.ndarray]:
     return np.asarray(scale, dtype=float)
 
 
-def _check_period_scale(samples: np.ndarray, period: float, scale: Optional[np.ndarray],
-                        ratio: Optional[np.ndarray] = None) -> float:
+def _check_period_scale(samples: np.ndarray, period: float, ratio: Optional[np.ndarray]) -> float:
     """Reject periods too long for double precision (see :data:`PERIOD_SCALE_LIMIT`); return ``T max||P||``.
 
-    ``||P||`` is the 1-norm of the balanced samples (``D^-1 P D``), within a small
-    factor of the spectral radius for the balanced matrices met here.  ``ratio``: the balancing's
-    ``d_j / d_i`` when the caller has it.
+    ``||P||`` is the 1-norm of the balanced samples (``D^-1 P D``, ``ratio`` the balancing's
+    ``d_j / d_i`` as :class:`_Balanced` holds it, None without balancing), within a small
+    factor of the spectral radius for the balanced matrices met here.
     """
     with np.errstate(over="ignore", invalid="ignore"):
-        if scale is not None and ratio is None:
-            ratio = scale[None, :] / scale[:, None]
-        balanced = samples if scale is None else samples * ratio
+        balanced = samples if ratio is None else samples * ratio
         scale_ = period * float(np.abs(balanced).sum(axis=1).max())
     if not scale_ <= PERIOD_SCALE_LIMIT:
         raise ValueError(
@@ -2269,7 +2267,7 @@ def floquet(
     scale = _balancing_scale(samples) if balance else None
     target = wrapped if scale is None else _Balanced(wrapped, scale)
     ratio = None if scale is None else target.ratio
-    time_scale = _check_period_scale(samples, T, scale, ratio)
+    time_scale = _check_period_scale(samples, T, ratio)
     if expm_blocks is not None:  # a diagonal scaling keeps the block structure
         target = _BlockExpmTarget(target, expm_blocks)
     if probe is not None and scale is not None:

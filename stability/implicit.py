@@ -271,8 +271,8 @@ def implicit_floquet(
         raise ValueError(f"k must be an integer in [1, n - 2] = [1, {n - 2}], got {k!r}")
     samples = _samples(wrapped, T)
     scale = _balancing_scale(samples) if balance else None
-    _check_period_scale(samples, T, scale)
     target = wrapped if scale is None else _Balanced(wrapped, scale)
+    _check_period_scale(samples, T, None if scale is None else target.ratio)
     scheme = _SCHEMES[method]
     counter = [0]
     E = propagators(target, T, int(n_steps), scheme)

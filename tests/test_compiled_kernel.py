@@ -63,8 +63,8 @@ def test_the_kernel_is_available():
 @pytest.mark.parametrize("n", [1, 2, 3, 4, 6, 8])
 def test_kernel_equals_an_independent_scipy_product(n):
     Ns = [16, 32, 64]
-    Pg, h, levels = _random_stack(n, Ns, seed=n, scale=2.0)
-    phis, stats = _compiled.magnus6_levels(Pg, h, Ns)
+    batch, h, levels = _random_stack(n, Ns, seed=n, scale=2.0)
+    phis, stats = _compiled.magnus6_levels(batch, h, Ns)
     for i, (N, stack) in enumerate(zip(Ns, levels)):
         ref, trace, corr = _reference_product(stack, 1.0 / N)
         # two products of the same N well-conditioned factors: their difference is rounding,
@@ -78,8 +78,8 @@ def test_levels_with_different_scalings_equal_the_scipy_product():
     """Each level squares as often as its own largest member needs (here 9, 5 and 3 times): every
     level equals the scipy product to the rounding of its squarings (~2^s N n eps)."""
     Ns = [4, 8, 16]
-    Pg, h, levels = _random_stack(4, Ns, seed=7, scale=20.0)
-    phis, _ = _compiled.magnus6_levels(Pg, h, Ns)
+    batch, h, levels = _random_stack(4, Ns, seed=7, scale=20.0)
+    phis, _ = _compiled.magnus6_levels(batch, h, Ns)
     for i, (N, stack) in enumerate(zip(Ns, levels)):
         ref, _, _ = _reference_product(stack, 1.0 / N)
         Om = magnus_exponents(MAGNUS6, stack, 1.0 / N)
@@ -94,14 +94,14 @@ def test_the_balancing_ratio_scales_every_entry():
     it equals the kernel on the scaled stack, to the bit (the same products), and a wrong entry order
     (the transposed ratio) gives another monodromy matrix."""
     Ns = [8, 16]
-    Pg, h, _ = _random_stack(3, Ns, seed=5)
+    batch, h, _ = _random_stack(3, Ns, seed=5)
     d = np.array([1.0, 4.0, 0.25])
     ratio = d[None, :] / d[:, None]
-    phis, stats = _compiled.magnus6_levels(Pg, h, Ns, ratio)
-    ref, ref_stats = _compiled.magnus6_levels(Pg * ratio, h, Ns)
+    phis, stats = _compiled.magnus6_levels(batch, h, Ns, ratio)
+    ref, ref_stats = _compiled.magnus6_levels(batch * ratio, h, Ns)
     np.testing.assert_array_equal(phis, ref)
     np.testing.assert_array_equal(stats, ref_stats)
-    wrong, _ = _compiled.magnus6_levels(Pg * ratio.T, h, Ns)
+    wrong, _ = _compiled.magnus6_levels(batch * ratio.T, h, Ns)
     assert np.abs(wrong - ref).max() > 1e-3 * np.abs(ref).max()
 
 
@@ -127,9 +127,9 @@ def test_the_4x4_specialisation_equals_the_general_loops():
 def test_a_nan_in_the_first_sub_interval_is_not_lost():
     """The running maxima keep a NaN (the commutator check must see it, wherever it is)."""
     Ns = [8]
-    Pg, h, _ = _random_stack(3, Ns, seed=2)
-    Pg[0, :, 0, 0] = np.nan
-    _, stats = _compiled.magnus6_levels(Pg, h, Ns)
+    batch, h, _ = _random_stack(3, Ns, seed=2)
+    batch[0, :, 0, 0] = np.nan
+    _, stats = _compiled.magnus6_levels(batch, h, Ns)
     assert math.isnan(stats[0, 1]) and math.isnan(stats[0, 2])
 
 
@@ -137,8 +137,8 @@ def test_the_comparison_rejects_a_wrong_exponent():
     """The check above can fail: the kernel's product is far from the scipy product of the
     second-order (midpoint) exponents, which differ from Magnus-6 by the commutator terms."""
     Ns = [32]
-    Pg, h, levels = _random_stack(4, Ns, seed=4, scale=2.0)
-    phis, _ = _compiled.magnus6_levels(Pg, h, Ns)
+    batch, h, levels = _random_stack(4, Ns, seed=4, scale=2.0)
+    phis, _ = _compiled.magnus6_levels(batch, h, Ns)
     wrong = np.eye(4)
     for k in range(Ns[0]):
         wrong = expm(levels[0][k, 1] / Ns[0]) @ wrong
@@ -216,8 +216,8 @@ def test_huge_scaling_keeps_the_exponential_finite():
     w = 5.0e9
     A = np.array([[0.0, w], [-w, 0.0]])
     exact = np.array([[math.cos(w), math.sin(w)], [-math.sin(w), math.cos(w)]])
-    Pg = np.repeat(A[None, None], 3, axis=1)
-    phis, stats = _compiled.magnus6_levels(Pg, np.ones(1), [1])
+    batch = np.repeat(A[None, None], 3, axis=1)
+    phis, stats = _compiled.magnus6_levels(batch, np.ones(1), [1])
     assert np.all(np.isfinite(phis))
     assert np.abs(phis[0] - exact).max() <= 1e-5
     assert np.abs(expm_soa(A[:, :, None])[:, :, 0] - exact).max() <= 1e-5
